@@ -1,0 +1,1 @@
+"""The ``rooftrace`` command line: thin typer commands over :mod:`rooftrace.pipeline`."""

@@ -1,0 +1,1 @@
+"""Image side of the method: camera models, edges, lines and their selection."""

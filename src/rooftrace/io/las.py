@@ -1,0 +1,187 @@
+"""LAS/LAZ reading and writing with laspy (lazrs backend).
+
+Reading is chunked so a file is never decoded twice into memory, keeps every
+dimension (standard and extra bytes), and takes the CRS from the WKT or
+GeoTIFF VLRs/EVLRs (laspy's ``parse_crs``).  Writing keeps the first input's
+point format, scales, offsets and extra dimensions, adds ``classification``
+values and an int32 extra dimension ``building_id``, and goes through
+:func:`rooftrace.io.atomic.atomic_path`.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import os
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from rooftrace.cloud import PointCloud
+from rooftrace.errors import InputError
+from rooftrace.io.atomic import atomic_path
+
+__all__ = ["read_las", "write_las", "las_crs", "LAS_SUFFIXES"]
+
+log = logging.getLogger(__name__)
+
+LAS_SUFFIXES = (".las", ".laz")
+_CHUNK = 2_000_000
+_COORDS = {"X", "Y", "Z", "x", "y", "z"}
+
+
+def _backend():
+    for b in (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs):
+        if b.is_available():
+            return b
+    return None
+
+
+def las_crs(header: laspy.LasHeader, path: str = "") -> "pyproj.CRS | None":
+    """CRS of a LAS header from its WKT or GeoTIFF (E)VLRs, or ``None``."""
+    try:
+        return header.parse_crs()
+    except Exception as exc:  # malformed VLRs are the file's fault, not ours
+        log.warning("%s: cannot parse the CRS VLR (%s); treating the file as having no CRS", path, exc)
+        return None
+
+
+def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
+    """Read a LAS or LAZ file (1.0-1.4, any point format) into a :class:`PointCloud`.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    chunk_size : int, default 2 000 000
+        Points decoded at once.
+
+    Returns
+    -------
+    PointCloud
+        Coordinates scaled to float64; every other dimension in ``fields``;
+        ``crs`` from the file or ``None``.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, truncated or non-LAS files, and non-finite
+        coordinates.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        with laspy.open(path, laz_backend=_backend()) as reader:
+            header = reader.header
+            n = int(header.point_count)
+            names = [d for d in header.point_format.dimension_names if d not in _COORDS]
+            xyz = np.empty((n, 3), np.float64)
+            fields: dict[str, np.ndarray] = {}
+            start = 0
+            for chunk in reader.chunk_iterator(chunk_size):
+                m = len(chunk)
+                if start + m > n:
+                    raise InputError(f"{path}: holds more points than its header says ({n}); the header is wrong")
+                xyz[start:start + m, 0] = chunk.x
+                xyz[start:start + m, 1] = chunk.y
+                xyz[start:start + m, 2] = chunk.z
+                for name in names:
+                    values = np.asarray(chunk[name])
+                    if name not in fields:
+                        fields[name] = np.empty(n, values.dtype)
+                    fields[name][start:start + m] = values
+                start += m
+    except InputError:
+        raise
+    except laspy.errors.LaspyException as exc:
+        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+        raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc})") from None
+    if start < n:
+        raise InputError(
+            f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
+        )
+    if not np.isfinite(xyz).all():
+        bad = int((~np.isfinite(xyz).all(axis=1)).sum())
+        raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them (e.g. with a filter) and retry")
+    tmpl = copy.deepcopy(header)
+    return PointCloud(xyz, fields, crs=las_crs(header, str(path)), template=tmpl, sources=[str(path)])
+
+
+def _new_header(cloud: PointCloud) -> laspy.LasHeader:
+    if cloud.template is not None:
+        t = cloud.template
+        header = laspy.LasHeader(version=t.version, point_format=copy.deepcopy(t.point_format))
+        header.scales = np.array(t.scales)
+        header.offsets = np.array(t.offsets)
+        for vlr in t.vlrs:
+            if type(vlr).__name__ not in ("WktCoordinateSystemVlr", "GeoKeyDirectoryVlr", "GeoAsciiParamsVlr",
+                                          "GeoDoubleParamsVlr", "ExtraBytesVlr", "LasZipVlr"):
+                header.vlrs.append(vlr)
+    else:
+        header = laspy.LasHeader(version="1.4", point_format=6)
+        header.scales = np.array([0.001, 0.001, 0.001])
+        lo = cloud.xyz.min(axis=0) if len(cloud) else np.zeros(3)
+        header.offsets = np.floor(lo)
+    return header
+
+
+def write_las(
+    path: str | os.PathLike,
+    cloud: PointCloud,
+    *,
+    classification: np.ndarray | None = None,
+    building_id: np.ndarray | None = None,
+    extra: dict[str, np.ndarray] | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write a cloud as LAS or LAZ (by the suffix), keeping every input dimension.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.las`` or ``.laz`` output.
+    cloud : PointCloud
+        Points; ``cloud.template`` gives the point format, scales and offsets.
+    classification : ndarray of shape (N,), optional
+        ASPRS classes replacing the input classification.
+    building_id : ndarray of shape (N,), optional
+        Written as the int32 extra dimension ``building_id`` (0 = none).
+    extra : dict of str to ndarray, optional
+        Further extra dimensions (float64 or int32 ...) to add.
+    overwrite : bool, default False
+        Replace an existing file.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in LAS_SUFFIXES:
+        raise InputError(f"{path}: output must end in .las or .laz")
+    header = _new_header(cloud)
+    dims = set(header.point_format.dimension_names)
+    added = dict(extra or {})
+    if building_id is not None:
+        added["building_id"] = np.asarray(building_id, np.int32)
+    for name, values in added.items():
+        if name not in dims:
+            header.add_extra_dims([laspy.ExtraBytesParams(name=name, type=np.asarray(values).dtype)])
+    if cloud.crs is not None:
+        header.add_crs(cloud.crs)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = cloud.x, cloud.y, cloud.z
+    dims = set(header.point_format.dimension_names)
+    for name, values in cloud.fields.items():
+        if name in dims and name not in added and name != "classification":
+            las[name] = values
+    if classification is not None:
+        cls = np.asarray(classification)
+        if header.point_format.id < 6 and cls.max(initial=0) > 31:
+            raise InputError(f"{path}: class values above 31 need point format 6 or higher")
+        las.classification = cls.astype(np.uint8)
+    elif "classification" in cloud.fields:
+        las.classification = cloud.fields["classification"]
+    for name, values in added.items():
+        las[name] = values
+    with atomic_path(path, overwrite) as tmp:
+        las.write(tmp, laz_backend=_backend() if path.suffix.lower() == ".laz" else None)
+    return path

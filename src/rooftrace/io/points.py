@@ -1,0 +1,162 @@
+"""Read any supported point cloud: LAS/LAZ, PLY, or plain text ``x y z``.
+
+:func:`read_points` dispatches on the suffix, applies ``--crs`` (assign or
+override) and joins several files into one cloud, refusing CRS mismatches.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+import pyproj
+
+from rooftrace.cloud import PointCloud
+from rooftrace.errors import InputError
+from rooftrace.io.las import LAS_SUFFIXES, read_las
+
+__all__ = ["read_points", "read_ply", "read_text", "parse_crs", "POINT_SUFFIXES"]
+
+log = logging.getLogger(__name__)
+
+TEXT_SUFFIXES = (".txt", ".xyz", ".csv", ".pts")
+POINT_SUFFIXES = LAS_SUFFIXES + (".ply",) + TEXT_SUFFIXES
+
+
+def parse_crs(text: str | None) -> pyproj.CRS | None:
+    """Parse a user CRS (``EPSG:28992``, WKT, PROJ string); ``None`` passes through."""
+    if text is None or text == "":
+        return None
+    try:
+        return pyproj.CRS.from_user_input(text)
+    except pyproj.exceptions.CRSError:
+        raise InputError(f"--crs {text!r} is not a CRS pyproj understands; use e.g. EPSG:28992") from None
+
+
+def read_ply(path: str | os.PathLike) -> PointCloud:
+    """Read the ``vertex`` element of an ASCII or binary PLY file (plyfile)."""
+    import plyfile
+
+    path = Path(path)
+    try:
+        ply = plyfile.PlyData.read(str(path))
+        vertex = ply["vertex"].data
+    except KeyError:
+        raise InputError(f"{path}: PLY file has no 'vertex' element") from None
+    except Exception as exc:
+        raise InputError(f"{path}: not a readable PLY file ({exc})") from None
+    names = vertex.dtype.names or ()
+    if not {"x", "y", "z"} <= set(names):
+        raise InputError(f"{path}: PLY vertices lack x, y, z properties (found {', '.join(names)})")
+    xyz = np.column_stack([vertex["x"], vertex["y"], vertex["z"]]).astype(np.float64)
+    fields = {n: np.asarray(vertex[n]) for n in names if n not in ("x", "y", "z")}
+    return PointCloud(xyz, fields, sources=[str(path)])
+
+
+def read_text(path: str | os.PathLike) -> PointCloud:
+    """Read whitespace- or comma-separated ``x y z [...]`` text; header lines are skipped."""
+    path = Path(path)
+    rows: list[str] = []
+    try:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror})") from None
+    for line in text.splitlines():
+        line = line.strip().replace(",", " ").replace(";", " ")
+        if not line or line[0] in "#/":
+            continue
+        rows.append(line)
+    try:
+        # a header line is any leading row whose first token is not a number
+        while rows and not _is_number(rows[0].split()[0]):
+            rows.pop(0)
+        data = np.loadtxt(rows, ndmin=2) if rows else np.empty((0, 3))
+    except ValueError as exc:
+        raise InputError(f"{path}: not a text point cloud of numeric 'x y z' columns ({exc})") from None
+    if data.shape[1] < 3:
+        raise InputError(f"{path}: needs at least 3 numeric columns (x y z), found {data.shape[1]}")
+    return PointCloud(data[:, :3], sources=[str(path)])
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_one(path: Path) -> PointCloud:
+    if not path.exists():
+        raise InputError(f"{path}: no such file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a point cloud file")
+    suffix = path.suffix.lower()
+    if suffix in LAS_SUFFIXES:
+        return read_las(path)
+    if suffix == ".ply":
+        return read_ply(path)
+    if suffix in TEXT_SUFFIXES:
+        return read_text(path)
+    raise InputError(f"{path}: unknown point cloud format {suffix!r}; use .las, .laz, .ply or text (.txt, .xyz, .csv)")
+
+
+def read_points(
+    paths: str | os.PathLike | Iterable[str | os.PathLike],
+    crs: str | pyproj.CRS | None = None,
+    *,
+    require_points: bool = True,
+) -> PointCloud:
+    """Read and join point cloud files.
+
+    Parameters
+    ----------
+    paths : path-like or iterable of path-like
+        LAS/LAZ, PLY or text files.
+    crs : str or pyproj.CRS, optional
+        Assigned to files without a CRS and overriding the others (``--crs``).
+    require_points : bool, default True
+        Raise :class:`InputError` for an empty result.
+
+    Returns
+    -------
+    PointCloud
+        All points, with a ``source_index`` field telling which file each
+        point came from.
+    """
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no input files given")
+    user_crs = parse_crs(crs) if isinstance(crs, str) else crs
+    clouds = []
+    for i, p in enumerate(paths):
+        c = _read_one(p)
+        if user_crs is not None:
+            if c.crs is not None and not c.crs.equals(user_crs, ignore_axis_order=True):
+                log.warning("%s: file CRS %s overridden by --crs %s", p, c.crs.name, user_crs.name)
+            c.crs = user_crs
+        c.fields["source_index"] = np.full(len(c), i, np.uint16)
+        clouds.append(c)
+    first = clouds[0]
+    for p, c in zip(paths[1:], clouds[1:]):
+        if (first.crs is None) != (c.crs is None) or (
+            first.crs is not None and not first.crs.equals(c.crs, ignore_axis_order=True)
+        ):
+            raise InputError(
+                f"{p}: CRS ({_crs_name(c.crs)}) differs from {paths[0]} ({_crs_name(first.crs)}); "
+                "reproject one of them or assign one with --crs"
+            )
+    cloud = PointCloud.concatenate(clouds)
+    if require_points and len(cloud) == 0:
+        raise InputError(f"{', '.join(map(str, paths))}: the point cloud is empty")
+    return cloud
+
+
+def _crs_name(crs) -> str:
+    return "none" if crs is None else crs.name
