@@ -11,8 +11,12 @@ import os
 import sys
 import traceback
 
-import click
 import typer
+
+try:  # typer >= 0.20 vendors click; older releases use the click package
+    from typer._click import exceptions as click_exc
+except ImportError:  # pragma: no cover
+    from click import exceptions as click_exc
 
 from rooftrace.cli.app import STATE, app
 from rooftrace.errors import InputError
@@ -23,18 +27,22 @@ from rooftrace.cli import cmd_info  # noqa: F401,E402
 __all__ = ["main"]
 
 
-@app.callback()
-def _global(
-    verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logs, and tracebacks of internal errors."),
-    version: bool = typer.Option(False, "--version", help="Print the version and exit."),
-) -> None:
-    """3D building roof outlines and ridges from airborne LiDAR (and an aerial image)."""
-    STATE["verbose"] = verbose
-    if version:
+def _print_version(value: bool) -> None:
+    if value:
         from rooftrace import __version__
 
         typer.echo(__version__)
         raise typer.Exit(0)
+
+
+@app.callback()
+def _global(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logs, and tracebacks of internal errors."),
+    version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True,
+                                 help="Print the version and exit."),
+) -> None:
+    """3D building roof outlines and ridges from airborne LiDAR (and an aerial image)."""
+    STATE["verbose"] = verbose
 
 
 def _error(message: str) -> None:
@@ -48,16 +56,19 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
         code = rv if isinstance(rv, int) else 0
-    except click.exceptions.Exit as exc:
+    except typer.Exit as exc:
         code = exc.exit_code
-    except click.exceptions.Abort:
+    except typer.Abort:
         _error("aborted")
         code = 130
-    except click.exceptions.UsageError as exc:
+    except click_exc.UsageError as exc:
+        if type(exc).__name__ == "NoArgsIsHelpError" and exc.ctx is not None:
+            typer.echo(exc.ctx.get_help())
+            return _exit(2, argv)
         hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
         _error(exc.format_message() + hint)
         code = 2
-    except click.exceptions.ClickException as exc:
+    except click_exc.ClickException as exc:
         _error(exc.format_message())
         code = 2
     except InputError as exc:
@@ -74,7 +85,11 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         _error(f"internal failure ({type(exc).__name__}: {exc}); rerun with -v for the traceback and report it")
         code = 1
-    if __name__ == "__main__" or argv is None:
+    return _exit(code, argv)
+
+
+def _exit(code: int, argv: list[str] | None) -> int:
+    if argv is None:  # console script
         sys.exit(code)
     return code
 
