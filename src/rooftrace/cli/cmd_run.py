@@ -1,0 +1,103 @@
+"""``rooftrace run``: the whole method, from LAS/LAZ (and an image) to a GeoPackage."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from rooftrace.cli import options as opt
+from rooftrace.cli.app import app, emit_json, reporter_for, setup_logging
+
+log = logging.getLogger("rooftrace.cli")
+
+
+@app.command("run")
+def run(
+    inputs: opt.Inputs,
+    output: opt.Output,
+    image: Annotated[Optional[Path], typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
+    camera: Annotated[Optional[Path], typer.Option("--camera", help="camera.json of the image.")] = None,
+    alpha: Annotated[Optional[str], typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
+    no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
+    classified: Annotated[Optional[Path], typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    crs: opt.Crs = None,
+    config: opt.Config = None,
+    seed: opt.Seed = 0,
+    workers: opt.Workers = 1,
+    scheduler: opt.Scheduler = None,
+    tile_size: opt.TileSize = None,
+    buffer: opt.Buffer = None,
+    resume: opt.Resume = False,
+    json_: opt.Json = False,
+    overwrite: opt.Overwrite = False,
+    quiet: opt.Quiet = False,
+) -> None:
+    """Detect buildings, trace and regularise roof outlines, find roof planes and ridges;
+    refine them with the image when --image and --camera are given."""
+    from rooftrace.config import load_config
+    from rooftrace.errors import InputError
+    from rooftrace.io.atomic import check_output
+    from rooftrace.io.checks import check_image_covers, check_same_crs, require_metric_crs
+    from rooftrace.io.points import read_points
+    from rooftrace.io.vector import write_layers
+    from rooftrace.pipeline import run_pipeline
+
+    setup_logging(quiet)
+    if alpha is not None and alpha not in ("global", "building", "point"):
+        raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
+    if (image is None) != (camera is None):
+        raise InputError("--image and --camera go together")
+    if output.suffix.lower() != ".gpkg":
+        raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
+    check_output(output, overwrite)
+    if classified is not None:
+        check_output(classified, overwrite)
+    cfg = load_config(config)
+
+    if tile_size is not None or workers > 1 or scheduler is not None or resume:
+        from rooftrace.tiling import TileOptions, run_tiled
+
+        summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
+                                                        scheduler=scheduler, resume=resume),
+                            crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
+                            seed=seed, overwrite=overwrite, quiet=quiet)
+        if json_:
+            emit_json(summary)
+        return
+
+    cloud = read_points(inputs, crs)
+    require_metric_crs(cloud.crs, str(inputs[0]))
+    grey = cam = None
+    if image is not None:
+        from rooftrace.io.camera import read_camera
+        from rooftrace.io.raster import read_image
+
+        cam = read_camera(camera, image)
+        check_same_crs(cloud.crs, cam.crs, "the point cloud", str(camera))
+        check_image_covers(cam, cloud.xyz, str(image))
+        grey = read_image(image)
+        if grey.shape[::-1] != tuple(cam.image_size):
+            raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
+                             f"{cam.image_size[0]} x {cam.image_size[1]}")
+
+    reporter = reporter_for(quiet)
+    try:
+        result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
+                              seed=seed, reporter=reporter)
+    finally:
+        reporter.close()
+    write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+    if classified is not None:
+        from rooftrace.io.las import write_las
+
+        write_las(classified, cloud, classification=result.detection.classification,
+                  building_id=result.detection.building_id, overwrite=overwrite)
+    summary = {"output": str(output), **result.summary()}
+    if json_:
+        emit_json(summary)
+    else:
+        log.info("%d buildings, %d ridges, %d roof faces -> %s", summary["buildings"], summary["ridges"],
+                 summary["roof_faces"], output)

@@ -1,0 +1,199 @@
+"""The method as a flowchart: detect → outline → roof planes and ridges → (image refinement).
+
+Each step is one call into a stage package; this module only wires them,
+groups points per building and turns the results into the output layers of
+DESIGN.md (``roof_outlines``, ``ridges``, ``roof_faces``).  It does no I/O:
+the CLI reads the inputs and writes what :func:`run_pipeline` returns.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rooftrace.cloud import PointCloud
+from rooftrace.errors import GeometryError
+from rooftrace.io.vector import Layer
+from rooftrace.progress import Reporter
+
+__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced.
+
+    Attributes
+    ----------
+    detection : rooftrace.lidar.detect.Detection
+        Per-point classes, building ids, height above ground.
+    outlines : list of RoofOutline
+        One per building, sorted by building id.
+    structures : list of RoofStructure
+        Roof planes, faces and ridges per building (empty when disabled).
+    refined : RefineResult or None
+        Image refinement, when an image and a camera were given.
+    layers : dict of str to Layer
+        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write.
+    timings : dict of str to float
+        Seconds per step.
+    """
+
+    detection: Any
+    outlines: list
+    structures: list
+    refined: Any
+    layers: dict[str, Layer]
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-serialisable summary for ``--json``."""
+        det = self.detection
+        classes, counts = np.unique(det.classification, return_counts=True)
+        statuses: dict[str, int] = {}
+        for o in self.outlines:
+            statuses[o.status] = statuses.get(o.status, 0) + 1
+        return {
+            "points": int(len(det.classification)),
+            "classes": {int(c): int(n) for c, n in zip(classes, counts)},
+            "buildings": len(self.outlines),
+            "outline_status": statuses,
+            "ridges": len(self.layers["ridges"]),
+            "roof_faces": len(self.layers["roof_faces"]),
+            "refined": self.refined is not None,
+            "mean_spacing": float(det.mean_spacing),
+            "density": float(det.density),
+            "sigma_h": float(det.sigma_h),
+            "parameters": det.params,
+            "timings": {k: round(v, 3) for k, v in {**det.timings, **self.timings}.items()},
+        }
+
+
+def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
+    """Indices of the points of each building (ids > 0), without a Python loop over points."""
+    building_id = np.asarray(building_id)
+    idx = np.flatnonzero(building_id > 0)
+    order = idx[np.argsort(building_id[idx], kind="stable")]
+    ids, starts = np.unique(building_id[order], return_index=True)
+    return {int(i): part for i, part in zip(ids, np.split(order, starts[1:]))}
+
+
+def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, config: dict | None,
+                     mean_spacing: float, reporter: Reporter) -> list:
+    from rooftrace.config import make_options
+    from rooftrace.roof import RoofOptions, roof_structure
+
+    options = make_options(RoofOptions, config)
+    structures = []
+    with reporter.stage("roof planes", total=len(outlines)):
+        for outline in outlines:
+            idx = members.get(outline.building_id)
+            reporter.advance()
+            if idx is None or outline.polygon is None or outline.polygon.is_empty:
+                continue
+            try:
+                structures.append(roof_structure(cloud.xyz[idx], outline.polygon, options,
+                                                 mean_spacing=mean_spacing, building_id=outline.building_id))
+            except GeometryError as exc:
+                log.debug("building %d: no roof planes (%s)", outline.building_id, exc)
+    return structures
+
+
+def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
+    """The three output layers of DESIGN.md from the stage results."""
+    from rooftrace.contour.outline import outlines_layer
+    from rooftrace.roof import faces_layer, ridges_layer
+
+    roof_outlines = outlines_layer(outlines)
+    ridges = ridges_layer(structures)
+    if refined is not None:
+        roof_outlines = Layer(list(refined.outlines), {**roof_outlines.attributes, **refined.attributes}, "PolygonZ")
+        ridges = Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")
+    return {"roof_outlines": roof_outlines, "ridges": ridges, "roof_faces": faces_layer(structures)}
+
+
+def run_pipeline(
+    cloud: PointCloud,
+    *,
+    config: dict | None = None,
+    alpha: str | None = None,
+    planes: bool = True,
+    image: np.ndarray | None = None,
+    camera: Any = None,
+    seed: int = 0,
+    reporter: Reporter | None = None,
+) -> RunResult:
+    """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Raw points in a projected CRS (metres); the input classification is ignored.
+    config : dict, optional
+        Parsed TOML config, one table per stage.
+    alpha : {'global', 'building', 'point'}, optional
+        Alpha-shape strategy (thesis S1, S2, S3); default from the config.
+    planes : bool, default True
+        Segment roof planes and derive ridges and faces.
+    image : ndarray of shape (H, W), optional
+        Grey image in [0, 1] for the refinement.
+    camera : FrameCamera or OrthoCamera, optional
+        Orientation of ``image``.
+    seed : int, default 0
+        Seed of the genetic algorithm.
+    reporter : Reporter, optional
+        Progress callbacks.
+
+    Returns
+    -------
+    RunResult
+    """
+    from rooftrace.contour.outline import OutlineOptions, outline_buildings
+    from rooftrace.lidar.detect import detect_buildings
+
+    reporter = reporter or Reporter()
+    timings: dict[str, float] = {}
+
+    detection = detect_buildings(cloud, config=config, reporter=reporter)
+    members = points_by_building(detection.building_id)
+
+    t0 = time.perf_counter()
+    outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
+    outlines = outline_buildings(cloud.xyz, detection.building_id, outline_options,
+                                 mean_spacing=detection.mean_spacing, reporter=reporter)
+    timings["outline"] = time.perf_counter() - t0
+
+    structures: list = []
+    if planes and outlines:
+        t0 = time.perf_counter()
+        structures = _roof_structures(cloud, members, outlines, config, detection.mean_spacing, reporter)
+        timings["roof_planes"] = time.perf_counter() - t0
+
+    refined = None
+    if image is not None and camera is not None and outlines:
+        from rooftrace.config import make_options
+        from rooftrace.refine import RefineOptions, refine_buildings
+
+        t0 = time.perf_counter()
+        with reporter.stage("image refinement", total=None):
+            plane_by_id = {s.building_id: s.planes for s in structures}
+            ridge_geoms = [r for s in structures for r in s.ridges]
+            ridge_ids = [s.building_id for s in structures for _ in s.ridges]
+            refined = refine_buildings(
+                [o.polygon for o in outlines], ridge_geoms, image, camera,
+                points_xyz=cloud.xyz,
+                planes=[plane_by_id.get(o.building_id) for o in outlines],
+                building_ids=[o.building_id for o in outlines],
+                ridge_building_ids=ridge_ids,
+                options=make_options(RefineOptions, config), seed=seed,
+            )
+        timings["refine"] = time.perf_counter() - t0
+
+    layers = building_layers(outlines, structures, refined)
+    return RunResult(detection, outlines, structures, refined, layers, timings)
