@@ -159,10 +159,12 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions) -
     return index
 
 
-def process_tile(run_dir: str, key: str, origin: Sequence[float], tile_size: float, crs_wkt: str | None,
+def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | None,
                  config: dict | None, alpha: str | None, planes: bool, seed: int) -> str:
     """Run the pipeline on one buffered tile and keep the buildings whose centroid is in its core.
 
+    ``core`` is (xmin, xmax, ymin, ymax), half-open; edge tiles reach to
+    infinity so that a building beyond the header bounds still has an owner.
     Runs in a worker process; reads and writes only inside ``run_dir``.
     """
     import pyproj
@@ -184,9 +186,8 @@ def process_tile(run_dir: str, key: str, origin: Sequence[float], tile_size: flo
         outlines = result.layers["roof_outlines"]
         ids = np.asarray(outlines.attributes.get("building_id", []), dtype=np.int64)
         cent = shapely.get_coordinates(shapely.centroid(np.asarray(outlines.geometries, dtype=object))) if len(ids) else np.empty((0, 2))
-        x0, y0 = origin
-        keep_ids = set(ids[(cent[:, 0] >= x0) & (cent[:, 0] < x0 + tile_size)
-                           & (cent[:, 1] >= y0) & (cent[:, 1] < y0 + tile_size)].tolist()) if len(ids) else set()
+        x0, x1, y0, y1 = core
+        keep_ids = set(ids[(cent[:, 0] >= x0) & (cent[:, 0] < x1) & (cent[:, 1] >= y0) & (cent[:, 1] < y1)].tolist())
         for name, layer in result.layers.items():
             bid = np.asarray(layer.attributes.get("building_id", []), dtype=np.int64)
             keep = np.array([b in keep_ids for b in bid], bool) if len(bid) else np.zeros(0, bool)
@@ -200,6 +201,15 @@ def process_tile(run_dir: str, key: str, origin: Sequence[float], tile_size: flo
     tmp.write_bytes(pickle.dumps(layers))
     os.replace(tmp, out)
     return str(out)
+
+
+def _core(index: dict, key: str) -> tuple[float, float, float, float]:
+    size = index["tile_size"]
+    xs, ys = tile_grid(index["bounds"], size)
+    i, j = (int(v) for v in key.split("_"))
+    x0, y0 = xs[i], ys[j]
+    return (-np.inf if i == 0 else x0, np.inf if i == len(xs) - 1 else x0 + size,
+            -np.inf if j == 0 else y0, np.inf if j == len(ys) - 1 else y0 + size)
 
 
 def merge_tiles(result_paths: Sequence[Path]) -> dict:
@@ -303,8 +313,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             index = split_to_tiles(paths, run_dir, options)
         keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
         wkt = crs_obj.to_wkt() if crs_obj is not None else None
-        tasks = [(str(run_dir), k, index["tiles"][k]["origin"], index["tile_size"], wkt,
-                  meta["config"] or None, alpha, planes, seed) for k in keys]
+        tasks = [(str(run_dir), k, _core(index, k), wkt, meta["config"] or None, alpha, planes, seed) for k in keys]
         with reporter.stage("tiles", total=len(tasks)):
             results = _execute(tasks, options, reporter)
     finally:

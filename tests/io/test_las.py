@@ -110,3 +110,15 @@ def test_real_delft_and_ign_headers():
     ign = read_las(need(IGN / "test_data_77055_627760_LA93_IGN69.laz"))
     assert len(ign) == 60653 and ign.crs is not None
     assert "Lambert-93" in ign.crs.name or ign.crs.to_epsg() == 2154
+
+
+def test_header_that_lies_about_bounds_is_refused(tmp_path):
+    import struct
+
+    src = tmp_path / "lies.las"
+    _make_las(src)
+    data = bytearray(src.read_bytes())
+    data[179:187] = struct.pack("<d", 85010.0)  # Max X: the points reach 85050
+    src.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="outside the header bounds"):
+        read_las(src)

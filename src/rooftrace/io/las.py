@@ -103,11 +103,25 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
         raise InputError(
             f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
         )
-    if not np.isfinite(xyz).all():
+    if n and not np.isfinite(xyz).all():
         bad = int((~np.isfinite(xyz).all(axis=1)).sum())
         raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them (e.g. with a filter) and retry")
+    if n:
+        _check_header_bounds(path, header, xyz)
     tmpl = copy.deepcopy(header)
     return PointCloud(xyz, fields, crs=las_crs(header, str(path)), template=tmpl, sources=[str(path)])
+
+
+def _check_header_bounds(path: Path, header: laspy.LasHeader, xyz: np.ndarray) -> None:
+    # tiling trusts header bounds; a file whose points lie outside them was edited without updating the header
+    tol = 2 * np.abs(np.asarray(header.scales, float)) + 1e-6
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    if np.any(lo < np.asarray(header.mins) - tol) or np.any(hi > np.asarray(header.maxs) + tol):
+        raise InputError(
+            f"{path}: points lie outside the header bounds (header {np.round(header.mins, 3).tolist()} .. "
+            f"{np.round(header.maxs, 3).tolist()}, points {np.round(lo, 3).tolist()} .. {np.round(hi, 3).tolist()}); "
+            "the header is wrong, rewrite the file with a LAS tool (e.g. las2las) to repair it"
+        )
 
 
 def _new_header(cloud: PointCloud) -> laspy.LasHeader:
