@@ -1,0 +1,1 @@
+"""Quality evaluation of extracted roof outlines and ridges against a reference (stage 11)."""
