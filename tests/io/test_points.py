@@ -38,3 +38,10 @@ def test_unknown_suffix_and_folder(tmp_path):
         read_points(tmp_path)
     with pytest.raises(InputError, match="bad crs"):
         read_points(p, crs="bad crs")
+
+
+def test_non_finite_text_coordinates(tmp_path):
+    p = tmp_path / "nan.xyz"
+    p.write_text("1 2 3\nnan 5 6\n7 inf 9\n")
+    with pytest.raises(InputError, match="2 points have NaN"):
+        read_points(p)

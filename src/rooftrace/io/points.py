@@ -98,10 +98,12 @@ def _read_one(path: Path) -> PointCloud:
     suffix = path.suffix.lower()
     if suffix in LAS_SUFFIXES:
         return read_las(path)
-    if suffix == ".ply":
-        return read_ply(path)
-    if suffix in TEXT_SUFFIXES:
-        return read_text(path)
+    if suffix in TEXT_SUFFIXES or suffix == ".ply":
+        cloud = read_ply(path) if suffix == ".ply" else read_text(path)
+        bad = int((~np.isfinite(cloud.xyz).all(axis=1)).sum())
+        if bad:
+            raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them and retry")
+        return cloud
     raise InputError(f"{path}: unknown point cloud format {suffix!r}; use .las, .laz, .ply or text (.txt, .xyz, .csv)")
 
 
