@@ -1,1 +1,261 @@
-"""Quality evaluation of extracted roof outlines and ridges against a reference (stage 11)."""
+"""Quality evaluation of extracted roof outlines and ridges against a reference (stage 11).
+
+:func:`evaluate` gives the content of ``metrics.json``; the metric functions
+live in :mod:`rooftrace.evaluate.metrics`, the matching in
+:mod:`rooftrace.evaluate.matching` and the HTML report in
+:mod:`rooftrace.evaluate.report`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import shapely
+
+from rooftrace.evaluate.matching import coverage, match_buildings
+from rooftrace.evaluate.metrics import (
+    area_scores,
+    hausdorff,
+    polis,
+    ridge_scores,
+    vertex_residuals,
+)
+
+__all__ = ["evaluate", "SUMMARY_KEYS"]
+
+log = logging.getLogger(__name__)
+
+#: scene-level keys printed in summaries (the table and ``--json``), in order
+SUMMARY_KEYS = (
+    "completeness", "correctness", "f_score", "quality",
+    "object_completeness", "object_correctness",
+    "polis_mean", "polis_3d_mean", "hausdorff_mean", "rmse_x", "rmse_y", "rmse_z",
+    "n_reference", "n_extracted", "n_matched",
+    "ridge_completeness", "ridge_correctness", "ridge_position_error",
+)
+
+
+def _clean_polygons(geoms, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Valid, non-empty polygons and their indices in the input sequence."""
+    out, keep = [], []
+    for i, g in enumerate(geoms):
+        if g is None or g.is_empty:
+            continue
+        if not isinstance(g, (shapely.Polygon, shapely.MultiPolygon)):
+            raise TypeError(f"{name}[{i}] must be a Polygon or MultiPolygon, not {g.geom_type}")
+        if not g.is_valid:
+            fixed = shapely.make_valid(g)
+            polys = [p for p in shapely.get_parts(fixed) if isinstance(p, shapely.Polygon) and p.area > 0]
+            log.warning("%s polygon %d is invalid (%s); evaluated after make_valid",
+                        name, i, shapely.is_valid_reason(g))
+            if not polys:
+                continue
+            g = polys[0] if len(polys) == 1 else shapely.MultiPolygon(polys)
+        if g.area <= 0:
+            continue
+        out.append(g)
+        keep.append(i)
+    dropped = len(geoms) - len(keep)
+    if dropped:
+        log.warning("%d %s geometries are empty or have no area; they are ignored", dropped, name)
+    return np.asarray(out, dtype=object), np.asarray(keep, dtype=np.int64)
+
+
+def _in_aoi(geoms: np.ndarray, aoi) -> np.ndarray:
+    if aoi is None or len(geoms) == 0:
+        return np.ones(len(geoms), dtype=bool)
+    return shapely.contains_xy(aoi, shapely.get_coordinates(shapely.point_on_surface(geoms)))
+
+
+def _unit_geometry(geoms: np.ndarray, ids: tuple[int, ...]):
+    if len(ids) == 1:
+        return geoms[ids[0]]
+    # collinear vertices left where parts met would count as vertices in PoLiS
+    return shapely.simplify(shapely.union_all(geoms[list(ids)]), 0.0)
+
+
+def _nan_mean(values) -> float:
+    v = np.asarray([x for x in values if x is not None and not math.isnan(x)], dtype=float)
+    return float(v.mean()) if len(v) else math.nan
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels) -> dict:
+    e = _unit_geometry(ext, e_ids) if e_ids else None
+    r = _unit_geometry(ref, r_ids) if r_ids else None
+    status = "matched" if e_ids and r_ids else ("missed" if r_ids else "false_positive")
+    rec = {
+        "unit": k,
+        "status": status,
+        "reference_ids": [ref_labels[int(ref_keep[i])] for i in r_ids],
+        "extracted_ids": [ext_labels[int(ext_keep[i])] for i in e_ids],
+        "area_reference": float(r.area) if r is not None else 0.0,
+        "area_extracted": float(e.area) if e is not None else 0.0,
+    }
+    sc = area_scores(e, r)
+    rec.update({key: sc[key] for key in ("completeness", "correctness", "f_score", "quality")})
+    with_z = e is not None and r is not None and shapely.has_z(e) and shapely.has_z(r)
+    res = vertex_residuals(r, e)
+    rmse = np.sqrt(np.mean(res ** 2, axis=0)) if len(res) else np.full(3, math.nan)
+    rec.update({
+        "polis": polis(e, r),
+        "polis_3d": polis(e, r, dim=3) if with_z else math.nan,
+        "hausdorff": hausdorff(e, r),
+        "rmse_x": float(rmse[0]), "rmse_y": float(rmse[1]), "rmse_z": float(rmse[2]),
+        "n_reference_vertices": int(len(res)),
+    })
+    return rec, res
+
+
+def evaluate(
+    extracted: Sequence,
+    reference: Sequence,
+    *,
+    aoi=None,
+    extracted_ridges: Sequence | None = None,
+    reference_ridges: Sequence | None = None,
+    ridge_buffer: float = 0.5,
+    min_overlap: float = 0.5,
+    merge_blocks: bool = True,
+    extracted_ids: Sequence | None = None,
+    reference_ids: Sequence | None = None,
+) -> dict:
+    """Evaluate extracted roof outlines against reference ones (thesis §3.5).
+
+    Parameters
+    ----------
+    extracted, reference : sequence of Polygon / MultiPolygon
+        Outlines in one CRS, 2D or 3D. None and empty entries are ignored;
+        invalid ones are repaired with ``shapely.make_valid`` (with a warning).
+    aoi : Polygon, MultiPolygon or a sequence of them, optional
+        Area of interest. Area scores use the polygons clipped to it; the
+        building-level results keep the polygons whose
+        ``point_on_surface`` lies inside it (uncut, so distances stay honest).
+    extracted_ridges, reference_ridges : sequence of LineString, optional
+        Ridge lines; ridge scores are added when both are given (clipped to
+        the AOI when there is one).
+    ridge_buffer : float, default 0.5
+        Buffer half-width for the ridge scores (m).
+    min_overlap : float, default 0.5
+        Overlap fraction for matching and for object-level counts.
+    merge_blocks : bool, default True
+        Evaluate connected blocks of overlapping buildings as units (see
+        :mod:`rooftrace.evaluate.matching`); False for one-to-one matching.
+    extracted_ids, reference_ids : sequence, optional
+        Labels written into the per-building records (default: indices).
+
+    Returns
+    -------
+    dict
+        JSON-serialisable (NaN written as None). Scene-level area scores
+        ``completeness``, ``correctness``, ``f_score``, ``quality`` (0–1; see
+        :func:`~rooftrace.evaluate.metrics.area_scores` for empty inputs),
+        ``tp_area``, ``fn_area``, ``fp_area`` (m²); object-level counts
+        ``n_reference``, ``n_extracted``, ``n_matched`` (matched units),
+        ``n_reference_found`` and ``n_extracted_correct`` (buildings covered
+        at least ``min_overlap`` by the other side), ``object_completeness``,
+        ``object_correctness``; means over matched units ``polis_mean``,
+        ``polis_median``, ``polis_3d_mean``, ``hausdorff_mean``,
+        ``hausdorff_max``; ``rmse_x``, ``rmse_y``, ``rmse_z`` pooled over the
+        reference vertices of all matched units (m); ``matching_rule`` and
+        ``matching_rule_description``; the ridge keys of
+        :func:`~rooftrace.evaluate.metrics.ridge_scores` when ridges are
+        given; and ``buildings``, one record per unit (matched, missed or
+        false_positive) with its ids and metrics.
+
+    Examples
+    --------
+    >>> from shapely import box
+    >>> m = evaluate([box(0, 0, 10, 10)], [box(1, 0, 11, 10)])
+    >>> m["completeness"], m["polis_mean"], m["n_matched"]
+    (0.9, 0.5, 1)
+    """
+    ext_all = list(extracted)
+    ref_all = list(reference)
+    ext_labels = list(extracted_ids) if extracted_ids is not None else list(range(len(ext_all)))
+    ref_labels = list(reference_ids) if reference_ids is not None else list(range(len(ref_all)))
+    if len(ext_labels) != len(ext_all) or len(ref_labels) != len(ref_all):
+        raise ValueError("extracted_ids and reference_ids must have one label per polygon")
+    ext, ext_keep = _clean_polygons(ext_all, "extracted")
+    ref, ref_keep = _clean_polygons(ref_all, "reference")
+    if aoi is not None:
+        aoi = shapely.union_all(np.asarray([aoi] if isinstance(aoi, shapely.Geometry) else list(aoi), dtype=object))
+        if aoi.is_empty or aoi.area <= 0:
+            raise ValueError("aoi must be a polygon with a positive area")
+        shapely.prepare(aoi)
+
+    clip = (lambda g: shapely.intersection(g, aoi)) if aoi is not None else (lambda g: g)
+    scene = area_scores(clip(shapely.union_all(ext)) if len(ext) else None,
+                        clip(shapely.union_all(ref)) if len(ref) else None)
+
+    sel_e, sel_r = _in_aoi(ext, aoi), _in_aoi(ref, aoi)
+    ext, ext_keep = ext[sel_e], ext_keep[sel_e]
+    ref, ref_keep = ref[sel_r], ref_keep[sel_r]
+    m = match_buildings(ext, ref, min_overlap=min_overlap, merge_blocks=merge_blocks)
+
+    cov_r = coverage(ref, ext, m.pairs, m.inter, side=1)
+    cov_e = coverage(ext, ref, m.pairs, m.inter, side=0)
+    n_found = int(np.sum(cov_r >= min_overlap))
+    n_correct = int(np.sum(cov_e >= min_overlap))
+
+    buildings, residuals = [], []
+    for k, (e_ids, r_ids) in enumerate(m.units):
+        rec, res = _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels)
+        buildings.append(rec)
+        if rec["status"] == "matched":
+            residuals.append(res)
+    matched = [b for b in buildings if b["status"] == "matched"]
+    res = np.concatenate(residuals) if residuals else np.empty((0, 3))
+    # z is NaN unless every matched unit is 3D on both sides
+    rmse = np.sqrt(np.mean(res ** 2, axis=0)) if len(res) else np.full(3, math.nan)
+    polis_values = [b["polis"] for b in matched]
+    out = {
+        "completeness": scene["completeness"],
+        "correctness": scene["correctness"],
+        "f_score": scene["f_score"],
+        "quality": scene["quality"],
+        "tp_area": scene["tp"], "fn_area": scene["fn"], "fp_area": scene["fp"],
+        "polis_mean": _nan_mean(polis_values),
+        "polis_median": float(np.median(polis_values)) if polis_values else math.nan,
+        "polis_3d_mean": _nan_mean(b["polis_3d"] for b in matched),
+        "hausdorff_mean": _nan_mean(b["hausdorff"] for b in matched),
+        "hausdorff_max": max((b["hausdorff"] for b in matched), default=math.nan),
+        "rmse_x": float(rmse[0]), "rmse_y": float(rmse[1]), "rmse_z": float(rmse[2]),
+        "n_rmse_vertices": int(len(res)),
+        "n_reference": int(len(ref)),
+        "n_extracted": int(len(ext)),
+        "n_matched": len(matched),
+        "n_reference_found": n_found,
+        "n_extracted_correct": n_correct,
+        "object_completeness": n_found / len(ref) if len(ref) else math.nan,
+        "object_correctness": n_correct / len(ext) if len(ext) else math.nan,
+        "min_overlap": float(min_overlap),
+        "matching_rule": m.rule,
+        "matching_rule_description": m.description,
+        "aoi_area": float(aoi.area) if aoi is not None else None,
+    }
+    if extracted_ridges is not None and reference_ridges is not None:
+        er, rr = list(extracted_ridges), list(reference_ridges)
+        if aoi is not None:
+            er = [g for g in shapely.intersection(np.asarray(er, dtype=object), aoi) if not g.is_empty]
+            rr = [g for g in shapely.intersection(np.asarray(rr, dtype=object), aoi) if not g.is_empty]
+        out.update(ridge_scores(er, rr, ridge_buffer))
+        out["ridge_buffer"] = float(ridge_buffer)
+    out["buildings"] = buildings
+    log.info("evaluated %d matched units of %d reference / %d extracted buildings",
+             len(matched), len(ref), len(ext))
+    return _jsonable(out)
