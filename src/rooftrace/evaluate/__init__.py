@@ -103,6 +103,9 @@ def _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_
         "status": status,
         "reference_ids": [ref_labels[int(ref_keep[i])] for i in r_ids],
         "extracted_ids": [ext_labels[int(ext_keep[i])] for i in e_ids],
+        # positions in the input sequences, so that plots can find the geometries
+        "reference_index": [int(ref_keep[i]) for i in r_ids],
+        "extracted_index": [int(ext_keep[i]) for i in e_ids],
         "area_reference": float(r.area) if r is not None else 0.0,
         "area_extracted": float(e.area) if e is not None else 0.0,
     }
@@ -175,7 +178,9 @@ def evaluate(
         ``matching_rule_description``; the ridge keys of
         :func:`~rooftrace.evaluate.metrics.ridge_scores` when ridges are
         given; and ``buildings``, one record per unit (matched, missed or
-        false_positive) with its ids and metrics.
+        false_positive) with its ids (``reference_ids``, ``extracted_ids``:
+        the given labels; ``reference_index``, ``extracted_index``: positions
+        in the input sequences) and metrics.
 
     Examples
     --------

@@ -1,0 +1,203 @@
+"""``rooftrace evaluate``: extracted outlines against a reference, metrics.json and an HTML report."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from rooftrace.cli import options as opt
+from rooftrace.cli.app import app, emit_json, setup_logging
+
+log = logging.getLogger("rooftrace.cli")
+
+_DEFAULT_LAYER = "roof_outlines"
+_ID_FIELD = "building_id"
+
+
+def _read_polygons(path: Path, layer: str | None, what: str, crs):
+    """Polygons, their labels and the CRS of one layer; refuses non-polygon layers."""
+    import shapely
+
+    from rooftrace.errors import InputError
+    from rooftrace.io.points import parse_crs
+    from rooftrace.io.vector import list_layers, read_layer
+
+    if layer is None:
+        names = list_layers(path)
+        if not names:
+            raise InputError(f"{path}: {what} file has no layer")
+        layer = _DEFAULT_LAYER if _DEFAULT_LAYER in names else names[0]
+        if len(names) > 1 and layer != _DEFAULT_LAYER:
+            log.warning("%s: several layers and no %r; using %r (choose with --layer/--reference-layer)",
+                        path, _DEFAULT_LAYER, layer)
+    data = read_layer(path, layer)
+    geoms = list(data.geometries)
+    bad = sorted({g.geom_type for g in geoms
+                  if g is not None and not isinstance(g, (shapely.Polygon, shapely.MultiPolygon))})
+    if bad:
+        raise InputError(f"{path} (layer {layer!r}): {what} must be polygons, found {', '.join(bad)}; "
+                         "choose a polygon layer with --layer/--reference-layer")
+    labels = data.attributes.get(_ID_FIELD)
+    labels = [v.item() if hasattr(v, "item") else v for v in labels] if labels is not None else None
+    file_crs = data.crs
+    if crs is not None:
+        file_crs = parse_crs(crs) if file_crs is None else file_crs
+    return geoms, labels, file_crs, layer
+
+
+def _read_lines(path: Path, layer: str = "ridges"):
+    import shapely
+
+    from rooftrace.io.vector import read_layer
+
+    data = read_layer(path, layer, missing_ok=True)
+    if data is None:
+        return None
+    return [g for g in data.geometries if isinstance(g, (shapely.LineString, shapely.MultiLineString))]
+
+
+def _check_crs(a, b, what_a: str, what_b: str) -> None:
+    from rooftrace.io.checks import check_same_crs
+
+    if (a is None) != (b is None):
+        log.warning("%s has no CRS; assuming it is in the CRS of %s", what_a if a is None else what_b,
+                    what_b if a is None else what_a)
+    check_same_crs(a, b, what_a, what_b)
+
+
+def _points_xy(path: Path, crs):
+    """x, y of the building points (class 6) when classified, else of all points."""
+    import numpy as np
+
+    from rooftrace.cloud import ASPRS
+    from rooftrace.io.points import read_points
+
+    cloud = read_points([path], crs, require_points=False)
+    cls = cloud.fields.get("classification")
+    if cls is not None and np.any(cls == ASPRS.BUILDING):
+        return cloud.xyz[cls == ASPRS.BUILDING, :2], cloud.crs
+    return cloud.xyz[:, :2], cloud.crs
+
+
+def _table(metrics: dict, out_dir: Path) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from rooftrace.evaluate import SUMMARY_KEYS
+
+    table = Table(title=f"rooftrace evaluate -> {out_dir}", title_justify="left")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    for key in SUMMARY_KEYS:
+        if key not in metrics:
+            continue
+        v = metrics[key]
+        if v is None or (isinstance(v, float) and math.isnan(v)):
+            text = "–"
+        elif key.startswith("n_"):
+            text = str(v)
+        elif key.startswith(("polis", "hausdorff", "rmse", "ridge_position")):
+            text = f"{v:.3f} m"
+        else:
+            text = f"{100 * v:.1f} %"
+        table.add_row(key, text)
+    console = Console(soft_wrap=True)
+    console.print(table)
+    console.print(f"matching: {metrics['matching_rule_description']}")
+
+
+@app.command("evaluate")
+def evaluate_cmd(
+    extracted: Annotated[Path, typer.Argument(help="Extracted outlines (any OGR vector: GeoPackage, GeoJSON, "
+                                                   "Shapefile, FlatGeobuf, SpatiaLite), 2D or 3D polygons.",
+                                              show_default=False)],
+    reference: Annotated[Path, typer.Argument(help="Reference outlines, same formats.", show_default=False)],
+    output: opt.OutputDir,
+    aoi: Annotated[Optional[Path], typer.Option("--aoi", help="Area of interest: a polygon vector file (first "
+                                                "layer). Areas are clipped to it; buildings whose interior "
+                                                "point lies inside it are evaluated.")] = None,
+    layer: Annotated[Optional[str], typer.Option("--layer", help="Layer of EXTRACTED (default: roof_outlines "
+                                                 "if present, else the first).")] = None,
+    reference_layer: Annotated[Optional[str], typer.Option("--reference-layer", help="Layer of REFERENCE "
+                                                           "(default: roof_outlines if present, else the first).")] = None,
+    points: Annotated[Optional[Path], typer.Option("--points", help="LAS/LAZ drawn under the outlines in the "
+                                                   "plots (class 6 when classified).")] = None,
+    min_overlap: Annotated[float, typer.Option("--min-overlap",
+                                               help="Overlap fraction (of the smaller polygon) to match, and of a "
+                                                    "building's area to count it as found.", show_default=True)] = 0.5,
+    no_merge_blocks: Annotated[bool, typer.Option("--no-merge-blocks", help="Match one-to-one instead of "
+                                                  "evaluating blocks of overlapping buildings as units.")] = False,
+    ridge_buffer: Annotated[float, typer.Option("--ridge-buffer",
+                                                help="Buffer for the ridge scores, in metres (when both files have "
+                                                     "a 'ridges' layer).", show_default=True)] = 0.5,
+    crs: opt.Crs = None,
+    json_: opt.Json = False,
+    overwrite: opt.Overwrite = False,
+    quiet: opt.Quiet = False,
+) -> None:
+    """Compare extracted roof outlines with reference ones: completeness, correctness, F-score, quality,
+    PoLiS, Hausdorff and RMSE, overall and per building; writes DIR/metrics.json and DIR/report.html."""
+    import shapely
+
+    from rooftrace.errors import InputError, OutputExistsError
+    from rooftrace.evaluate import SUMMARY_KEYS, evaluate
+    from rooftrace.evaluate.report import write_report
+    from rooftrace.io.atomic import atomic_path
+
+    setup_logging(quiet)
+    if not 0.0 < min_overlap <= 1.0:
+        raise InputError(f"--min-overlap must be in (0, 1], got {min_overlap}")
+    if not ridge_buffer > 0.0:
+        raise InputError(f"--ridge-buffer must be a positive distance in metres, got {ridge_buffer}")
+    for path in (extracted, reference, aoi, points):
+        if path is not None and not path.exists():
+            raise InputError(f"{path}: no such file")
+    if output.exists() and not output.is_dir():
+        raise InputError(f"{output} is a file; -o takes a folder")
+    metrics_path = output / "metrics.json"
+    if metrics_path.exists() and not overwrite:
+        raise OutputExistsError(f"{metrics_path} exists; pass --overwrite to replace the evaluation in {output}")
+
+    ext, ext_ids, ext_crs, ext_layer = _read_polygons(extracted, layer, "extracted outlines", crs)
+    ref, ref_ids, ref_crs, ref_layer = _read_polygons(reference, reference_layer, "reference outlines", crs)
+    _check_crs(ext_crs, ref_crs, str(extracted), str(reference))
+    area = None
+    if aoi is not None:
+        aoi_geoms, _, aoi_crs, _ = _read_polygons(aoi, None, "area of interest", crs)
+        _check_crs(aoi_crs, ext_crs or ref_crs, str(aoi), str(extracted))
+        area = shapely.union_all([g for g in aoi_geoms if g is not None])
+        if area.is_empty or area.area <= 0:
+            raise InputError(f"{aoi}: the area of interest has no area")
+    ext_ridges = _read_lines(extracted) if ext_layer != "ridges" else None
+    ref_ridges = _read_lines(reference) if ref_layer != "ridges" else None
+    xy = None
+    if points is not None:
+        xy, pts_crs = _points_xy(points, crs)
+        _check_crs(pts_crs, ext_crs or ref_crs, str(points), str(extracted))
+
+    metrics = evaluate(ext, ref, aoi=area, extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
+                       ridge_buffer=ridge_buffer, min_overlap=min_overlap, merge_blocks=not no_merge_blocks,
+                       extracted_ids=ext_ids, reference_ids=ref_ids)
+    metrics["inputs"] = {"extracted": str(extracted), "extracted_layer": ext_layer,
+                         "reference": str(reference), "reference_layer": ref_layer,
+                         "aoi": str(aoi) if aoi is not None else None,
+                         "crs": (ext_crs or ref_crs).to_string() if (ext_crs or ref_crs) is not None else None}
+
+    output.mkdir(parents=True, exist_ok=True)
+    report = write_report(output, metrics, ext, ref, points_xy=xy,
+                          title=f"rooftrace evaluation: {extracted.name} vs {reference.name}")
+    # metrics.json last: its presence marks a finished evaluation
+    with atomic_path(metrics_path, overwrite) as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+
+    if json_:
+        emit_json({"metrics": str(metrics_path), "report": str(report),
+                   **{k: metrics[k] for k in SUMMARY_KEYS if k in metrics},
+                   "matching_rule": metrics["matching_rule"]})
+    else:
+        _table(metrics, output)
