@@ -98,6 +98,9 @@ def test_user_errors(tmp_path, files, capsys):
         assert code == 2, (args, err)
         assert err.startswith("error:") and text in err and "Traceback" not in err
         assert not (tmp_path / f"o{k}" / "metrics.json").exists()
+    # --crs overrides both files' CRS: the mismatch is then the user's explicit choice
+    assert main(["evaluate", str(e), str(other), "-o", str(tmp_path / "ov"), "--crs", RD]) == 0
+    assert "overridden by --crs" in capsys.readouterr().err
 
 
 def test_missing_crs_is_a_warning(tmp_path, files, capsys):

@@ -59,3 +59,15 @@ def test_empty_report():
     text = report_html(m, images)
     assert "no matched buildings" not in text  # drawn in the PNG, not the page
     assert text.startswith("<!DOCTYPE html>") and "<tbody></tbody>" in text
+
+
+def test_ridges_are_drawn(scene):
+    from shapely import LineString
+
+    ext, ref, _ = scene
+    m = evaluate(ext, ref)
+    x0, y0, x1, y1 = ref[0].bounds
+    ridges = [LineString([(x0, (y0 + y1) / 2), (x1, (y0 + y1) / 2)])]
+    plain = render_figures(m, ext, ref)["overlays.png"]
+    drawn = render_figures(m, ext, ref, extracted_ridges=ridges, reference_ridges=ridges)["overlays.png"]
+    assert plain != drawn

@@ -45,8 +45,11 @@ def _read_polygons(path: Path, layer: str | None, what: str, crs):
     labels = data.attributes.get(_ID_FIELD)
     labels = [v.item() if hasattr(v, "item") else v for v in labels] if labels is not None else None
     file_crs = data.crs
-    if crs is not None:
-        file_crs = parse_crs(crs) if file_crs is None else file_crs
+    if crs is not None:  # assign or override, as read_points does for clouds
+        user = parse_crs(crs)
+        if file_crs is not None and not file_crs.equals(user, ignore_axis_order=True):
+            log.warning("%s: file CRS %s overridden by --crs %s", path, file_crs.name, user.name)
+        file_crs = user
     return geoms, labels, file_crs, layer
 
 
@@ -190,6 +193,7 @@ def evaluate_cmd(
 
     output.mkdir(parents=True, exist_ok=True)
     report = write_report(output, metrics, ext, ref, points_xy=xy,
+                          extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
                           title=f"rooftrace evaluation: {extracted.name} vs {reference.name}")
     # metrics.json last: its presence marks a finished evaluation
     with atomic_path(metrics_path, overwrite) as tmp:

@@ -37,7 +37,8 @@ FIGURES = {
     "scene_map.png": "Scene: extracted outlines coloured by PoLiS (m); reference in black, "
                      "missed reference buildings in red, false detections in orange.",
     "histograms.png": "Distribution of PoLiS and Hausdorff distances over the matched buildings.",
-    "overlays.png": "Per building: reference (black) and extracted (red, dashed) outlines over the points. "
+    "overlays.png": "Per building: reference (black) and extracted (red, dashed) outlines over the points, "
+                    "ridges dotted. "
                     "The worst buildings by PoLiS first, then the best, then missed ones.",
 }
 _REF, _EXT, _MISS, _FP, _PTS = "#111111", "#d62728", "#e31a1c", "#ff7f00", "#8a9bb0"
@@ -67,7 +68,7 @@ def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     FigureCanvasAgg(fig)
     # no timestamps in the PNG, so the same metrics give the same bytes
-    fig.savefig(buf, format="png", dpi=110, metadata={"Software": None})
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight", metadata={"Software": None})
     return buf.getvalue()
 
 
@@ -142,7 +143,14 @@ def _pick(metrics) -> list[dict]:
     return worst + best + missed
 
 
-def _overlays(metrics, extracted, reference, points_xy) -> Figure | None:
+def _ridges_in(lines, bounds) -> list:
+    if not lines:
+        return []
+    lines = np.asarray([g for g in lines if g is not None and not g.is_empty], dtype=object)
+    return list(lines[shapely.intersects(lines, shapely.box(*bounds))]) if len(lines) else []
+
+
+def _overlays(metrics, extracted, reference, points_xy, ridges=(None, None)) -> Figure | None:
     chosen = _pick(metrics)
     if not chosen:
         return None
@@ -164,6 +172,12 @@ def _overlays(metrics, extracted, reference, points_xy) -> Figure | None:
             _outline(ax, r, color=_REF, lw=1.6)
         if e is not None:
             _outline(ax, e, color=_EXT, lw=1.4, ls="--")
+        box_ = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        for lines, colour, ls in ((ridges[1], _REF, ":"), (ridges[0], _EXT, ":")):
+            for line in _ridges_in(lines, box_):
+                for part in shapely.get_parts(line):
+                    xy = shapely.get_coordinates(part)
+                    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.2, ls=ls)
         ax.set_xlim(x0 - pad, x1 + pad)
         ax.set_ylim(y0 - pad, y1 + pad)
         ax.set_aspect("equal")
@@ -179,7 +193,9 @@ def _overlays(metrics, extracted, reference, points_xy) -> Figure | None:
     return fig
 
 
-def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, points_xy=None) -> dict[str, bytes]:
+def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, points_xy=None,
+                   extracted_ridges: Sequence | None = None,
+                   reference_ridges: Sequence | None = None) -> dict[str, bytes]:
     """PNG images of the report.
 
     Parameters
@@ -191,6 +207,8 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
         The same sequences that were evaluated.
     points_xy : ndarray of shape (N, 2) float64, optional
         LiDAR points drawn under the outlines (subsampled on the scene map).
+    extracted_ridges, reference_ridges : sequence of LineString, optional
+        Drawn dotted on the per-building overlays.
 
     Returns
     -------
@@ -206,7 +224,7 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
     extracted, reference = list(extracted), list(reference)
     out = {"scene_map.png": _png(_scene_map(metrics, extracted, reference, points_xy)),
            "histograms.png": _png(_histograms(metrics))}
-    fig = _overlays(metrics, extracted, reference, points_xy)
+    fig = _overlays(metrics, extracted, reference, points_xy, (extracted_ridges, reference_ridges))
     if fig is not None:
         out["overlays.png"] = _png(fig)
     return out
@@ -329,6 +347,8 @@ def write_report(
     *,
     points_xy=None,
     title: str = "rooftrace evaluation",
+    extracted_ridges: Sequence | None = None,
+    reference_ridges: Sequence | None = None,
     overwrite: bool = True,
 ) -> Path:
     """Write the PNG figures and ``report.html`` into ``out_dir``.
@@ -344,6 +364,8 @@ def write_report(
     points_xy : ndarray of shape (N, 2), optional
         LiDAR points (x, y) drawn under the outlines.
     title : str, default "rooftrace evaluation"
+    extracted_ridges, reference_ridges : sequence of LineString, optional
+        Ridge lines drawn (dotted) on the per-building overlays.
     overwrite : bool, default True
         Replace existing report files; the caller decides whether the
         folder may be reused (the CLI refuses when ``metrics.json`` exists).
@@ -355,7 +377,8 @@ def write_report(
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    images = render_figures(metrics, extracted, reference, points_xy=points_xy)
+    images = render_figures(metrics, extracted, reference, points_xy=points_xy,
+                            extracted_ridges=extracted_ridges, reference_ridges=reference_ridges)
     for name, png in images.items():
         with atomic_path(out / name, overwrite) as tmp:
             tmp.write_bytes(png)
