@@ -1,0 +1,1 @@
+"""Roof contours: adaptive alpha shape, corners, CD-spline and regularisation (thesis ch. 4-5)."""

@@ -1,0 +1,386 @@
+"""Alpha shape with an adaptive alpha, gap repair and ring tracing (thesis ch. 4).
+
+Only Delaunay edges can be alpha edges, so the mesh's edges are the
+candidates; the emptiness of the two alpha circles through each edge
+(eq. 4.1-4.3) is checked with one KD-tree nearest-neighbour query per circle.
+The side whose circle is empty is the outside, which orients every boundary
+edge with the roof on its left: outer rings come out counter-clockwise,
+courtyards clockwise.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+import shapely
+from scipy.spatial import Delaunay, QhullError, cKDTree
+
+from rooftrace.errors import GeometryError
+
+__all__ = [
+    "AlphaOptions",
+    "AlphaShape",
+    "alpha_shape",
+    "delaunay_edges",
+    "mean_spacing",
+    "building_alpha",
+    "point_spacing",
+    "boundary_edges",
+    "repair_boundary",
+    "trace_rings",
+]
+
+log = logging.getLogger(__name__)
+
+STRATEGIES = ("global", "building", "point")
+
+
+@dataclass(frozen=True)
+class AlphaOptions:
+    """Options of the alpha-shape stage (TOML table ``[alpha]``).
+
+    Attributes
+    ----------
+    strategy : {'global', 'building', 'point'}
+        S1: one alpha for the cloud (``alpha`` or the cloud's mean spacing);
+        S2: per building, the mean Delaunay edge length after removing edges
+        longer than mean + ``long_edge_sigma`` * std (thesis §4.2, eq. 4.4);
+        S3: per edge, the mean of its end points' spacings ps_avg, each the
+        mean length of the Delaunay edges wholly inside a circle of
+        ``radius`` around the point (thesis §4.3.1, eq. 4.5-4.6).
+        Default chosen by measurement (benchmarks/RESULTS.md, "Roof outlines").
+    alpha : float or None
+        Alpha radius in metres for S1; None = the mean spacing passed by the
+        caller (the cloud's s_avg), else the building's mean Delaunay edge length.
+    radius : float
+        R of S3 in metres (thesis §6.3.1: 3 m; results insensitive for 1-5 m).
+    long_edge_sigma : float
+        Long-edge cut of S2 in standard deviations (thesis §4.2.1: 3).
+    min_hole_area : float
+        Courtyards smaller than this (m²) are filled; default Ar_min = 4 m²
+        (thesis Table 6.1), the smallest building worth mapping.
+    """
+
+    section = "alpha"
+
+    strategy: str = "point"
+    alpha: float | None = None
+    radius: float = 3.0
+    long_edge_sigma: float = 3.0
+    min_hole_area: float = 4.0
+
+    def __post_init__(self) -> None:
+        if self.strategy not in STRATEGIES:
+            raise ValueError(f"alpha.strategy must be one of {', '.join(STRATEGIES)}, not {self.strategy!r}")
+        if self.alpha is not None and not self.alpha > 0:
+            raise ValueError(f"alpha.alpha must be > 0 m, not {self.alpha}")
+        if not self.radius > 0:
+            raise ValueError(f"alpha.radius must be > 0 m, not {self.radius}")
+        if self.min_hole_area < 0:
+            raise ValueError(f"alpha.min_hole_area must be >= 0 m², not {self.min_hole_area}")
+
+
+@dataclass
+class AlphaShape:
+    """Result of :func:`alpha_shape`.
+
+    Attributes
+    ----------
+    rings : list of ndarray of int
+        Point indices of each closed ring (first vertex not repeated), roof on
+        the left: the outer ring counter-clockwise first, then the holes
+        (clockwise).  Indices refer to the input points.
+    alpha : float
+        Alpha in metres (the median of the per-edge values for S3).
+    strategy : str
+    spacing : ndarray of shape (N,) float64
+        Local mean spacing per point (ps_avg for S3, else alpha everywhere).
+    """
+
+    rings: list[np.ndarray]
+    alpha: float
+    strategy: str
+    spacing: np.ndarray
+
+
+def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique edges of the 2D Delaunay triangulation.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+        Planimetric coordinates, without duplicates.
+
+    Returns
+    -------
+    edges : ndarray of shape (E, 2) int64
+        Point indices, ``edges[:, 0] < edges[:, 1]``.
+    lengths : ndarray of shape (E,) float64
+        Edge lengths in the units of ``xy``.
+
+    Raises
+    ------
+    GeometryError
+        Fewer than 3 points, or all collinear.
+    """
+    if len(xy) < 3:
+        raise GeometryError("too_few_points")
+    try:
+        simplices = Delaunay(xy).simplices
+    except QhullError:
+        raise GeometryError("collinear") from None
+    if len(simplices) == 0:
+        raise GeometryError("collinear")
+    e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0).astype(np.int64)
+    lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
+    return e, lengths
+
+
+def mean_spacing(xy: np.ndarray) -> float:
+    """s_avg: mean Delaunay edge length in metres (thesis §6.2), long edges (> mean + 3 std) removed."""
+    _, lengths = delaunay_edges(np.unique(np.asarray(xy, dtype=np.float64)[:, :2], axis=0))
+    return building_alpha(lengths)
+
+
+def building_alpha(lengths: np.ndarray, sigma: float = 3.0) -> float:
+    """S2 alpha: mean edge length after dropping edges longer than mean + ``sigma`` * std (eq. 4.4)."""
+    lengths = np.asarray(lengths, dtype=np.float64)
+    keep = lengths <= lengths.mean() + sigma * lengths.std()
+    return float(lengths[keep].mean())
+
+
+def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius: float = 3.0) -> np.ndarray:
+    """ps_avg per point: mean length of the Delaunay edges wholly inside a circle of ``radius`` (eq. 4.5).
+
+    An edge lies inside the (convex) circle when both its end points do.
+    Points whose circle holds no whole edge get the mean of the edges they
+    touch.
+    """
+    n = len(xy)
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(n)])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(n)])
+    ball_ptr, ball_idx = _csr(rows, cols, n)
+    adj_ptr, adj_idx = _csr(edges[:, 0], np.arange(len(edges)), n)
+    ps = _ps_avg(ball_ptr, ball_idx, adj_ptr, adj_idx, edges[:, 1].copy(), lengths, n)
+    bad = ~np.isfinite(ps)
+    if bad.any():
+        touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
+        ps[bad] = touch[bad]
+    return ps
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    order = np.argsort(rows, kind="stable")
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=ptr[1:])
+    return ptr, cols[order].astype(np.int64)
+
+
+@njit(cache=True)
+def _ps_avg(ball_ptr, ball_idx, adj_ptr, adj_edge, edge_hi, lengths, n):  # pragma: no cover - compiled
+    # each edge is stored once, at its lower end point; it counts for point i
+    # when both end points are in i's ball (marked with i)
+    mark = np.full(n, -1, dtype=np.int64)
+    out = np.empty(n, dtype=np.float64)
+    for i in range(n):
+        for p in range(ball_ptr[i], ball_ptr[i + 1]):
+            mark[ball_idx[p]] = i
+        total = 0.0
+        count = 0
+        for p in range(ball_ptr[i], ball_ptr[i + 1]):
+            j = ball_idx[p]
+            for q in range(adj_ptr[j], adj_ptr[j + 1]):
+                e = adj_edge[q]
+                if mark[edge_hi[e]] == i:
+                    total += lengths[e]
+                    count += 1
+        out[i] = total / count if count > 0 else np.nan
+    return out
+
+
+def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
+    """Directed alpha-boundary edges, roof on the left (eq. 4.1-4.3).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+    edges : ndarray of shape (E, 2) int
+        Candidate (Delaunay) edges.
+    alpha : float or ndarray of shape (E,)
+        Alpha radius per edge, metres.
+
+    Returns
+    -------
+    ndarray of shape (B, 2) int64
+        ``(from, to)`` point indices.  An edge with exactly one empty circle
+        is a boundary edge; with two it is a dangling "extra" edge and is
+        dropped (it bounds no area).
+    """
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (len(edges),))
+    pi, pj = xy[edges[:, 0]], xy[edges[:, 1]]
+    d = pj - pi
+    s2 = np.einsum("ij,ij->i", d, d)
+    ok = (s2 <= 4.0 * alpha**2) & (s2 > 0)
+    d, pi, a, s2 = d[ok], pi[ok], alpha[ok], s2[ok]
+    h = np.sqrt(np.maximum(a**2 / s2 - 0.25, 0.0))
+    mid = pi + 0.5 * d
+    perp = np.column_stack([d[:, 1], -d[:, 0]]) * h[:, None]  # right of i->j (eq. 4.1)
+    tree = tree if tree is not None else cKDTree(xy)
+    dist, _ = tree.query(np.concatenate([mid + perp, mid - perp]), k=1, workers=-1)
+    # p_i and p_j lie on the circle; anything strictly closer is inside
+    empty = dist >= np.concatenate([a, a]) * (1.0 - 1e-9)
+    right_empty, left_empty = empty[: len(a)], empty[len(a):]
+    e = edges[ok]
+    fwd = right_empty & ~left_empty
+    rev = left_empty & ~right_empty
+    return np.concatenate([e[fwd], e[rev][:, ::-1]]).astype(np.int64)
+
+
+def repair_boundary(directed: np.ndarray, edges: np.ndarray, lengths: np.ndarray, n: int) -> np.ndarray:
+    """Close gaps and delete extra segments (thesis §4.3.2).
+
+    A chain end (a vertex with an incoming but no outgoing boundary edge) is
+    joined to a chain start when a Delaunay edge connects them, shortest
+    first; whatever still dangles afterwards is deleted, repeatedly, until
+    every vertex has both an incoming and an outgoing edge.
+    """
+    directed = np.unique(directed, axis=0) if len(directed) else directed.reshape(0, 2)
+    indeg = np.bincount(directed[:, 1], minlength=n)
+    outdeg = np.bincount(directed[:, 0], minlength=n)
+    is_end = (indeg > 0) & (outdeg == 0)
+    is_start = (outdeg > 0) & (indeg == 0)
+    if is_end.any() and is_start.any():
+        a, b = edges[:, 0], edges[:, 1]
+        cand = np.concatenate([np.column_stack([a, b])[is_end[a] & is_start[b]],
+                               np.column_stack([b, a])[is_end[b] & is_start[a]]])
+        clen = np.concatenate([lengths[is_end[a] & is_start[b]], lengths[is_end[b] & is_start[a]]])
+        used_end = np.zeros(n, bool)
+        used_start = np.zeros(n, bool)
+        joins = []
+        for k in np.argsort(clen, kind="stable"):  # few candidates: the dangling ends only
+            u, w = cand[k]
+            if not used_end[u] and not used_start[w]:
+                used_end[u] = used_start[w] = True
+                joins.append((u, w))
+        if joins:
+            directed = np.concatenate([directed, np.asarray(joins, dtype=np.int64)])
+    while len(directed):
+        indeg = np.bincount(directed[:, 1], minlength=n)
+        outdeg = np.bincount(directed[:, 0], minlength=n)
+        keep = (outdeg[directed[:, 1]] > 0) & (indeg[directed[:, 0]] > 0)
+        if keep.all():
+            break
+        directed = directed[keep]
+    return directed
+
+
+def trace_rings(xy: np.ndarray, directed: np.ndarray) -> list[np.ndarray]:
+    """Follow directed boundary edges into closed rings.
+
+    At a vertex with several outgoing edges the walk takes the first one
+    clockwise from the edge it came along, which keeps the roof on the left
+    and splits rings that touch at a vertex instead of crossing them.
+    Chains that cannot close are dropped.
+    """
+    if len(directed) == 0:
+        return []
+    order = np.lexsort((directed[:, 1], directed[:, 0]))
+    directed = directed[order]
+    starts = np.searchsorted(directed[:, 0], np.arange(len(xy) + 1))
+    used = np.zeros(len(directed), bool)
+    rings = []
+    for first in range(len(directed)):
+        if used[first]:
+            continue
+        used[first] = True
+        ring = [directed[first, 0]]
+        prev, cur = directed[first]
+        while cur != ring[0]:
+            lo, hi = starts[cur], starts[cur + 1]
+            free = [k for k in range(lo, hi) if not used[k]]
+            if not free:
+                ring = None
+                break
+            if len(free) == 1:
+                k = free[0]
+            else:
+                back = np.arctan2(*(xy[prev] - xy[cur])[::-1])
+                outs = np.array([np.arctan2(*(xy[directed[k, 1]] - xy[cur])[::-1]) for k in free])
+                turn = (back - outs) % (2 * np.pi)
+                turn[turn == 0] = 2 * np.pi  # going straight back is the last resort
+                k = free[int(np.argmin(turn))]
+            used[k] = True
+            ring.append(cur)
+            prev, cur = cur, directed[k, 1]
+        if ring is not None and len(ring) >= 3:
+            rings.append(np.asarray(ring, dtype=np.int64))
+    return rings
+
+
+def _signed_area(xy: np.ndarray) -> float:
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
+                alpha_scale: float = 1.0) -> AlphaShape:
+    """Outer ring and courtyards of one building's points.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+        Planimetric coordinates (metres) of one building, without duplicates.
+    options : AlphaOptions, optional
+    mean_spacing : float, optional
+        The cloud's s_avg, used as alpha by S1 when ``options.alpha`` is None.
+    alpha_scale : float, default 1
+        Multiplies every alpha (used by callers to retry a shape that broke up).
+
+    Returns
+    -------
+    AlphaShape
+        ``rings[0]`` is the outer ring (the largest by area); holes smaller
+        than ``options.min_hole_area`` or outside it are left out.
+
+    Raises
+    ------
+    GeometryError
+        ``too_few_points``, ``collinear`` or ``no_ring`` (no closed boundary).
+    """
+    options = options or AlphaOptions()
+    xy = np.asarray(xy, dtype=np.float64)
+    edges, lengths = delaunay_edges(xy)
+    spacing = np.full(len(xy), np.nan)
+    if options.strategy == "point":
+        spacing = point_spacing(xy, edges, lengths, options.radius)
+        alpha = 0.5 * (spacing[edges[:, 0]] + spacing[edges[:, 1]])
+        alpha_value = float(np.median(alpha))
+    else:
+        if options.strategy == "global" and (options.alpha is not None or mean_spacing is not None):
+            alpha_value = float(options.alpha if options.alpha is not None else mean_spacing)
+        else:
+            alpha_value = building_alpha(lengths, options.long_edge_sigma)
+        alpha = np.full(len(edges), alpha_value)
+        spacing[:] = alpha_value
+    alpha = alpha * alpha_scale
+    tree = cKDTree(xy)
+    directed = boundary_edges(xy, edges, alpha, tree)
+    directed = repair_boundary(directed, edges, lengths, len(xy))
+    rings = trace_rings(xy, directed)
+    areas = np.array([_signed_area(xy[r]) for r in rings])
+    outer = [r for r, a in zip(rings, areas) if a > 0]
+    if not outer:
+        raise GeometryError("no_ring")
+    outer_areas = areas[areas > 0]
+    main = outer[int(np.argmax(outer_areas))]
+    shell = shapely.Polygon(xy[main])
+    holes = [r for r, a in zip(rings, areas) if a < 0 and -a >= options.min_hole_area
+             and shell.contains(shapely.Point(xy[r].mean(axis=0)))]
+    log.debug("alpha shape: %d rings traced, outer of %.1f m², %d holes kept", len(rings), outer_areas.max(), len(holes))
+    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing * alpha_scale)
+

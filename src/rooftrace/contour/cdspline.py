@@ -1,0 +1,316 @@
+"""Closed changeable-degree spline (CD-spline) with C0 joints and F-test degree selection (thesis ch. 5).
+
+A CD-spline (Shen & Wang 2010) lets every segment between two knots have its
+own polynomial degree.  With C0 joints (knot multiplicity = degree, thesis
+§5.3) its normalised basis is, span by span, the Bernstein basis of the
+span's degree in the span's local parameter, each span sharing its end
+control points with its neighbours; the curve is closed by making the last
+control point the first (thesis §5.4).  Here each span's basis comes from
+the Cox-de Boor recursion on a clamped knot vector of the span's degree,
+which is the recursion of eq. 5.5 restricted to one span.
+
+Notes
+-----
+Eq. 5.5 as printed in the thesis (denominators indexed by the recursion
+level k instead of the span's degree) does not give a partition of unity
+when a lower-degree span precedes a higher-degree one, so it is not used
+literally; for C0 joints the basis below is the unique normalised B-basis of
+the same spline space.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from rooftrace.errors import GeometryError
+
+__all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CDSplineOptions:
+    """Options of the CD-spline stage (TOML table ``[cdspline]``).
+
+    Attributes
+    ----------
+    significance : float
+        beta of the two-sided F-test on residual variances (thesis eq. 5.12): 0.10.
+    max_degree : int
+        Cap on any segment's degree (DESIGN.md stage 7: 5).
+    test : {'segment', 'global'}
+        'global' is the thesis's rule: stop at the first raise that does not
+        change the standard deviation of all residuals significantly
+        (F_{beta/2, q-1, q-1} < F_c < F_{1-beta/2, q-1, q-1}) and keep the
+        previous iteration.  'segment' applies the same F-test to the raised
+        segment's own residuals (q_s - 1 degrees of freedom), undoes an
+        insignificant raise, freezes that segment and goes on with the next
+        worst one, so one long straight wall cannot stop the curved ones
+        from being raised.
+    densify : float
+        Spacing in metres of the output vertices along curved (degree >= 2)
+        segments; straight segments are output as their two corners.
+    """
+
+    section = "cdspline"
+
+    significance: float = 0.10
+    max_degree: int = 5
+    test: str = "segment"
+    densify: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.significance < 1:
+            raise ValueError(f"cdspline.significance must be in (0, 1), not {self.significance}")
+        if self.max_degree < 1:
+            raise ValueError(f"cdspline.max_degree must be >= 1, not {self.max_degree}")
+        if self.test not in ("segment", "global"):
+            raise ValueError(f"cdspline.test must be 'segment' or 'global', not {self.test!r}")
+        if not self.densify > 0:
+            raise ValueError(f"cdspline.densify must be > 0 m, not {self.densify}")
+
+
+def chord_parameters(points: np.ndarray, closed: bool = True) -> np.ndarray:
+    """Chord-length parameters (eq. 5.3-5.4).
+
+    Returns ``t`` of shape (N,), ``t[0] = 0``, increasing; for a closed ring
+    the closing chord counts in L, so ``t = 1`` is the first point again.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    ends = np.concatenate([points, points[:1]]) if closed else points
+    chords = np.linalg.norm(np.diff(ends, axis=0), axis=1)
+    total = chords.sum()
+    if total <= 0:
+        raise GeometryError("degenerate_ring")
+    return np.concatenate([[0.0], np.cumsum(chords)[: len(points) - 1]]) / total
+
+
+def _cox_de_boor(t: np.ndarray, knots: np.ndarray, degree: int) -> np.ndarray:
+    """B-spline basis of ``degree`` on ``knots`` at ``t`` (right end included); (len(t), len(knots)-degree-1)."""
+    n0 = len(knots) - 1
+    last = knots[-1]
+    b = ((knots[:-1] <= t[:, None]) & (t[:, None] < knots[1:])).astype(np.float64)
+    at_end = t == last
+    if at_end.any():
+        j = np.flatnonzero(knots[:-1] < last)[-1]
+        b[at_end] = 0.0
+        b[at_end, j] = 1.0
+    for p in range(1, degree + 1):
+        left_den = knots[p:n0] - knots[: n0 - p]
+        right_den = knots[p + 1: n0 + 1] - knots[1: n0 - p + 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            left = np.where(left_den > 0, (t[:, None] - knots[: n0 - p]) / left_den, 0.0)
+            right = np.where(right_den > 0, (knots[p + 1: n0 + 1] - t[:, None]) / right_den, 0.0)
+        b = left * b[:, :-1] + right * b[:, 1:]
+    return b
+
+
+def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) -> np.ndarray:
+    """CD-spline design matrix A (eq. 5.8) for C0 joints.
+
+    Parameters
+    ----------
+    t : ndarray of shape (Q,) float64
+        Parameters in ``[breaks[0], breaks[-1]]``.
+    breaks : ndarray of shape (M+1,) float64
+        Increasing knot values: segment k spans ``[breaks[k], breaks[k+1])``.
+    degrees : sequence of M int
+        Degree d_k of each segment (>= 1).
+    closed : bool
+        Close the curve: the last control point is the first (its column is
+        added onto the first, thesis §5.4).
+
+    Returns
+    -------
+    ndarray of shape (Q, sum(d)) if closed else (Q, sum(d) + 1)
+        Column ``offset_k + r`` holds the r-th basis function of segment k,
+        ``offset_k = sum(d[:k])``; neighbouring segments share a column.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    breaks = np.asarray(breaks, dtype=np.float64)
+    degrees = [int(d) for d in degrees]
+    if len(breaks) != len(degrees) + 1 or np.any(np.diff(breaks) <= 0):
+        raise ValueError("cd_basis: breaks must be increasing with one more value than degrees")
+    offsets = np.concatenate([[0], np.cumsum(degrees)])
+    a = np.zeros((len(t), offsets[-1] + 1))
+    span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
+    for k, d in enumerate(degrees):
+        sel = span == k
+        if not sel.any():
+            continue
+        knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
+        a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = _cox_de_boor(t[sel], knots, d)
+    if closed:
+        a[:, 0] += a[:, -1]
+        a = a[:, :-1]
+    return a
+
+
+@dataclass
+class CDSpline:
+    """A fitted closed CD-spline.
+
+    Attributes
+    ----------
+    control_points : ndarray of shape (sum(d), 3) float64
+    breaks : ndarray of shape (M+1,) float64
+        Knot parameters of the corners, ``breaks[-1] = 1``.
+    degrees : list of int
+    t : ndarray of shape (Q,) float64
+        Parameters of the fitted points (in the points' original order).
+    residuals : ndarray of shape (Q,) float64
+        |C(t_i) - Q_i| in metres (eq. 5.11).
+    segment : ndarray of shape (Q,) int
+        Segment of each fitted point.
+    history : list of (list of int, float)
+        Degrees and residual standard deviation of each iteration.
+    """
+
+    control_points: np.ndarray
+    breaks: np.ndarray
+    degrees: list[int]
+    t: np.ndarray
+    residuals: np.ndarray
+    segment: np.ndarray
+    history: list = field(default_factory=list)
+
+    @property
+    def sigma(self) -> float:
+        """Residual standard deviation sqrt(sum r² / (q - 1)) in metres."""
+        return float(np.sqrt(np.sum(self.residuals**2) / max(len(self.residuals) - 1, 1)))
+
+    def evaluate(self, t: np.ndarray) -> np.ndarray:
+        """Curve points C(t), shape (len(t), 3)."""
+        return cd_basis(np.asarray(t, dtype=np.float64) % 1.0, self.breaks, self.degrees) @ self.control_points
+
+    def ring(self, step: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices of the closed outline: corners, plus samples every ``step`` m along curved segments.
+
+        Returns ``(vertices (K, 3), corner_index (M,))`` with the first
+        vertex not repeated and ``corner_index[k]`` the vertex of corner k.
+        """
+        offsets = np.concatenate([[0], np.cumsum(self.degrees)])
+        params, corner_index = [], []
+        for k, d in enumerate(self.degrees):
+            corner_index.append(len(params))
+            params.append(self.breaks[k])
+            if d >= 2:
+                ctrl = self.control_points[np.arange(offsets[k], offsets[k] + d + 1) % len(self.control_points)]
+                length = np.linalg.norm(np.diff(ctrl, axis=0), axis=1).sum()
+                count = max(int(np.ceil(length / step)), 4 * d)
+                params.extend(np.linspace(self.breaks[k], self.breaks[k + 1], count + 1)[1:-1])
+        return self.evaluate(np.asarray(params)), np.asarray(corner_index, dtype=np.int64)
+
+
+def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None) -> CDSpline:
+    """Least-squares closed CD-spline through a ring's points (eq. 5.7).
+
+    Parameters
+    ----------
+    points : ndarray of shape (Q, 3) float64
+        Ordered closed ring (first point not repeated), metres.
+    corners : ndarray of int, shape (M,)
+        Increasing ring indices of the knots (M >= 1).
+    degrees : sequence of M int
+        Degree of the segment starting at each corner.
+    t : ndarray of shape (Q,), optional
+        Chord-length parameters of the ring rotated to start at ``corners[0]``
+        (computed when omitted).
+
+    Returns
+    -------
+    CDSpline
+        x, y and z are fitted together with one design matrix.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    corners = np.asarray(corners, dtype=np.int64)
+    q = len(points)
+    start = int(corners[0])
+    rolled = np.roll(points, -start, axis=0)
+    if t is None:
+        t = chord_parameters(rolled)
+    breaks = np.append(t[corners - start], 1.0)
+    if np.any(np.diff(breaks) <= 0):
+        raise GeometryError("degenerate_segment")
+    a = cd_basis(t, breaks, degrees)
+    if a.shape[1] > q:
+        raise GeometryError("too_few_points")
+    ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
+    res = np.linalg.norm(a @ ctrl - rolled, axis=1)
+    seg = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(corners) - 1)
+    back = (np.arange(q) - start) % q  # original order
+    return CDSpline(ctrl, breaks, list(map(int, degrees)), t[back], res[back], seg[back])
+
+
+def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplineOptions | None = None) -> CDSpline:
+    """CD-spline whose segment degrees are chosen by the F-test on residuals (thesis §5.6).
+
+    All segments start as straight lines; the segment with the largest sum of
+    absolute residuals is raised by one degree and the curve refitted while
+    the F-test finds the change significant (see :class:`CDSplineOptions`).
+    Degrees never exceed ``max_degree`` nor what the segment's points can
+    determine (interior points + 1).
+
+    Parameters
+    ----------
+    points : ndarray of shape (Q, 3) float64
+    corners : ndarray of int, shape (M,), sorted
+    options : CDSplineOptions, optional
+
+    Returns
+    -------
+    CDSpline
+    """
+    options = options or CDSplineOptions()
+    points = np.asarray(points, dtype=np.float64)
+    corners = np.unique(np.asarray(corners, dtype=np.int64))
+    q = len(points)
+    if len(corners) == 0:
+        corners = np.array([0], dtype=np.int64)
+    start = int(corners[0])
+    t = chord_parameters(np.roll(points, -start, axis=0))
+    interior = np.diff(np.append(corners, corners[0] + q)) - 1
+    cap = np.minimum(options.max_degree, interior + 1)
+    if len(corners) == 1:
+        cap = np.minimum(cap, max(options.max_degree, 2))
+    degrees = np.ones(len(corners), dtype=np.int64)
+    if len(corners) < 2:
+        degrees[:] = min(2, int(cap[0]))  # a one-segment closed curve cannot be a straight line
+    fit = fit_cdspline(points, corners, degrees, t=t)
+    history = [(degrees.tolist(), fit.sigma)]
+    frozen = degrees >= cap
+    lo, hi = stats.f.ppf([options.significance / 2, 1 - options.significance / 2], q - 1, q - 1)
+    while not frozen.all():
+        seg_sum = np.bincount(fit.segment, fit.residuals, len(corners))
+        seg_sum[frozen] = -1.0
+        k = int(np.argmax(seg_sum))
+        trial = degrees.copy()
+        trial[k] += 1
+        if trial.sum() > q:
+            break
+        new = fit_cdspline(points, corners, trial, t=t)
+        history.append((trial.tolist(), new.sigma))
+        if options.test == "global":
+            f_c = (new.sigma / fit.sigma) ** 2 if fit.sigma > 0 else 1.0
+            if lo < f_c < hi:
+                break
+            degrees, fit = trial, new
+        else:
+            sel = fit.segment == k
+            n_k = int(sel.sum())
+            old_s = np.sum(fit.residuals[sel] ** 2)
+            new_s = np.sum(new.residuals[sel] ** 2)
+            f_lo = stats.f.ppf(options.significance / 2, max(n_k - 1, 1), max(n_k - 1, 1))
+            if old_s > 0 and new_s / old_s < f_lo:
+                degrees, fit = trial, new
+            else:
+                frozen[k] = True
+        frozen |= degrees >= cap
+    fit.history = history
+    log.debug("cd-spline: degrees %s after %d fits", degrees.tolist(), len(history))
+    return fit

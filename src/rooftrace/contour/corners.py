@@ -1,0 +1,175 @@
+"""Corners of a closed 3D contour: Douglas-Peucker in 3D plus a turning-angle filter (thesis §5.5).
+
+The corners are the knots of the CD-spline: they split the ring into the
+segments whose polynomial degree is chosen afterwards.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CornerOptions", "douglas_peucker", "turning_angles", "segment_deviation", "ring_corners"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class CornerOptions:
+    """Options of the corner stage (TOML table ``[corners]``).
+
+    Attributes
+    ----------
+    t_dist : float
+        Douglas-Peucker distance threshold T_dist in metres (3D), thesis §5.5
+        and DESIGN.md stage 7: 0.6 m.
+    t_ang : float
+        Turning-angle threshold T_ang in degrees (0 = straight on): corners
+        turning less are redundant (thesis eq. 5.10; DESIGN.md: 50°).
+    keep_curve_breaks : bool
+        Beyond the thesis: keep a low-angle corner when removing it would
+        leave a segment that is not straight (a point farther than ``t_dist``
+        from the chord), so arcs keep their Douglas-Peucker vertices as knots
+        and straight walls that run tangentially into an arc stay separate
+        segments.  With False the filter is the thesis's.
+    """
+
+    section = "corners"
+
+    t_dist: float = 0.6
+    t_ang: float = 50.0
+    keep_curve_breaks: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.t_dist > 0:
+            raise ValueError(f"corners.t_dist must be > 0 m, not {self.t_dist}")
+        if not 0 <= self.t_ang < 180:
+            raise ValueError(f"corners.t_ang must be in [0, 180) degrees, not {self.t_ang}")
+
+
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    den = float(ab @ ab)
+    if den == 0:
+        return np.linalg.norm(p - a, axis=1)
+    s = np.clip((p - a) @ ab / den, 0.0, 1.0)
+    return np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
+
+
+def douglas_peucker(points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Douglas-Peucker on an open polyline, in as many dimensions as ``points`` has.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, D) float64
+    tolerance : float
+        Largest distance (same units) a dropped vertex may have to the kept polyline.
+
+    Returns
+    -------
+    ndarray of int64
+        Sorted indices of the kept vertices, always including 0 and N-1.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    n = len(points)
+    keep = np.zeros(n, bool)
+    keep[[0, n - 1]] = True
+    stack = [(0, n - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j <= i + 1:
+            continue
+        d = _point_segment_distance(points[i + 1:j], points[i], points[j])
+        k = int(np.argmax(d))
+        if d[k] > tolerance:
+            k += i + 1
+            keep[k] = True
+            stack += [(i, k), (k, j)]
+    return np.flatnonzero(keep)
+
+
+def _closed_dp(points: np.ndarray, start: int, tolerance: float) -> np.ndarray:
+    n = len(points)
+    rolled = np.roll(points, -start, axis=0)
+    far = int(np.argmax(np.linalg.norm(rolled - rolled[0], axis=1)))
+    closed = np.concatenate([rolled, rolled[:1]])
+    first = douglas_peucker(closed[: far + 1], tolerance)
+    second = douglas_peucker(closed[far:], tolerance) + far
+    idx = np.unique(np.concatenate([first, second[:-1]]))
+    return np.sort((idx + start) % n)
+
+
+def turning_angles(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Turning angle in degrees at each corner of a closed polygon (eq. 5.10; 0 = straight on)."""
+    c = points[corners]
+    v1 = c - np.roll(c, 1, axis=0)
+    v2 = np.roll(c, -1, axis=0) - c
+    den = np.linalg.norm(v1, axis=1) * np.linalg.norm(v2, axis=1)
+    cos = np.einsum("ij,ij->i", v1, v2) / np.where(den > 0, den, 1.0)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def segment_deviation(points: np.ndarray, i: int, j: int) -> float:
+    """Largest distance of the ring's points from ``i`` to ``j`` (cyclic) to the chord i-j."""
+    n = len(points)
+    idx = np.arange(i, i + ((j - i) % n or n) + 1) % n
+    return float(_point_segment_distance(points[idx], points[i], points[j]).max(initial=0.0))
+
+
+def ring_corners(points: np.ndarray, options: CornerOptions | None = None) -> np.ndarray:
+    """Corners of a closed 3D ring.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 3) float64
+        Ordered ring vertices (first not repeated), metres.
+    options : CornerOptions, optional
+
+    Returns
+    -------
+    ndarray of int64
+        Sorted indices of the corners (at least 2 when N >= 2).
+
+    Notes
+    -----
+    Douglas-Peucker runs once from vertex 0 (and the vertex farthest from it),
+    then again from the sharpest corner found, so vertex 0 is kept only if it
+    is itself critical (thesis §5.5).  Corners whose turning angle is below
+    ``t_ang`` are then removed one at a time, smallest angle first.
+    """
+    options = options or CornerOptions()
+    points = np.asarray(points, dtype=np.float64)
+    n = len(points)
+    if n < 4:
+        return np.arange(n, dtype=np.int64)
+    first = _closed_dp(points, 0, options.t_dist)
+    if len(first) >= 3:
+        sharpest = int(first[np.argmax(turning_angles(points, first))])
+    else:
+        sharpest = int(first[-1])
+    corners = list(_closed_dp(points, sharpest, options.t_dist))
+    locked: set[int] = set()
+    while len(corners) > 3:
+        c = np.asarray(corners)
+        ang = turning_angles(points, c)
+        order = np.argsort(ang, kind="stable")
+        removed = False
+        for k in order:
+            if ang[k] >= options.t_ang:
+                break
+            if c[k] in locked:
+                continue
+            prev, nxt = c[k - 1], c[(k + 1) % len(c)]
+            if options.keep_curve_breaks and segment_deviation(points, prev, nxt) > options.t_dist:
+                locked.add(int(c[k]))
+                continue
+            del corners[k]
+            removed = True
+            break
+        if not removed:
+            break
+        locked.clear()  # neighbours changed: earlier refusals may no longer hold
+    log.debug("corners: %d of %d ring vertices", len(corners), n)
+    return np.asarray(corners, dtype=np.int64)

@@ -1,0 +1,302 @@
+"""From one building's points to its regularised 3D roof outline (DESIGN.md stages 6-7).
+
+alpha shape (rings) -> corners (Douglas-Peucker 3D + angle filter) ->
+iterative CD-spline (degree per segment) -> optional snapping -> outward
+correction -> shapely Polygon with Z.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+
+from rooftrace.config import KNOWN_SECTIONS, make_options
+from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
+from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
+from rooftrace.contour.corners import CornerOptions, ring_corners
+from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
+from rooftrace.errors import GeometryError, InputError
+from rooftrace.io.vector import Layer
+from rooftrace.progress import Reporter
+
+__all__ = ["OutlineOptions", "RoofOutline", "trace_outline", "outline_buildings", "outlines_layer"]
+
+log = logging.getLogger(__name__)
+
+_STAGES = {"alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions, "regularize": RegularizeOptions}
+KNOWN_SECTIONS.update(_STAGES)
+
+#: alpha is enlarged by these factors when the shape does not close (status "alpha_enlarged")
+_RETRY_SCALES = (1.0, 1.5, 2.0, 3.0)
+
+
+@dataclass(frozen=True)
+class OutlineOptions:
+    """The outline stages' options, one frozen dataclass per TOML table.
+
+    Attributes
+    ----------
+    alpha : AlphaOptions
+        ``[alpha]``: strategy, alpha, radius, long_edge_sigma, min_hole_area.
+    corners : CornerOptions
+        ``[corners]``: t_dist, t_ang, keep_curve_breaks.
+    cdspline : CDSplineOptions
+        ``[cdspline]``: significance, max_degree, test, densify.
+    regularize : RegularizeOptions
+        ``[regularize]``: offset_factor, snap, snap_tolerance, max_offset_ratio.
+    """
+
+    alpha: AlphaOptions = field(default_factory=AlphaOptions)
+    corners: CornerOptions = field(default_factory=CornerOptions)
+    cdspline: CDSplineOptions = field(default_factory=CDSplineOptions)
+    regularize: RegularizeOptions = field(default_factory=RegularizeOptions)
+
+    @classmethod
+    def from_config(cls, config: dict | None = None, **overrides: Any) -> "OutlineOptions":
+        """Options from a TOML config dict (tables ``alpha``, ``corners``, ``cdspline``, ``regularize``).
+
+        Keyword overrides name a field of any of the four stages (e.g.
+        ``strategy="point"``, ``snap=True``); ``None`` means not given.
+        """
+        routed: dict[str, dict[str, Any]] = {name: {} for name in _STAGES}
+        for key, value in overrides.items():
+            owners = [name for name, c in _STAGES.items() if key in {f.name for f in dataclasses.fields(c)}]
+            if not owners:
+                raise InputError(f"outline: unknown option {key!r}")
+            routed[owners[0]][key] = value
+        return cls(**{name: make_options(c, config, **routed[name]) for name, c in _STAGES.items()})
+
+
+@dataclass
+class RoofOutline:
+    """One building's roof outline.
+
+    Attributes
+    ----------
+    building_id : int
+    polygon : shapely.Polygon or None
+        PolygonZ in the input CRS, outer ring counter-clockwise, holes
+        clockwise; None when ``status`` says why there is none.
+    degrees : list of list of int
+        Per ring (outer first), the degree of each segment, in ring order.
+    corners : list of ndarray of int
+        Per ring, the indices of its corner vertices in the polygon's ring
+        coordinates (closing vertex excluded); segment k starts at corner k.
+    alpha_strategy : str
+    alpha : float
+        Metres (median of the per-edge values for the 'point' strategy).
+    n_points : int
+    status : str
+        'ok', 'alpha_enlarged' (closed only with a larger alpha), 'repaired'
+        (invalid rings fixed by make_valid), or why there is no outline
+        ('too_few_points', 'collinear', 'no_ring', ...).
+    z_min, z_mean, z_max : float
+        Heights of the building's points, metres.
+    sigma : float
+        Residual standard deviation of the CD-spline fit of the outer ring, metres.
+    """
+
+    building_id: int
+    polygon: Any
+    degrees: list = field(default_factory=list)
+    corners: list = field(default_factory=list)
+    alpha_strategy: str = ""
+    alpha: float = float("nan")
+    n_points: int = 0
+    status: str = "ok"
+    z_min: float = float("nan")
+    z_mean: float = float("nan")
+    z_max: float = float("nan")
+    sigma: float = float("nan")
+
+    @property
+    def area(self) -> float:
+        """Planimetric area in m² (0 without a polygon)."""
+        return 0.0 if self.polygon is None else float(self.polygon.area)
+
+
+def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions) -> tuple[np.ndarray, np.ndarray, list[int], float]:
+    if len(xyz) < 4:
+        return xyz, np.arange(len(xyz)), [1] * len(xyz), 0.0
+    corners = ring_corners(xyz, options.corners)
+    spline = iterative_cdspline(xyz, corners, options.cdspline)
+    vertices, corner_index = spline.ring(options.cdspline.densify)
+    degrees = spline.degrees
+    reg = options.regularize
+    if reg.snap:
+        direction = dominant_direction(vertices, corner_index, degrees)
+        vertices = snap_ring(vertices, corner_index, degrees, direction, reg.snap_tolerance)
+    if reg.offset_factor > 0:
+        vertices = offset_ring(vertices, reg.offset_factor * spacing, reg.max_offset_ratio)
+    return vertices, corner_index, degrees, spline.sigma
+
+
+def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None) -> RoofOutline:
+    """Regularised 3D roof outline of one building.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3) float64
+        The building's points, metres in a projected CRS.
+    options : OutlineOptions, optional
+    mean_spacing : float, optional
+        The cloud's mean point spacing s_avg in metres (alpha of the 'global'
+        strategy when ``options.alpha.alpha`` is None).
+
+    Returns
+    -------
+    RoofOutline
+        ``building_id`` is 0; :func:`outline_buildings` sets it.
+
+    Raises
+    ------
+    GeometryError
+        Too few points, collinear points, or no closed ring even with alpha
+        tripled; the message is the status.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T
+    >>> xyz = np.column_stack([g, np.full(len(g), 5.0)])
+    >>> out = trace_outline(xyz)
+    >>> out.status, len(out.corners[0]), round(out.area)
+    ('ok', 4, 60)
+    """
+    options = options or OutlineOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"trace_outline: xyz must have shape (N, 3), not {xyz.shape}")
+    if not np.isfinite(xyz).all():
+        raise GeometryError("non_finite")
+    _, first = np.unique(xyz[:, :2], axis=0, return_index=True)
+    pts = xyz[np.sort(first)]
+    if len(pts) < 3:
+        raise GeometryError("too_few_points")
+    status = "ok"
+    shape = None
+    for scale in _RETRY_SCALES:
+        try:
+            shape = alpha_shape(pts[:, :2], options.alpha, mean_spacing=mean_spacing, alpha_scale=scale)
+            break
+        except GeometryError as exc:
+            if str(exc) != "no_ring":
+                raise
+            status = "alpha_enlarged"
+    if shape is None:
+        raise GeometryError("no_ring")
+    rings, degrees, corners = [], [], []
+    sigma = float("nan")
+    for i, ring in enumerate(shape.rings):
+        spacing = float(np.median(shape.spacing[ring]))
+        vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
+        if i == 0:
+            sigma = s
+        rings.append(vertices)
+        degrees.append(list(deg))
+        corners.append(corner_index)
+    polygon = shapely.Polygon(rings[0], rings[1:])
+    if not polygon.is_valid:
+        polygon, corners = _make_valid(polygon, rings, corners)
+        degrees = degrees[: 1 + len(polygon.interiors)] if polygon is not None else []
+        status = "repaired"
+    if polygon is None or polygon.is_empty:
+        raise GeometryError("degenerate_outline")
+    z = xyz[:, 2]
+    return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(xyz), status,
+                       float(z.min()), float(z.mean()), float(z.max()), sigma)
+
+
+def _make_valid(polygon, rings: list[np.ndarray], corners: list[np.ndarray]):
+    fixed = shapely.make_valid(polygon)
+    parts = [g for g in getattr(fixed, "geoms", [fixed]) if isinstance(g, shapely.Polygon) and not g.is_empty]
+    if not parts:
+        return None, []
+    best = shapely.orient_polygons(max(parts, key=lambda g: g.area)) if hasattr(shapely, "orient_polygons") \
+        else shapely.geometry.polygon.orient(max(parts, key=lambda g: g.area))
+    corner_xy = np.concatenate([r[c, :2] for r, c in zip(rings, corners)]) if rings else np.empty((0, 2))
+    new_corners = []
+    for ring in [best.exterior, *best.interiors]:
+        xy = np.asarray(ring.coords)[:-1, :2]
+        hit = np.min(np.linalg.norm(xy[:, None] - corner_xy[None], axis=2), axis=1) < 1e-6
+        new_corners.append(np.flatnonzero(hit))
+    return best, new_corners
+
+
+def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: OutlineOptions | None = None, *,
+                      mean_spacing: float | None = None, reporter: Reporter | None = None) -> list[RoofOutline]:
+    """Outline every building (ids > 0), sorted by id; degenerate ones get a status, not an exception.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3) float64
+    building_id : ndarray of shape (N,) int
+        0 (or negative) = not a building.
+    options : OutlineOptions, optional
+    mean_spacing : float, optional
+        Cloud mean spacing s_avg (metres), for the 'global' alpha strategy.
+    reporter : Reporter, optional
+
+    Returns
+    -------
+    list of RoofOutline
+    """
+    options = options or OutlineOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    building_id = np.asarray(building_id).astype(np.int64)
+    if len(building_id) != len(xyz):
+        raise ValueError(f"outline_buildings: {len(building_id)} building ids for {len(xyz)} points")
+    sel = np.flatnonzero(building_id > 0)
+    order = sel[np.argsort(building_id[sel], kind="stable")]
+    ids, starts = np.unique(building_id[order], return_index=True)
+    groups = np.split(order, starts[1:]) if len(order) else []
+    reporter = reporter or Reporter()
+    outlines = []
+    with reporter.stage("outline", total=len(ids)):
+        for bid, idx in zip(ids, groups):
+            try:
+                outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
+                outline.building_id = int(bid)
+            except GeometryError as exc:
+                z = xyz[idx, 2]
+                outline = RoofOutline(int(bid), None, alpha_strategy=options.alpha.strategy, n_points=len(idx),
+                                      status=str(exc) or "failed", z_min=float(z.min()), z_mean=float(z.mean()),
+                                      z_max=float(z.max()))
+                log.debug("building %d: no outline (%s)", bid, outline.status)
+            outlines.append(outline)
+            reporter.advance()
+    return outlines
+
+
+def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list] | None = None) -> Layer:
+    """The ``roof_outlines`` layer (PolygonZ): one feature per outline, failed ones with no geometry.
+
+    Attributes: building_id, n_points, alpha_strategy, alpha, area (m²),
+    z_min, z_mean, z_max (m), n_corners, degrees (per ring the segment
+    degrees joined by ',' and rings joined by ';', e.g. ``"1,1,2,1;1,1,1,1"``),
+    sigma (m), status, plus ``extra_attributes``.
+    """
+    attrs: dict[str, list] = {
+        "building_id": [o.building_id for o in outlines],
+        "n_points": [o.n_points for o in outlines],
+        "alpha_strategy": [o.alpha_strategy for o in outlines],
+        "alpha": [o.alpha for o in outlines],
+        "area": [o.area for o in outlines],
+        "z_min": [o.z_min for o in outlines],
+        "z_mean": [o.z_mean for o in outlines],
+        "z_max": [o.z_max for o in outlines],
+        "n_corners": [int(sum(len(c) for c in o.corners)) for o in outlines],
+        "degrees": [";".join(",".join(map(str, d)) for d in o.degrees) for o in outlines],
+        "sigma": [o.sigma for o in outlines],
+        "status": [o.status for o in outlines],
+    }
+    for key, values in (extra_attributes or {}).items():
+        if len(values) != len(outlines):
+            raise ValueError(f"outlines_layer: {key!r} has {len(values)} values for {len(outlines)} outlines")
+        attrs[key] = list(values)
+    return Layer([o.polygon for o in outlines], attrs, "PolygonZ")

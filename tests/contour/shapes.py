@@ -1,0 +1,31 @@
+"""Point samples of known roof shapes (exact truth) for the contour tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+RECT = shapely.box(0, 0, 20, 12)
+L_SHAPE = shapely.Polygon([(0, 0), (20, 0), (20, 6), (10, 6), (10, 12), (0, 12)])
+COURTYARD = shapely.box(0, 0, 20, 16).difference(shapely.box(5, 5, 13, 11))
+CIRCLE = shapely.Point(0, 0).buffer(8, quad_segs=128)
+STADIUM = shapely.box(0, 0, 14, 10).union(shapely.Point(14, 5).buffer(5, quad_segs=128))
+
+
+def sample(polygon, density: float = 10.0, seed: int = 0, jitter: float = 0.25, z: float = 10.0,
+           density_right: float | None = None) -> np.ndarray:
+    """Jittered-grid points inside ``polygon``, ``density`` pts/m² (``density_right`` right of the centre)."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    x0, y0, x1, y1 = polygon.bounds
+    xm = 0.5 * (x0 + x1)
+    for dens, (a, b) in ((density, (x0, xm if density_right else x1)), (density_right, (xm, x1))):
+        if not dens:
+            continue
+        s = 1 / np.sqrt(dens)
+        g = np.mgrid[a:b:s, y0 - 1:y1 + 1:s].reshape(2, -1).T + rng.uniform(0, s, (1, 2))
+        g = g + rng.uniform(-jitter * s, jitter * s, g.shape)
+        g = g[(g[:, 0] >= a) & (g[:, 0] < b)]
+        parts.append(g[shapely.contains_xy(polygon, g[:, 0], g[:, 1])])
+    xy = np.concatenate(parts)
+    return np.column_stack([xy, z + 0.05 * rng.normal(size=len(xy))])

@@ -1,0 +1,122 @@
+import numpy as np
+import pytest
+import shapely
+from scipy.spatial import Delaunay
+
+from rooftrace.contour.alpha_shape import (AlphaOptions, alpha_shape, boundary_edges, building_alpha,
+                                           delaunay_edges, point_spacing)
+from rooftrace.errors import GeometryError
+from tests.contour.shapes import COURTYARD, L_SHAPE, RECT, sample
+
+
+def _polygon(xy, shape):
+    return shapely.Polygon(xy[shape.rings[0]], [xy[r] for r in shape.rings[1:]])
+
+
+def _signed_area(xy):
+    return 0.5 * np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1])
+
+
+@pytest.mark.parametrize("strategy", ["global", "building", "point"])
+@pytest.mark.parametrize("truth", [RECT, L_SHAPE], ids=["rect", "L"])
+def test_outer_ring_closed_ccw_and_close_to_truth(strategy, truth):
+    xyz = sample(truth, 10)
+    shape = alpha_shape(xyz[:, :2], AlphaOptions(strategy=strategy), mean_spacing=1 / np.sqrt(10))
+    assert len(shape.rings) == 1
+    ring = xyz[shape.rings[0], :2]
+    assert _signed_area(ring) > 0  # counter-clockwise
+    poly = _polygon(xyz[:, :2], shape)
+    assert poly.is_valid
+    # the boundary runs through the outermost points: inside the truth, about half a spacing in
+    # (at a reflex corner the boundary may cut across it)
+    assert truth.buffer(0.5).contains(poly)
+    assert poly.difference(truth).area < 0.5
+    assert 0.9 * truth.area < poly.area < truth.area
+    assert shapely.hausdorff_distance(poly.exterior, truth.exterior) < 0.6
+
+
+def test_courtyard_is_a_clockwise_hole():
+    xyz = sample(COURTYARD, 10)
+    shape = alpha_shape(xyz[:, :2], AlphaOptions(strategy="point"))
+    assert len(shape.rings) == 2
+    hole = xyz[shape.rings[1], :2]
+    assert _signed_area(hole) < 0
+    assert abs(-_signed_area(hole) - 48) < 6  # 8 x 6 m, grown by about half a spacing per side
+
+
+def test_small_gaps_do_not_become_courtyards():
+    xyz = sample(RECT, 10)
+    gap = (np.hypot(xyz[:, 0] - 10, xyz[:, 1] - 6) < 0.8)  # a 2 m² patch without returns
+    shape = alpha_shape(xyz[~gap, :2], AlphaOptions(strategy="building", min_hole_area=4.0))
+    assert len(shape.rings) == 1
+    shape = alpha_shape(xyz[~gap, :2], AlphaOptions(strategy="building", min_hole_area=0.5))
+    assert len(shape.rings) == 2
+
+
+def test_density_change_global_alpha_breaks_point_alpha_holds():
+    # thesis fig. 1.2: 16 pts/m² on the left half, 4 pts/m² on the right (strip overlap)
+    xyz = sample(RECT, 16, density_right=4, seed=3)
+    dense_spacing = 1 / np.sqrt(16)
+    s1 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="global"), mean_spacing=dense_spacing)
+    s2 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="building"))
+    s3 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="point"))
+    a3 = _polygon(xyz[:, :2], s3).area
+    # the sparse half falls apart with one alpha for the whole building
+    assert _polygon(xyz[:, :2], s1).area < 0.6 * RECT.area
+    assert _polygon(xyz[:, :2], s2).area < 0.6 * RECT.area
+    assert a3 > 0.9 * RECT.area
+    assert len(s3.rings) == 1
+    assert s3.spacing[xyz[:, 0] > 14].mean() > 1.8 * s3.spacing[xyz[:, 0] < 6].mean()
+
+
+def test_boundary_edges_match_brute_force_circle_test(rng):
+    xy = rng.uniform(0, 10, (120, 2))
+    edges, lengths = delaunay_edges(xy)
+    alpha = 1.1
+    got = {tuple(e) for e in boundary_edges(xy, edges, alpha)}
+    want = set()
+    for i, j in edges:
+        d = xy[j] - xy[i]
+        s2 = d @ d
+        if s2 > 4 * alpha**2:
+            continue
+        h = np.sqrt(alpha**2 / s2 - 0.25)
+        mid = xy[i] + 0.5 * d
+        c_right = mid + h * np.array([d[1], -d[0]])
+        c_left = mid - h * np.array([d[1], -d[0]])
+        others = np.delete(xy, [i, j], axis=0)
+        right_empty = np.all(np.hypot(*(others - c_right).T) >= alpha)
+        left_empty = np.all(np.hypot(*(others - c_left).T) >= alpha)
+        if right_empty and not left_empty:
+            want.add((i, j))
+        elif left_empty and not right_empty:
+            want.add((j, i))
+    assert got == want and len(want) > 10
+
+
+def test_building_alpha_drops_long_edges():
+    lengths = np.concatenate([np.full(200, 0.3), [5.0]])
+    assert building_alpha(lengths) == pytest.approx(0.3)
+
+
+def test_point_spacing_matches_brute_force(rng):
+    xy = rng.uniform(0, 8, (150, 2))
+    edges, lengths = delaunay_edges(xy)
+    got = point_spacing(xy, edges, lengths, radius=2.0)
+    for i in (0, 7, 42):
+        inside = np.hypot(*(xy - xy[i]).T) <= 2.0
+        sel = inside[edges[:, 0]] & inside[edges[:, 1]]
+        assert got[i] == pytest.approx(lengths[sel].mean())
+
+
+def test_degenerate_input_raises_geometry_error():
+    with pytest.raises(GeometryError, match="too_few_points"):
+        alpha_shape(np.zeros((2, 2)))
+    line = np.column_stack([np.arange(10.0), np.arange(10.0)])
+    with pytest.raises(GeometryError, match="collinear"):
+        alpha_shape(line)
+
+
+def test_bad_option_names_value():
+    with pytest.raises(ValueError, match="strategy"):
+        AlphaOptions(strategy="triangle")
