@@ -1,0 +1,244 @@
+"""Roof faces that tile the outline, and the step edges between roof levels.
+
+The outline's bounding box is rasterised (cell ``cell`` m) and each cell
+takes a plane from its ``k`` nearest labelled points.  Near a ridge, hip or
+valley found by :mod:`rooftrace.roof.ridges` the nearest point is not good
+enough, so there a cell takes the candidate plane that agrees with the line's
+geometry: the lower of the two planes across a convex line, the higher across
+a concave one.  The face boundaries then follow the intersection lines (to
+the cell size) rather than the point pattern.  The label raster is turned
+into polygons (``rasterio.features.shapes``), the shared boundaries are
+simplified together (``shapely.coverage_simplify``, so neighbours keep
+identical edges), and each region is cut by the outline; slivers are merged
+into the neighbour they share most boundary with.  The faces therefore tile
+the outline exactly, and each face takes its Z from its plane.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import shapely
+from rasterio import features
+from rasterio.transform import Affine
+from scipy.spatial import cKDTree
+from shapely.geometry import LineString, Polygon, shape
+
+from rooftrace.roof.planes import plane_height
+
+__all__ = ["partition_outline", "lift_to_plane", "step_edges"]
+
+log = logging.getLogger(__name__)
+
+#: most raster cells per building before the cell is coarsened
+MAX_CELLS = 1_000_000
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Plan distance of points (M, 2) to segments (S, 2)-(S, 2): (M, S)."""
+    ab = b - a
+    L2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    ap = p[:, None, :] - a[None, :, :]
+    t = np.clip((ap * ab[None]).sum(axis=2) / L2, 0, 1)
+    d = ap - t[..., None] * ab[None]
+    return np.hypot(d[..., 0], d[..., 1])
+
+
+def _absorb_slivers(polys: list, ids: list, min_area: float):
+    """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary."""
+    while True:
+        areas = np.array([p.area for p in polys])
+        small = [i for i in np.argsort(areas) if areas[i] < min_area]
+        if not small or len(polys) < 2:
+            return polys, ids
+        i = small[0]
+        shared = [polys[i].boundary.intersection(q.boundary).length if j != i else -1 for j, q in enumerate(polys)]
+        j = int(np.argmax(shared))
+        if shared[j] <= 0:
+            # Isolated island: keep it (it is still part of the tiling).
+            if areas[i] < 1e-9:
+                del polys[i], ids[i]
+                continue
+            return polys, ids
+        merged = shapely.union(polys[j], polys[i])
+        if merged.geom_type != "Polygon":
+            merged = merged.buffer(0)
+        polys[j] = merged
+        del polys[i], ids[i]
+
+
+def partition_outline(
+    outline,
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    planes: np.ndarray,
+    lines=None,
+    *,
+    cell: float,
+    line_tolerance: float,
+    k: int = 8,
+    min_area: float | None = None,
+    simplify: float = 3.0,
+):
+    """Split the outline among the planes.
+
+    Parameters
+    ----------
+    outline : shapely Polygon
+        Roof outline (Z ignored), possibly with holes.
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` unassigned.
+    planes : ndarray of shape (K, 4)
+    lines : IntersectionLines, optional
+        Ridge, hip and valley lines with their plane pairs and convexity.
+    cell : float
+        Raster cell (m).
+    line_tolerance : float
+        Cells within this plan distance (m) of a line follow its geometry.
+    k : int
+        Candidate planes from the k nearest labelled points.
+    min_area : float, optional
+        Faces smaller than this (m²) are merged into a neighbour; default ``4 cell²``.
+    simplify : float
+        Tolerance of the shared-boundary simplification, in cells.
+
+    Returns
+    -------
+    polygons : list of shapely Polygon (2D)
+    plane_ids : list of int
+    """
+    outline = shapely.force_2d(outline)
+    sel = labels >= 0
+    P, lab = np.asarray(xyz)[sel], np.asarray(labels)[sel]
+    if len(P) == 0 or outline.is_empty:
+        return [], []
+    minx, miny, maxx, maxy = outline.bounds
+    area = (maxx - minx + 4 * cell) * (maxy - miny + 4 * cell)
+    if area / cell**2 > MAX_CELLS:
+        cell = float(np.sqrt(area / MAX_CELLS))
+    x0, y1 = minx - 2 * cell, maxy + 2 * cell
+    nx = int(np.ceil((maxx - minx) / cell)) + 4
+    ny = int(np.ceil((maxy - miny) / cell)) + 4
+    cx = x0 + (np.arange(nx) + 0.5) * cell
+    cy = y1 - (np.arange(ny) + 0.5) * cell
+    gx, gy = np.meshgrid(cx, cy)
+    C = np.column_stack([gx.ravel(), gy.ravel()])
+    kk = int(min(k, len(P)))
+    _, idx = cKDTree(P[:, :2]).query(C, k=kk)
+    idx = idx.reshape(len(C), kk)
+    cand = lab[idx]
+    rows = np.arange(len(C))
+    # Majority of the k nearest points (ties to the nearest): a boundary
+    # smoother than the nearest point's Voronoi staircase.
+    votes = (cand[:, :, None] == cand[:, None, :]).sum(axis=2)
+    score = -votes * (kk + 1) + np.arange(kk)[None, :]
+    if lines is not None and len(lines.lines):
+        K = len(planes)
+        segidx = np.full((K, K), -1)
+        for s, (a, b) in enumerate(lines.pairs):
+            segidx[a, b] = segidx[b, a] = s
+        seg = np.array([np.asarray(g.coords)[[0, -1], :2] for g in lines.lines])
+        sign = np.asarray(lines.convex)
+        dist = _segment_distance(C, seg[:, 0], seg[:, 1])
+        z = plane_height(planes[cand], np.broadcast_to(C[:, None, :], cand.shape + (2,)))
+        viol = np.zeros(cand.shape, dtype=np.int64)
+        for i in range(kk):
+            for j in range(kk):
+                s = segidx[cand[:, i], cand[:, j]]
+                ok = s >= 0
+                sg = np.where(ok, sign[np.maximum(s, 0)], 0)
+                near = ok & (dist[rows, np.maximum(s, 0)] <= line_tolerance)
+                wrong = ((sg > 0) & (z[:, i] > z[:, j])) | ((sg < 0) & (z[:, i] < z[:, j]))
+                viol[:, i] += near & wrong
+        # Fewest violations first, then the vote.
+        score = score + viol * (kk + 1) ** 2
+    choice = cand[rows, np.argmin(score, axis=1)]
+    grid = choice.reshape(ny, nx).astype(np.int32)
+    transform = Affine(cell, 0, x0, 0, -cell, y1)
+    regions, ids = [], []
+    for geom, value in features.shapes(grid, transform=transform, connectivity=4):
+        regions.append(shape(geom))
+        ids.append(int(value))
+    regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
+    polys, pids = [], []
+    for reg, pid in zip(regions, ids):
+        part = shapely.intersection(shapely.make_valid(reg), outline)
+        for g in getattr(part, "geoms", [part]):
+            if isinstance(g, Polygon) and not g.is_empty and g.area > 0:
+                polys.append(g)
+                pids.append(pid)
+    polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
+    return polys, pids
+
+
+def lift_to_plane(geom, plane: np.ndarray):
+    """Give a plan geometry the Z of a plane ``(a, b, c, d)`` at every vertex."""
+
+    def _z(coords):
+        return np.column_stack([coords[:, :2], plane_height(plane[None, :], coords[:, :2])[:, 0]])
+
+    return shapely.transform(shapely.force_3d(geom), _z, include_z=True)
+
+
+def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height: float, min_length: float,
+               simplify: float = 0.0):
+    """Step edges: shared face boundaries where the two planes differ in height.
+
+    Parameters
+    ----------
+    polys : list of shapely Polygon (2D)
+        Faces tiling the outline.
+    plane_ids : list of int
+    planes : ndarray of shape (K, 4)
+    step_height : float
+        Smallest median height jump (m) along the shared boundary.
+    min_length : float
+        Shorter boundaries (m) are ignored.
+    simplify : float
+        Douglas-Peucker tolerance (m) applied to each step line.
+
+    Returns
+    -------
+    lines : list of LineString (3D)
+        On the upper plane (the top of the wall).
+    pairs : list of tuple of int
+        ``(upper plane, lower plane)``.
+    """
+    lines, pairs = [], []
+    if len(polys) < 2:
+        return lines, pairs
+    tree = shapely.STRtree(polys)
+    done = set()
+    for i, j in zip(*tree.query(polys, predicate="intersects")):
+        a, b = plane_ids[i], plane_ids[j]
+        if i >= j or a == b or (i, j) in done:
+            continue
+        done.add((i, j))
+        shared = shapely.intersection(polys[i].boundary, polys[j].boundary)
+        segs = [g for g in getattr(shared, "geoms", [shared]) if isinstance(g, LineString) and not g.is_empty]
+        if not segs:
+            continue
+        merged = shapely.line_merge(shapely.MultiLineString(segs))
+        for g in getattr(merged, "geoms", [merged]):
+            if g.length < min_length:
+                continue
+            # A shared boundary can be partly a step and partly a crease (a
+            # dormer's cheeks and its top): keep the runs where the planes
+            # are apart, judged on a densified copy of the boundary.
+            xy = np.asarray(shapely.segmentize(g, max(g.length / 200, 0.05)).coords)[:, :2]
+            za = plane_height(planes[a][None, :], xy)[:, 0]
+            zb = plane_height(planes[b][None, :], xy)[:, 0]
+            jump = np.abs(za - zb) > step_height
+            edges = np.flatnonzero(np.diff(np.r_[0, jump.astype(np.int8), 0]))
+            for r0, r1 in zip(edges[::2], edges[1::2]):
+                if r1 - r0 < 2:
+                    continue
+                run = shapely.simplify(LineString(xy[r0:r1]), simplify)
+                if run.length < min_length:
+                    continue
+                up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
+                lines.append(lift_to_plane(run, planes[up]))
+                pairs.append((int(up), int(lo)))
+    return lines, pairs

@@ -1,0 +1,367 @@
+"""Roof plane segmentation and least-squares plane fits with their precision.
+
+The segmentation is region growing on normals done as a graph problem: every
+point is linked to its k nearest neighbours when both neighbourhoods are
+planar, their normals agree and each lies on the other's local plane; the
+connected components of that graph (``scipy.sparse.csgraph``) are the seed
+regions.  Regions then go through rounds of least-squares refit and
+reassignment of every point to the best plane among its neighbours' planes,
+which pulls the points near ridges (whose neighbourhoods straddle two planes
+and so were left out of the graph) onto the right plane.  Coplanar adjacent
+regions are merged and regions smaller than ``min_area`` are dropped.
+
+Planes are fitted as ``z = p (x - cx) + q (y - cy) + r`` by ordinary least
+squares on heights: the ALS range error is close to vertical, so the height
+residual is the one with a known variance.  The covariance of ``(p, q, r)``
+is ``sigma^2 (A^T A)^-1``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from rooftrace.errors import GeometryError
+
+__all__ = [
+    "PlaneFit",
+    "estimate_spacing",
+    "point_normals",
+    "fit_planes",
+    "plane_height",
+    "segment_planes",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class PlaneFit:
+    """Least-squares planes of labelled points.
+
+    Attributes
+    ----------
+    planes : ndarray of shape (K, 4), float64
+        ``(a, b, c, d)`` with ``a x + b y + c z + d = 0``, unit normal, ``c > 0``.
+    pqr : ndarray of shape (K, 3), float64
+        ``(p, q, r)`` of ``z = p (x - cx) + q (y - cy) + r``.
+    centre : ndarray of shape (K, 2), float64
+        ``(cx, cy)``, the centroid of each plane's points (m).
+    cov : ndarray of shape (K, 3, 3), float64
+        Covariance of ``(p, q, r)`` (slopes unitless, ``r`` in m).
+    sigma : ndarray of shape (K,), float64
+        RMS of the height residuals (m), with ``n - 3`` degrees of freedom.
+    n : ndarray of shape (K,), int64
+        Number of points per plane.
+    """
+
+    planes: np.ndarray
+    pqr: np.ndarray
+    centre: np.ndarray
+    cov: np.ndarray
+    sigma: np.ndarray
+    n: np.ndarray
+
+
+def estimate_spacing(xy: np.ndarray) -> float:
+    """Mean point spacing ``s = sqrt(A / N)`` (m), ``A`` the convex hull area.
+
+    For a regular grid of density ``d`` this is ``1 / sqrt(d)`` (0.289 m at
+    12 pts/m²).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    xy = np.asarray(xy, dtype=np.float64)[:, :2]
+    if len(xy) < 3:
+        raise GeometryError(f"cannot estimate the point spacing from {len(xy)} points")
+    try:
+        area = ConvexHull(xy).volume
+    except QhullError:
+        raise GeometryError("cannot estimate the point spacing: points are collinear") from None
+    if not area > 0:
+        raise GeometryError("cannot estimate the point spacing: zero hull area")
+    return float(np.sqrt(area / len(xy)))
+
+
+def point_normals(xyz: np.ndarray, k: int = 16, tree: cKDTree | None = None):
+    """Unit normals (``nz >= 0``) and local plane RMS from k-NN PCA.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3)
+    k : int
+        Neighbours including the point itself.
+
+    Returns
+    -------
+    normals : ndarray of shape (N, 3)
+    rms : ndarray of shape (N,)
+        ``sqrt(lambda_3)``: RMS distance of the neighbours to their plane (m).
+    neighbours : ndarray of shape (N, k), int64
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    k = int(min(k, len(xyz)))
+    tree = cKDTree(xyz) if tree is None else tree
+    _, nn = tree.query(xyz, k=k)
+    nn = nn.reshape(len(xyz), k)
+    nb = xyz[nn]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb) / k
+    w, v = np.linalg.eigh(cov)  # ascending eigenvalues
+    normals = v[:, :, 0]
+    normals *= np.where(normals[:, 2] < 0, -1.0, 1.0)[:, None]
+    return normals, np.sqrt(np.clip(w[:, 0], 0, None)), nn
+
+
+def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None) -> PlaneFit:
+    """Fit ``z = p (x - cx) + q (y - cy) + r`` to the points of every label at once.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane index per point, ``-1`` for none.
+    n_planes : int, optional
+        Number of planes K (default ``labels.max() + 1``).
+
+    Returns
+    -------
+    PlaneFit
+        Planes with fewer than 3 points or a singular design (collinear
+        points) have NaN parameters.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels)
+    K = int(labels.max()) + 1 if n_planes is None else int(n_planes)
+    ok = labels >= 0
+    lab, P = labels[ok], xyz[ok]
+    n = np.bincount(lab, minlength=K).astype(np.int64)
+    nf = np.maximum(n, 1)
+    centre = np.stack([np.bincount(lab, P[:, i], minlength=K) / nf for i in range(3)], axis=1)
+    # Centred design [x', y', 1]: well conditioned whatever the CRS offsets.
+    dx = P[:, 0] - centre[lab, 0]
+    dy = P[:, 1] - centre[lab, 1]
+    cols = [dx, dy, np.ones_like(dx)]
+    N = np.empty((K, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            N[:, i, j] = N[:, j, i] = np.bincount(lab, cols[i] * cols[j], minlength=K)
+    u = np.stack([np.bincount(lab, c * P[:, 2], minlength=K) for c in cols], axis=1)
+    good = n >= 3
+    # A singular N means collinear points: no plane.
+    good &= np.abs(np.linalg.det(N[:, :2, :2])) > 1e-9 * np.maximum(N[:, 0, 0] * N[:, 1, 1], 1e-30)
+    Ninv = np.full((K, 3, 3), np.nan)
+    if good.any():
+        Ninv[good] = np.linalg.inv(N[good])
+    pqr = np.einsum("kij,kj->ki", Ninv, u)
+    res = P[:, 2] - (pqr[lab, 0] * dx + pqr[lab, 1] * dy + pqr[lab, 2])
+    rss = np.bincount(lab, res * res, minlength=K)
+    dof = np.maximum(n - 3, 1)
+    sigma = np.sqrt(rss / dof)
+    sigma[~good] = np.nan
+    cov = Ninv * (sigma**2)[:, None, None]
+    p, q, r = pqr.T
+    norm = np.sqrt(1 + p * p + q * q)
+    d = p * centre[:, 0] + q * centre[:, 1] - r
+    planes = np.stack([-p, -q, np.ones_like(p), d], axis=1) / norm[:, None]
+    return PlaneFit(planes, pqr, centre[:, :2].copy(), cov, sigma, n)
+
+
+def plane_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Height of plane(s) at points: ``z = -(a x + b y + d) / c``.
+
+    ``planes`` (K, 4) and ``xy`` (M, 2) give (M, K); matching leading shapes
+    ``(..., 4)`` and ``(..., 2)`` give elementwise heights.
+    """
+    planes = np.asarray(planes, dtype=np.float64)
+    xy = np.asarray(xy, dtype=np.float64)
+    if planes.ndim == 2 and xy.ndim == 2 and planes.shape[0] != xy.shape[0]:
+        return -(xy[:, :1] * planes[:, 0] + xy[:, 1:2] * planes[:, 1] + planes[:, 3]) / planes[:, 2]
+    return -(xy[..., 0] * planes[..., 0] + xy[..., 1] * planes[..., 1] + planes[..., 3]) / planes[..., 2]
+
+
+def _compact(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Relabel kept labels 0..K'-1 in order, others -1."""
+    mapping = np.full(len(keep) + 1, -1, dtype=np.int64)
+    mapping[:-1][keep] = np.arange(int(keep.sum()))
+    return mapping[labels]  # labels == -1 reads mapping[-1] == -1
+
+
+def _best_candidate(xyz, nn, labels, planes, tol, include_self=True):
+    """For every point the label among its neighbours' (and its own) labels
+    whose plane is closest in height; -1 when none is within ``tol``."""
+    cand = labels[nn]
+    if include_self:
+        cand = np.concatenate([labels[:, None], cand], axis=1)
+    valid = cand >= 0
+    c = np.where(valid, cand, 0)
+    pl = planes[c]  # (N, k, 4)
+    z = plane_height(pl, np.broadcast_to(xyz[:, None, :2], c.shape + (2,)))
+    r = np.abs(z - xyz[:, None, 2])
+    r = np.where(valid & np.isfinite(r), r, np.inf)
+    j = np.argmin(r, axis=1)
+    best = cand[np.arange(len(cand)), j]
+    return np.where(r[np.arange(len(cand)), j] <= tol, best, -1)
+
+
+def _merge_coplanar(xyz, nn, labels, fit, angle_deg, tol):
+    """Union adjacent labels whose planes agree in normal and height."""
+    K = len(fit.planes)
+    a = np.repeat(labels, nn.shape[1])
+    b = labels[nn].ravel()
+    m = (a >= 0) & (b >= 0) & (a != b)
+    if not m.any():
+        return labels, False
+    pairs = np.unique(np.sort(np.stack([a[m], b[m]], axis=1), axis=1), axis=0)
+    cosang = np.abs(np.einsum("ij,ij->i", fit.planes[pairs[:, 0], :3], fit.planes[pairs[:, 1], :3]))
+    close = cosang >= np.cos(np.radians(angle_deg))
+    ok = np.zeros(len(pairs), dtype=bool)
+    for idx in np.flatnonzero(close):
+        i, j = pairs[idx]
+        pi, pj = xyz[labels == i], xyz[labels == j]
+        # Each region's points on the other's plane: coplanar within tolerance.
+        ri = np.median(np.abs(plane_height(fit.planes[j], pi[:, :2]) - pi[:, 2]))
+        rj = np.median(np.abs(plane_height(fit.planes[i], pj[:, :2]) - pj[:, 2]))
+        ok[idx] = max(ri, rj) <= tol
+    if not ok.any():
+        return labels, False
+    g = sparse.coo_matrix((np.ones(ok.sum()), (pairs[ok, 0], pairs[ok, 1])), shape=(K, K))
+    _, comp = csgraph.connected_components(g, directed=False)
+    out = np.where(labels >= 0, comp[np.maximum(labels, 0)], -1)
+    _, out_c = np.unique(out, return_inverse=True)
+    out_c = out_c.reshape(out.shape) - (1 if (out < 0).any() else 0)
+    return out_c, True
+
+
+def segment_planes(
+    xyz: np.ndarray,
+    spacing: float,
+    *,
+    k: int = 16,
+    normal_angle: float = 10.0,
+    max_local_rms: float | None = None,
+    distance: float | None = None,
+    min_area: float = 2.0,
+    merge_angle: float = 5.0,
+    iterations: int = 4,
+) -> tuple[np.ndarray, PlaneFit, float]:
+    """Segment a building's points into roof planes.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        One building's roof points (m).
+    spacing : float
+        Mean point spacing ``s`` (m).
+    k : int
+        Neighbours for normals and the region graph.
+    normal_angle : float
+        Largest angle (deg) between the normals of two linked points.
+    max_local_rms : float, optional
+        Largest neighbourhood RMS (m) for a point to seed a region.  Default
+        ``2 * median(rms)`` over the building: twice the typical planar
+        neighbourhood noise.
+    distance : float, optional
+        Largest height residual (m) of a point to its plane.  Default
+        ``max(3 * sigma_n, 0.05)`` with ``sigma_n = median(rms) * sqrt(k / (k - 3))``
+        the height noise estimated from the planar neighbourhoods.
+    min_area : float
+        Smallest plane kept (m²); fewer than ``min_area / s²`` points are dropped.
+    merge_angle : float
+        Adjacent regions whose normals differ by less (deg) and whose points
+        lie on each other's plane within ``distance`` are merged.
+    iterations : int
+        Rounds of refit and reassignment.
+
+    Returns
+    -------
+    labels : ndarray of shape (N,), int64
+        Plane index per point, ``-1`` unassigned (chimneys, walls, noise).
+    fit : PlaneFit
+    distance : float
+        The distance tolerance used (m).
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    N = len(xyz)
+    min_pts = max(int(np.ceil(min_area / spacing**2)), 6)
+    if N < min_pts:
+        raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
+    tree = cKDTree(xyz)
+    normals, rms, nn = point_normals(xyz, k, tree)
+    kk = nn.shape[1]
+    med = float(np.median(rms))
+    noise = med * np.sqrt(kk / max(kk - 3, 1))
+    if max_local_rms is None:
+        max_local_rms = 2.0 * med
+    if distance is None:
+        distance = max(3.0 * noise, 0.05)
+    planar = rms <= max_local_rms
+    # Edges of the region graph: both ends planar, normals within the angle,
+    # each point on the other's tangent plane.
+    i = np.repeat(np.arange(N), kk)
+    j = nn.ravel()
+    keep = (i != j) & planar[i] & planar[j]
+    i, j = i[keep], j[keep]
+    cosang = np.einsum("ij,ij->i", normals[i], normals[j])
+    off = np.maximum(
+        np.abs(np.einsum("ij,ij->i", normals[i], xyz[j] - xyz[i])),
+        np.abs(np.einsum("ij,ij->i", normals[j], xyz[j] - xyz[i])),
+    )
+    worst = np.maximum(rms[i], rms[j])
+    e = (cosang >= np.cos(np.radians(normal_angle))) & (off <= distance)
+    # Connected components are single linkage: a chain of points with
+    # bending normals can join two planes across a gentle crease.  A
+    # component whose plane fit is noisier than the points is cut again with
+    # stricter edges (tighter angle, flatter neighbourhoods), down to 3 levels.
+    bad_comp = None
+    for level in range(4):
+        g = sparse.coo_matrix((np.ones(e.sum()), (i[e], j[e])), shape=(N, N))
+        _, comp = csgraph.connected_components(g, directed=False)
+        comp = np.where(planar, comp, -1)
+        size = np.bincount(np.maximum(comp, 0), weights=(comp >= 0).astype(float))
+        labels = _compact(comp, size >= min_pts)
+        if labels.max() < 0 or level == 3:
+            break
+        fit = fit_planes(xyz, labels)
+        bad = fit.sigma > 1.5 * noise
+        if not bad.any():
+            break
+        in_bad = np.zeros(N, dtype=bool)
+        in_bad[labels >= 0] = bad[labels[labels >= 0]]
+        f = 0.7 ** (level + 1)
+        strict = (cosang >= np.cos(np.radians(normal_angle * f))) & (worst <= med * (1 + f))
+        e &= ~(in_bad[i] | in_bad[j]) | strict
+    log.debug("region graph: %d seeds from %d points (noise %.3f m, tol %.3f m)", labels.max() + 1, N, noise, distance)
+    if labels.max() < 0:
+        raise GeometryError("no planar region large enough for a roof plane")
+
+    for it in range(iterations):
+        fit = fit_planes(xyz, labels)
+        # Grow into unassigned points first (ridge zones), then let every
+        # point choose among its neighbours' planes.
+        for _ in range(3):
+            grow = _best_candidate(xyz, nn, labels, fit.planes, distance)
+            new = np.where(labels < 0, grow, labels)
+            if np.array_equal(new, labels):
+                break
+            labels = new
+        labels = _best_candidate(xyz, nn, labels, fit.planes, distance)
+        n = np.bincount(np.maximum(labels, 0), weights=(labels >= 0).astype(float), minlength=len(fit.planes))
+        labels = _compact(labels, n >= min_pts)
+        if labels.max() < 0:
+            raise GeometryError("no roof plane kept after refinement")
+        fit = fit_planes(xyz, labels)
+        labels, merged = _merge_coplanar(xyz, nn, labels, fit, merge_angle, distance)
+        if not merged and it >= 1:
+            break
+    fit = fit_planes(xyz, labels)
+    bad = ~np.isfinite(fit.planes).all(axis=1)
+    if bad.any():
+        labels = _compact(labels, ~bad)
+        fit = fit_planes(xyz, labels)
+    return labels, fit, float(distance)

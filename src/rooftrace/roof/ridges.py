@@ -1,0 +1,235 @@
+"""Ridge, hip and valley lines: intersections of adjacent roof planes.
+
+For an adjacent pair of planes the 3D intersection line is exact; what the
+points give is its extent.  The shared-boundary midpoints lying within
+``line_tolerance`` of the line (in plan) are projected on it and their range
+is the first extent.  Each end then snaps to the nearest of
+
+- a *junction*: the point common to the pair's planes and a third plane
+  adjacent to one of them (three planes meet in one point, so lines sharing a
+  junction end exactly together), or
+- the *outline*: where the line crosses the roof outline,
+
+if one is within ``snap`` metres along the line, and the line is clipped to
+the outline.
+
+Kinds (the usual roof vocabulary):
+
+- ``ridge``: convex meeting (the roof is the lower of the two planes) whose
+  line is horizontal within ``ridge_max_slope``;
+- ``hip``: convex meeting along an inclined line;
+- ``valley``: concave meeting (the roof is the higher of the two planes).
+
+Step edges (height jumps between roof levels) are not intersections; they
+come from the faces (:func:`rooftrace.roof.faces.step_edges`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+from shapely.geometry import LineString
+
+from rooftrace.roof.adjacency import Adjacency
+
+__all__ = ["IntersectionLines", "intersect_planes", "triple_point", "intersection_lines"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class IntersectionLines:
+    """Ridge, hip and valley lines of one roof.
+
+    Attributes
+    ----------
+    lines : list of shapely LineString (3D, two vertices)
+    kinds : list of str
+    pairs : list of tuple of int
+        The two planes of each line.
+    convex : list of int
+        +1 convex (ridge, hip), -1 concave (valley).
+    """
+
+    lines: list = field(default_factory=list)
+    kinds: list = field(default_factory=list)
+    pairs: list = field(default_factory=list)
+    convex: list = field(default_factory=list)
+
+
+def intersect_planes(pa: np.ndarray, pb: np.ndarray, near: np.ndarray | None = None, min_angle: float = 1.0):
+    """Line common to two planes.
+
+    Parameters
+    ----------
+    pa, pb : ndarray of shape (4,)
+        Planes ``(a, b, c, d)``, unit normals.
+    near : ndarray of shape (3,), optional
+        The returned point is the line's point closest to this one.
+    min_angle : float
+        Planes closer than this (deg) in orientation are parallel: no line.
+
+    Returns
+    -------
+    (point, direction) or None
+        ``point`` (3,) on both planes; ``direction`` (3,) scaled so that its
+        plan part has unit length (a parameter step of 1 is 1 m in plan).
+        None for parallel planes or a vertical line.
+    """
+    na, nb = pa[:3], pb[:3]
+    u = np.cross(na, nb)
+    if np.linalg.norm(u) < np.sin(np.radians(min_angle)):
+        return None
+    uh = np.hypot(u[0], u[1])
+    if uh < 1e-9:
+        return None
+    u = u / uh
+    A = np.stack([na, nb])
+    rhs = -np.array([pa[3], pb[3]])
+    c = np.zeros(3) if near is None else np.asarray(near, dtype=float)
+    # Least-norm correction from ``near`` onto both planes.
+    x = c + A.T @ np.linalg.solve(A @ A.T, rhs - A @ c)
+    return x, u
+
+
+def triple_point(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, min_det: float = 1e-3):
+    """Point common to three planes, or None when they do not meet in one point."""
+    A = np.stack([pa[:3], pb[:3], pc[:3]])
+    if abs(np.linalg.det(A)) < min_det:
+        return None
+    return np.linalg.solve(A, -np.array([pa[3], pb[3], pc[3]]))
+
+
+def _inside_intervals(outline, x0, u, t0, t1):
+    """Parameter intervals of the plan line ``x0 + t u`` inside the outline."""
+    a = x0[:2] + (t0 - 1.0) * u[:2]
+    b = x0[:2] + (t1 + 1.0) * u[:2]
+    inter = shapely.intersection(LineString([a, b]), outline)
+    out = []
+    for g in getattr(inter, "geoms", [inter]):
+        if isinstance(g, LineString) and not g.is_empty and g.length > 0:
+            t = (np.asarray(g.coords)[:, :2] - x0[:2]) @ u[:2]
+            out.append((t.min(), t.max()))
+    return out
+
+
+def intersection_lines(
+    planes: np.ndarray,
+    adj: Adjacency,
+    outline,
+    *,
+    line_tolerance: float,
+    snap: float,
+    ridge_max_slope: float = 5.0,
+    min_length: float = 1.0,
+    xyz: np.ndarray | None = None,
+    labels: np.ndarray | None = None,
+    min_support: float = 0.5,
+) -> IntersectionLines:
+    """Ridge, hip and valley lines of adjacent plane pairs.
+
+    Parameters
+    ----------
+    planes : ndarray of shape (K, 4)
+    adj : Adjacency
+    outline : shapely Polygon
+        Roof outline in plan (Z ignored).
+    line_tolerance : float
+        Largest plan distance (m) of a shared-boundary midpoint from the
+        intersection line for it to belong to the line.
+    snap : float
+        Largest move (m, along the line) of an end to a junction or the outline.
+    ridge_max_slope : float
+        Convex lines flatter than this (deg) are ridges, steeper ones hips.
+    min_length : float
+        Shorter lines (m, in plan) are dropped.
+    xyz, labels : ndarray of shape (N, 3) and (N,), optional
+        The labelled points.  When given, a line is kept only when, along at
+        least ``min_support`` of its length, the nearest points at
+        ``line_tolerance / 2`` on its two sides belong to its two planes: this
+        rejects lines between planes that only touch at a junction.
+    min_support : float
+        Fraction (0-1) of the line that must have its planes on both sides.
+    """
+    out = IntersectionLines()
+    outline = shapely.force_2d(outline)
+    K = len(planes)
+    # Which planes take part in some intersection, for the junctions.
+    lines = []
+    for (a, b), mids in zip(adj.pairs, adj.midpoints):
+        c2 = mids.mean(axis=0)
+        near = np.array([c2[0], c2[1], -(planes[a, 0] * c2[0] + planes[a, 1] * c2[1] + planes[a, 3]) / planes[a, 2]])
+        res = intersect_planes(planes[a], planes[b], near)
+        if res is None:
+            continue
+        x0, u = res
+        off = mids - x0[:2]
+        t = off @ u[:2]
+        perp = np.abs(off[:, 0] * u[1] - off[:, 1] * u[0])
+        on = perp <= line_tolerance
+        if on.sum() < 3:
+            continue
+        t0, t1 = t[on].min(), t[on].max()
+        if t1 - t0 < min_length / 2:
+            continue
+        lines.append([a, b, x0, u, t0, t1])
+    neighbours = [set() for _ in range(K)]
+    for a, b, *_ in lines:
+        neighbours[a].add(b)
+        neighbours[b].add(a)
+    conv = {(int(a), int(b)): c for (a, b), c in zip(adj.pairs, adj.convexity)}
+    tree = None
+    if xyz is not None and labels is not None and (labels >= 0).any():
+        sel = labels >= 0
+        tree, lab = cKDTree(np.asarray(xyz)[sel, :2]), np.asarray(labels)[sel]
+    for a, b, x0, u, t0, t1 in lines:
+        cands = []
+        for c in (neighbours[a] | neighbours[b]) - {a, b}:
+            p = triple_point(planes[a], planes[b], planes[c])
+            if p is not None and np.all(np.isfinite(p)):
+                cands.append((p[:2] - x0[:2]) @ u[:2])
+        intervals = _inside_intervals(outline, x0, u, t0 - snap, t1 + snap)
+        for lo, hi in intervals:
+            cands.extend([lo, hi])
+        cands = np.asarray(cands)
+        # An end never snaps past the middle of the line (no flips).
+        mid = (t0 + t1) / 2
+        lo_c, hi_c = cands[cands < mid], cands[cands > mid]
+        if len(lo_c) and np.abs(lo_c - t0).min() <= snap:
+            t0 = lo_c[np.argmin(np.abs(lo_c - t0))]
+        if len(hi_c) and np.abs(hi_c - t1).min() <= snap:
+            t1 = hi_c[np.argmin(np.abs(hi_c - t1))]
+        # Clip to the outline: keep the longest inside piece.
+        best = None
+        for lo, hi in intervals:
+            s0, s1 = max(lo, t0), min(hi, t1)
+            if s1 > s0 and (best is None or s1 - s0 > best[1] - best[0]):
+                best = (s0, s1)
+        if best is None or best[1] - best[0] < min_length:
+            continue
+        t0, t1 = best
+        if tree is not None:
+            ts = np.linspace(t0, t1, max(5, int((t1 - t0) / (line_tolerance / 4))))
+            side = np.array([-u[1], u[0]]) * (line_tolerance / 2)
+            pts = x0[:2] + ts[:, None] * u[:2]
+            _, il = tree.query(pts + side)
+            _, ir = tree.query(pts - side)
+            ll, lr = lab[il], lab[ir]
+            ok = ((ll == a) & (lr == b)) | ((ll == b) & (lr == a))
+            if ok.mean() < min_support:
+                log.debug("line %d-%d rejected: supported on %.0f %%", a, b, 100 * ok.mean())
+                continue
+        p0, p1 = x0 + t0 * u, x0 + t1 * u
+        cv = 1 if conv[(int(a), int(b))] > 0 else -1
+        incline = np.degrees(np.arctan(abs(u[2])))  # |u_xy| = 1
+        kind = "valley" if cv < 0 else ("ridge" if incline <= ridge_max_slope else "hip")
+        out.lines.append(LineString([p0, p1]))
+        out.kinds.append(kind)
+        out.pairs.append((int(a), int(b)))
+        out.convex.append(cv)
+    log.debug("%d intersection lines from %d adjacent pairs", len(out.lines), len(adj))
+    return out

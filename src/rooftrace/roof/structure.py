@@ -1,0 +1,377 @@
+"""The roof polyhedron of one building: planes, faces, ridges, hips, valleys and steps.
+
+:func:`roof_structure` chains the roof stage (DESIGN.md stage 8):
+
+1. segment the roof points into planes and fit them by least squares
+   (:func:`rooftrace.roof.planes.segment_planes`);
+2. find adjacent planes (:func:`rooftrace.roof.adjacency.plane_adjacency`);
+3. intersect adjacent planes into ridge, hip and valley lines clipped to
+   their shared boundary, ends snapped to junctions and to the outline
+   (:func:`rooftrace.roof.ridges.intersection_lines`);
+4. split the outline into one face per plane, Z from the plane
+   (:func:`rooftrace.roof.faces.partition_outline`);
+5. step edges where neighbouring faces are at different heights
+   (:func:`rooftrace.roof.faces.step_edges`).
+
+:func:`faces_layer` and :func:`ridges_layer` turn a list of structures into
+the ``roof_faces`` and ``ridges`` output layers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from scipy.spatial import Delaunay, QhullError
+
+from rooftrace import config
+from rooftrace.errors import GeometryError
+from rooftrace.io.vector import Layer
+from rooftrace.roof.adjacency import plane_adjacency
+from rooftrace.roof.faces import lift_to_plane, partition_outline, step_edges
+from rooftrace.roof.planes import estimate_spacing, segment_planes
+from rooftrace.roof.ridges import intersection_lines
+
+__all__ = ["RoofOptions", "RoofStructure", "roof_structure", "faces_layer", "ridges_layer", "point_hull"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RoofOptions:
+    """Options of the roof-plane and ridge stage (config section ``[planes]``).
+
+    ``None`` means derived from the building's mean point spacing ``s``
+    (``mean_spacing`` argument, or ``sqrt(hull area / N)``).
+
+    Attributes
+    ----------
+    k_neighbours : int
+        Neighbours for normals (k-NN PCA) and the region graph.
+    normal_angle : float
+        Largest normal angle (deg) between two linked points in region growing.
+    max_local_rms : float or None
+        Largest neighbourhood RMS (m) of a seed point; default ``2 median(rms)``.
+    distance : float or None
+        Largest height residual (m) of a point to its plane; default
+        ``max(3 sigma_n, 0.05)``, ``sigma_n`` the noise of planar neighbourhoods.
+    min_area : float
+        Smallest roof plane kept (m²); chimneys and small clutter are below.
+    merge_angle : float
+        Adjacent coplanar regions within this angle (deg) are merged.
+    iterations : int
+        Rounds of plane refit and point reassignment.
+    adjacency_radius : float or None
+        Plan distance (m) between points of two planes that makes them
+        adjacent; default ``2.5 s``.
+    min_links : int
+        Fewest close point pairs for two planes to be adjacent.
+    line_tolerance : float or None
+        Plan distance (m) of shared-boundary points from an intersection line
+        for them to belong to it; default ``2.5 s``.
+    snap_distance : float or None
+        Largest move (m) of a line end to a junction or the outline; default
+        ``max(1.0, 4 s)``.
+    ridge_max_slope : float
+        Convex intersection lines flatter than this (deg) are ridges, steeper hips.
+    min_ridge_length : float
+        Shortest ridge, hip, valley or step line kept (m).
+    step_height : float
+        Smallest height jump (m) between neighbouring faces for a step edge.
+    cell : float or None
+        Raster cell (m) of the face partition; default ``s / 2``.
+    hull_edge : float or None
+        Longest triangle edge (m) of the point hull used when no outline is
+        given; default ``3 s``.
+    """
+
+    section = "planes"
+
+    k_neighbours: int = 16
+    normal_angle: float = 10.0
+    max_local_rms: float | None = None
+    distance: float | None = None
+    min_area: float = 2.0
+    merge_angle: float = 5.0
+    iterations: int = 4
+    adjacency_radius: float | None = None
+    min_links: int = 3
+    line_tolerance: float | None = None
+    snap_distance: float | None = None
+    ridge_max_slope: float = 5.0
+    min_ridge_length: float = 1.0
+    step_height: float = 0.5
+    cell: float | None = None
+    hull_edge: float | None = None
+
+    def __post_init__(self) -> None:
+        if int(self.k_neighbours) < 4:
+            raise ValueError(f"k_neighbours must be at least 4, got {self.k_neighbours}")
+        if int(self.iterations) < 1 or int(self.min_links) < 1:
+            raise ValueError("iterations and min_links must be at least 1")
+        for name in ("normal_angle", "merge_angle"):
+            v = getattr(self, name)
+            if not 0 < v < 90:
+                raise ValueError(f"{name} must be in (0, 90) degrees, got {v}")
+        if not 0 <= self.ridge_max_slope < 90:
+            raise ValueError(f"ridge_max_slope must be in [0, 90) degrees, got {self.ridge_max_slope}")
+        for name in ("min_area", "min_ridge_length", "step_height"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for f in dataclasses.fields(self):
+            if f.default is None:
+                v = getattr(self, f.name)
+                if v is not None and not v > 0:
+                    raise ValueError(f"{f.name} must be > 0 or None (derived), got {v}")
+
+
+config.KNOWN_SECTIONS.add(RoofOptions.section)
+
+
+@dataclass
+class RoofStructure:
+    """The roof polyhedron of one building.
+
+    Attributes
+    ----------
+    building_id : int
+    planes : ndarray of shape (K, 4), float64
+        ``(a, b, c, d)`` with ``a X + b Y + c Z + d = 0``, unit normal, ``c > 0``.
+    plane_sigma : ndarray of shape (K,)
+        RMS of the height residuals of each plane's points (m).
+    plane_cov : ndarray of shape (K, 3, 3)
+        Covariance of ``(p, q, r)`` in ``Z = p (X - cx) + q (Y - cy) + r``
+        (``p, q`` unitless slopes, ``r`` in m), ``(cx, cy) = plane_centre[k]``.
+        The normalised plane is ``(-p, -q, 1, p cx + q cy - r) / sqrt(1 + p² + q²)``.
+    plane_centre : ndarray of shape (K, 2)
+        Centroid of each plane's points (m).
+    plane_n : ndarray of shape (K,), int
+        Points per plane.
+    labels : ndarray of shape (N,), int
+        Plane per input point, ``-1`` unassigned (chimneys, walls, noise).
+    faces : list of shapely Polygon with Z
+        Tiling of the outline, Z on the face's plane.
+    face_plane : list of int
+        Plane index of each face (a plane may have several faces).
+    ridges : list of shapely LineString with Z
+    ridge_kind : list of str
+        ``ridge``, ``hip``, ``valley`` or ``step``.
+    ridge_planes : list of tuple of int
+        The two planes of each line (for steps: upper, lower).
+    outline : shapely Polygon or None
+        The plan outline the faces tile.
+    spacing : float
+        Mean point spacing used (m).
+    status : str
+        ``ok``, or why the structure is empty or partial (``too_few_points``,
+        ``degenerate``, ``no_planes``, ``no_faces``).
+    """
+
+    building_id: int = 0
+    planes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    plane_sigma: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    plane_cov: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    plane_centre: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    plane_n: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    faces: list = field(default_factory=list)
+    face_plane: list = field(default_factory=list)
+    ridges: list = field(default_factory=list)
+    ridge_kind: list = field(default_factory=list)
+    ridge_planes: list = field(default_factory=list)
+    outline: object = None
+    spacing: float = float("nan")
+    status: str = "ok"
+
+    @property
+    def slope_deg(self) -> np.ndarray:
+        """Slope of each plane (deg from horizontal)."""
+        return np.degrees(np.arccos(np.clip(self.planes[:, 2], -1.0, 1.0)))
+
+    @property
+    def aspect_deg(self) -> np.ndarray:
+        """Direction each plane faces (downslope), deg clockwise from north
+        (0 north, 90 east); NaN for a level plane."""
+        a, b = self.planes[:, 0], self.planes[:, 1]
+        asp = np.degrees(np.arctan2(a, b)) % 360.0
+        return np.where(np.hypot(a, b) < 1e-9, np.nan, asp)
+
+
+def point_hull(xy: np.ndarray, max_edge: float):
+    """Plan outline of points: union of Delaunay triangles with no edge over ``max_edge`` (m).
+
+    The largest polygon is returned; the convex hull when the triangles do
+    not make one.
+    """
+    xy = np.asarray(xy, dtype=np.float64)[:, :2]
+    try:
+        tri = Delaunay(xy)
+    except QhullError:
+        raise GeometryError("cannot outline the points: they are collinear") from None
+    s = tri.simplices
+    p = xy[s]
+    e = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    keep = s[e <= max_edge]
+    if len(keep) == 0:
+        return shapely.convex_hull(shapely.multipoints(xy))
+    polys = shapely.polygons(xy[keep])
+    u = shapely.coverage_union_all(polys)
+    parts = list(getattr(u, "geoms", [u]))
+    return max(parts, key=lambda g: g.area)
+
+
+def _empty(building_id, n, status, spacing=float("nan"), outline=None) -> RoofStructure:
+    return RoofStructure(building_id=building_id, labels=np.full(n, -1, np.int64), status=status, spacing=spacing, outline=outline)
+
+
+def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mean_spacing: float | None = None,
+                   building_id: int = 0) -> RoofStructure:
+    """Roof planes, faces and ridge lines of one building.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        The building's roof points in a projected CRS (m).
+    outline : shapely Polygon, optional
+        The roof outline (Z ignored, holes allowed).  Default: the hull of
+        the points (:func:`point_hull` with ``options.hull_edge``).
+    options : RoofOptions, optional
+    mean_spacing : float, optional
+        Mean point spacing ``s`` (m); default ``sqrt(hull area / N)``.
+    building_id : int
+
+    Returns
+    -------
+    RoofStructure
+        Degenerate input (too few points, collinear points, no planar
+        region) does not raise: the structure is empty and ``status`` says why.
+
+    Examples
+    --------
+    >>> from rooftrace.roof.models import gable, sample_roof
+    >>> xyz, _ = sample_roof(gable(), density=12, noise=0.03, seed=1)
+    >>> roof = roof_structure(xyz)
+    >>> len(roof.planes), roof.ridge_kind
+    (2, ['ridge'])
+    """
+    opt = options or RoofOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"xyz must have shape (N, 3), got {xyz.shape}")
+    if not np.isfinite(xyz).all():
+        raise ValueError("xyz holds NaN or infinite coordinates")
+    n = len(xyz)
+    if n < max(10, opt.k_neighbours):
+        return _empty(building_id, n, "too_few_points")
+    try:
+        s = float(mean_spacing) if mean_spacing else estimate_spacing(xyz)
+    except GeometryError:
+        return _empty(building_id, n, "degenerate")
+    if outline is None:
+        try:
+            outline = point_hull(xyz, opt.hull_edge or 3.0 * s)
+        except GeometryError:
+            return _empty(building_id, n, "degenerate", s)
+    outline2d = shapely.make_valid(shapely.force_2d(outline))
+    if outline2d.geom_type != "Polygon":
+        parts = [g for g in getattr(outline2d, "geoms", []) if g.geom_type == "Polygon"]
+        outline2d = max(parts, key=lambda g: g.area) if parts else outline2d
+    try:
+        labels, fit, _ = segment_planes(
+            xyz, s, k=opt.k_neighbours, normal_angle=opt.normal_angle, max_local_rms=opt.max_local_rms,
+            distance=opt.distance, min_area=opt.min_area, merge_angle=opt.merge_angle, iterations=opt.iterations,
+        )
+    except GeometryError as exc:
+        log.debug("building %s: %s", building_id, exc)
+        return _empty(building_id, n, "no_planes", s, outline2d)
+    roof = RoofStructure(
+        building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
+        plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
+    )
+    radius = opt.adjacency_radius or 2.5 * s
+    adj = plane_adjacency(xyz, labels, fit.planes, radius, opt.min_links)
+    lines = intersection_lines(
+        fit.planes, adj, outline2d, line_tolerance=opt.line_tolerance or 2.5 * s,
+        snap=opt.snap_distance or max(1.0, 4.0 * s), ridge_max_slope=opt.ridge_max_slope,
+        min_length=opt.min_ridge_length, xyz=xyz, labels=labels,
+    )
+    roof.ridges, roof.ridge_kind, roof.ridge_planes = list(lines.lines), list(lines.kinds), list(lines.pairs)
+    cell = opt.cell or s / 2
+    try:
+        polys, pids = partition_outline(
+            outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=opt.line_tolerance or 2.5 * s
+        )
+    except (GeometryError, shapely.errors.GEOSException) as exc:
+        log.warning("building %s: no roof faces (%s)", building_id, exc)
+        roof.status = "no_faces"
+        return roof
+    roof.faces = [lift_to_plane(p, fit.planes[i]) for p, i in zip(polys, pids)]
+    roof.face_plane = list(pids)
+    steps, spairs = step_edges(polys, pids, fit.planes, step_height=opt.step_height,
+                                min_length=opt.min_ridge_length, simplify=cell / 2)
+    roof.ridges += steps
+    roof.ridge_kind += ["step"] * len(steps)
+    roof.ridge_planes += spairs
+    if not roof.faces:
+        roof.status = "no_faces"
+    return roof
+
+
+def _length3d(line) -> float:
+    c = np.asarray(line.coords)
+    return float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
+
+
+def faces_layer(structures: list[RoofStructure]) -> Layer:
+    """The ``roof_faces`` layer: one PolygonZ per face.
+
+    Attributes: ``building_id``, ``plane_id``, ``slope_deg``, ``aspect_deg``
+    (downslope direction clockwise from north, NaN when level), ``rmse`` (m,
+    height residuals of the plane's points), ``n_points``.
+    """
+    geoms, cols = [], {k: [] for k in ("building_id", "plane_id", "slope_deg", "aspect_deg", "rmse", "n_points")}
+    for st in structures:
+        slope, aspect = st.slope_deg, st.aspect_deg
+        for g, k in zip(st.faces, st.face_plane):
+            geoms.append(g)
+            cols["building_id"].append(int(st.building_id))
+            cols["plane_id"].append(int(k))
+            cols["slope_deg"].append(float(slope[k]))
+            cols["aspect_deg"].append(float(aspect[k]))
+            cols["rmse"].append(float(st.plane_sigma[k]))
+            cols["n_points"].append(int(st.plane_n[k]))
+    cols["building_id"] = np.asarray(cols["building_id"], dtype=np.int64)
+    cols["plane_id"] = np.asarray(cols["plane_id"], dtype=np.int64)
+    cols["n_points"] = np.asarray(cols["n_points"], dtype=np.int64)
+    for k in ("slope_deg", "aspect_deg", "rmse"):
+        cols[k] = np.asarray(cols[k], dtype=np.float64)
+    return Layer(geoms, cols, "PolygonZ")
+
+
+def ridges_layer(structures: list[RoofStructure]) -> Layer:
+    """The ``ridges`` layer: one LineStringZ per ridge, hip, valley or step edge.
+
+    Attributes: ``building_id``, ``kind`` (``ridge|hip|valley|step``),
+    ``length`` (m, 3D), ``plane_a``, ``plane_b`` (the two planes; for a step,
+    upper then lower).
+    """
+    geoms, bid, kind, length, pa, pb = [], [], [], [], [], []
+    for st in structures:
+        for g, k, (a, b) in zip(st.ridges, st.ridge_kind, st.ridge_planes):
+            geoms.append(g)
+            bid.append(int(st.building_id))
+            kind.append(k)
+            length.append(_length3d(g))
+            pa.append(int(a))
+            pb.append(int(b))
+    cols = {
+        "building_id": np.asarray(bid, dtype=np.int64),
+        "kind": kind,
+        "length": np.asarray(length, dtype=np.float64),
+        "plane_a": np.asarray(pa, dtype=np.int64),
+        "plane_b": np.asarray(pb, dtype=np.int64),
+    }
+    return Layer(geoms, cols, "LineStringZ")

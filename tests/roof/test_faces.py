@@ -1,0 +1,74 @@
+"""Faces tile the outline, sit on their planes; step edges between roof levels."""
+
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Polygon
+
+from rooftrace.roof import models, roof_structure
+from rooftrace.roof.faces import lift_to_plane, step_edges
+from rooftrace.roof.planes import plane_height
+
+
+@pytest.mark.parametrize(
+    "model", [models.gable(angle=10), models.hip(), models.l_hip(angle=-25), models.flat_annex(), models.gable_dormer()],
+    ids=lambda m: m.name,
+)
+def test_faces_tile_the_outline(model):
+    xyz, _ = models.sample_roof(model, 12, 0.04, seed=2)
+    roof = roof_structure(xyz, model.outline)
+    assert roof.status == "ok"
+    faces2d = [shapely.force_2d(f) for f in roof.faces]
+    assert all(f.is_valid for f in faces2d)
+    total = sum(f.area for f in faces2d)
+    union = shapely.union_all(faces2d)
+    # No overlaps (sum of areas = area of the union), no gaps (= outline).
+    assert total == pytest.approx(model.outline.area, rel=1e-6)
+    assert union.area == pytest.approx(model.outline.area, rel=1e-6)
+    assert shapely.symmetric_difference(union, model.outline).area < 1e-6 * model.outline.area
+    # Every vertex of a face is on its plane.
+    for f, k in zip(roof.faces, roof.face_plane):
+        c = np.asarray(f.exterior.coords)
+        assert np.allclose(plane_height(roof.planes[k][None], c[:, :2])[:, 0], c[:, 2], atol=1e-9)
+
+
+def test_faces_follow_the_ridges():
+    """Face boundaries between two planes run along their intersection line."""
+    model = models.hip(angle=30)
+    xyz, _ = models.sample_roof(model, 12, 0.04, seed=4)
+    roof = roof_structure(xyz, model.outline)
+    for g, (a, b) in zip(roof.ridges, roof.ridge_planes):
+        fa = shapely.union_all([shapely.force_2d(f) for f, k in zip(roof.faces, roof.face_plane) if k == a])
+        fb = shapely.union_all([shapely.force_2d(f) for f, k in zip(roof.faces, roof.face_plane) if k == b])
+        shared = fa.boundary.intersection(fb.boundary)
+        assert shared.length > 0.8 * shapely.force_2d(g).length
+        assert shapely.hausdorff_distance(shared, shapely.force_2d(g)) < 0.5
+
+
+def test_step_edges_on_constructed_faces():
+    low = Polygon([(0, 0), (4, 0), (4, 4), (0, 4)])
+    high = Polygon([(4, 0), (10, 0), (10, 4), (4, 4)])
+    planes = np.array([[0, 0, 1, -3.0], [0, 0, 1, -7.0]])
+    lines, pairs = step_edges([low, high], [0, 1], planes, step_height=0.5, min_length=1.0)
+    assert pairs == [(1, 0)]
+    c = np.asarray(lines[0].coords)
+    assert np.allclose(c[:, 0], 4) and np.allclose(sorted(c[[0, -1], 1]), [0, 4]) and np.allclose(c[:, 2], 7)
+    # Same height: no step.
+    lines, _ = step_edges([low, high], [0, 1], planes[[0, 0]], step_height=0.5, min_length=1.0)
+    assert lines == []
+
+
+def test_flat_annex_step_edge():
+    model = models.flat_annex(angle=12)
+    xyz, _ = models.sample_roof(model, 12, 0.03, seed=1)
+    roof = roof_structure(xyz, model.outline)
+    assert roof.ridge_kind == ["step"]
+    g = roof.ridges[0]
+    truth = model.ridges[0]
+    assert shapely.hausdorff_distance(shapely.force_2d(g), shapely.force_2d(truth)) < 0.5
+    assert np.allclose(np.asarray(g.coords)[:, 2], 9.0, atol=0.05)
+
+
+def test_lift_to_plane():
+    g = lift_to_plane(Polygon([(0, 0), (1, 0), (1, 1)]), np.array([-0.6, 0, 0.8, -1.6]))
+    assert np.allclose(np.asarray(g.exterior.coords)[:, 2], [2, 2.75, 2.75, 2])

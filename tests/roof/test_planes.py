@@ -1,0 +1,112 @@
+"""Plane segmentation and least-squares fits on constructed roofs with exact planes."""
+
+import numpy as np
+import pytest
+
+from rooftrace.errors import GeometryError
+from rooftrace.roof import models
+from rooftrace.roof.planes import estimate_spacing, fit_planes, plane_height, point_normals, segment_planes
+
+
+def _truth_match(labels, face, K):
+    """Truth face of each extracted plane by majority of its points."""
+    out = []
+    for k in range(K):
+        f = face[(labels == k) & (face >= 0)]
+        out.append(np.bincount(f).argmax() if len(f) else -1)
+    return np.array(out)
+
+
+def test_fit_planes_exact_and_covariance(rng):
+    n = 400
+    xy = rng.uniform(0, 10, (n, 2)) + [85000.0, 447000.0]
+    p, q, z0 = 0.3, -0.7, 12.0
+    z = z0 + p * (xy[:, 0] - 85000) + q * (xy[:, 1] - 447000)
+    labels = np.zeros(n, int)
+    fit = fit_planes(np.column_stack([xy, z]), labels)
+    assert fit.sigma[0] < 1e-6
+    assert np.allclose(plane_height(fit.planes, xy)[:, 0], z, atol=1e-7)
+    assert fit.planes[0, 2] > 0 and np.isclose(np.linalg.norm(fit.planes[0, :3]), 1)
+    assert np.allclose(fit.pqr[0, :2], [p, q])
+    # With noise the covariance is sigma^2 (A^T A)^-1 of the centred design.
+    zn = z + rng.normal(0, 0.05, n)
+    fit = fit_planes(np.column_stack([xy, zn]), labels)
+    A = np.column_stack([xy - fit.centre[0], np.ones(n)])
+    coef, rss, *_ = np.linalg.lstsq(A, zn, rcond=None)
+    assert np.allclose(fit.pqr[0], coef)
+    s2 = rss[0] / (n - 3)
+    assert np.isclose(fit.sigma[0] ** 2, s2)
+    assert np.allclose(fit.cov[0], s2 * np.linalg.inv(A.T @ A))
+
+
+def test_fit_planes_collinear_is_nan():
+    x = np.linspace(0, 5, 20)
+    xyz = np.column_stack([x, 2 * x, x])
+    fit = fit_planes(xyz, np.zeros(20, int))
+    assert np.isnan(fit.planes).all()
+
+
+def test_point_normals_on_plane(rng):
+    xy = rng.uniform(0, 10, (500, 2))
+    n_true = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    z = -(n_true[0] * xy[:, 0] + n_true[1] * xy[:, 1]) / n_true[2]
+    normals, rms, nn = point_normals(np.column_stack([xy, z]), k=12)
+    assert nn.shape == (500, 12)
+    assert np.allclose(normals, n_true, atol=1e-6)
+    assert rms.max() < 1e-6
+
+
+def test_spacing_of_grid():
+    g = np.mgrid[0:20:0.25, 0:10:0.25].reshape(2, -1).T
+    assert estimate_spacing(g) == pytest.approx(0.25, rel=0.03)
+    with pytest.raises(GeometryError, match="collinear"):
+        estimate_spacing(np.column_stack([np.arange(10.0), np.arange(10.0)]))
+
+
+@pytest.mark.parametrize(
+    "model",
+    [
+        models.gable(chimney=True, angle=23, offset=(85000, 447000)),
+        models.hip(chimney=True, angle=-40),
+        models.l_hip(angle=15),
+        models.flat_annex(),
+        models.shed(),
+        models.gable_dormer(angle=70),
+    ],
+    ids=lambda m: m.name,
+)
+def test_segment_finds_every_plane_with_exact_slope(model):
+    xyz, face = models.sample_roof(model, density=12, noise=0.04, seed=3)
+    labels, fit, tol = segment_planes(xyz, estimate_spacing(xyz))
+    K = len(fit.planes)
+    match = _truth_match(labels, face, K)
+    # One extracted plane per true plane, none spurious.
+    assert sorted(match) == list(range(len(model.planes)))
+    slope = np.degrees(np.arccos(fit.planes[:, 2]))
+    assert np.abs(slope - model.slopes_deg[match]).max() < 1.0
+    # Points are on their true faces; chimney points are left out.
+    on = labels >= 0
+    assert np.mean(match[labels[on]] == face[on]) > 0.97
+    assert np.mean(labels[face < 0] < 0) > 0.9 if (face < 0).any() else True
+    assert np.all(fit.sigma < 0.06)
+
+
+def test_segment_is_deterministic_and_order_free(rng):
+    m = models.hip()
+    xyz, _ = models.sample_roof(m, 12, 0.04, seed=5)
+    s = estimate_spacing(xyz)
+    l1, f1, _ = segment_planes(xyz, s)
+    perm = rng.permutation(len(xyz))
+    l2, f2, _ = segment_planes(xyz[perm], s)
+    # Same planes (up to order), same partition.
+    o1 = np.lexsort(f1.planes.T[::-1])
+    o2 = np.lexsort(f2.planes.T[::-1])
+    assert np.allclose(f1.planes[o1], f2.planes[o2], atol=1e-3)
+    r1 = np.argsort(o1)[l1]
+    r2 = np.argsort(o2)[l2]
+    assert np.mean(r1[perm] == r2) > 0.99
+
+
+def test_segment_rejects_tiny_input():
+    with pytest.raises(GeometryError, match="points"):
+        segment_planes(np.zeros((5, 3)), 0.3)

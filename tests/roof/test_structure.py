@@ -1,0 +1,132 @@
+"""The roof_structure interface, output layers, options and degenerate input."""
+
+import numpy as np
+import pyproj
+import pytest
+import shapely
+
+from rooftrace.config import make_options
+from rooftrace.errors import InputError
+from rooftrace.io.vector import read_layer, write_layers
+from rooftrace.roof import RoofOptions, RoofStructure, faces_layer, ridges_layer, roof_structure
+from rooftrace.roof import models
+from rooftrace.roof.structure import point_hull
+
+
+@pytest.fixture(scope="module")
+def two_roofs():
+    out = []
+    for bid, m in ((7, models.hip(offset=(85000, 447000))), (9, models.l_hip(offset=(85050, 447000)))):
+        xyz, _ = models.sample_roof(m, 12, 0.04, seed=bid)
+        out.append((m, roof_structure(xyz, m.outline, building_id=bid)))
+    return out
+
+
+def test_structure_fields(two_roofs):
+    m, roof = two_roofs[0]
+    assert isinstance(roof, RoofStructure) and roof.status == "ok" and roof.building_id == 7
+    K = len(roof.planes)
+    assert roof.planes.shape == (K, 4) and roof.plane_sigma.shape == (K,) and roof.plane_cov.shape == (K, 3, 3)
+    assert np.allclose(np.linalg.norm(roof.planes[:, :3], axis=1), 1) and (roof.planes[:, 2] > 0).all()
+    assert len(roof.faces) == len(roof.face_plane) and len(roof.ridges) == len(roof.ridge_kind) == len(roof.ridge_planes)
+    assert set(roof.ridge_kind) <= {"ridge", "hip", "valley", "step"}
+    # Covariances are symmetric positive definite; slope precision is small.
+    assert np.allclose(roof.plane_cov, roof.plane_cov.transpose(0, 2, 1))
+    assert (np.linalg.eigvalsh(roof.plane_cov) > 0).all()
+    assert np.sqrt(roof.plane_cov[:, 0, 0]).max() < 0.01
+    # Aspects of a hip roof: four directions 90° apart.
+    assert sorted(np.round(roof.aspect_deg / 90) % 4) == [0, 1, 2, 3]
+    assert np.allclose(roof.slope_deg, 30, atol=1.0)
+
+
+def test_ridges_end_on_outline_or_junctions(two_roofs):
+    for m, roof in two_roofs:
+        ends = np.array([c for g in roof.ridges for c in (g.coords[0], g.coords[-1])])
+        for e in ends:
+            on_outline = shapely.distance(m.outline.exterior, shapely.Point(e[:2])) < 1e-6
+            others = np.linalg.norm(ends[:, :3] - e[:3], axis=1)
+            at_junction = np.sum(others < 0.3) >= 2  # itself plus another line
+            assert on_outline or at_junction
+
+
+def test_layers_roundtrip(two_roofs, tmp_path):
+    roofs = [r for _, r in two_roofs]
+    fl, rl = faces_layer(roofs), ridges_layer(roofs)
+    assert fl.geometry_type == "PolygonZ" and rl.geometry_type == "LineStringZ"
+    assert set(fl.attributes) >= {"building_id", "plane_id", "slope_deg", "aspect_deg", "rmse", "n_points"}
+    assert set(rl.attributes) >= {"building_id", "kind", "length"}
+    assert len(fl) == sum(len(r.faces) for r in roofs) and len(rl) == sum(len(r.ridges) for r in roofs)
+    assert sorted(set(fl.attributes["building_id"])) == [7, 9]
+    assert list(rl.attributes["kind"]).count("valley") == 1
+    path = write_layers(tmp_path / "roof.gpkg", {"roof_faces": fl, "ridges": rl}, crs=pyproj.CRS("EPSG:28992"))
+    back = read_layer(path, "ridges")
+    assert len(back) == len(rl)
+    assert all(g.has_z for g in back.geometries)
+    assert np.allclose(sorted(back.attributes["length"]), sorted(rl.attributes["length"]))
+    empty = faces_layer([RoofStructure()])
+    assert len(empty) == 0
+
+
+def test_without_outline_uses_point_hull():
+    m = models.gable(angle=5)
+    xyz, _ = models.sample_roof(m, 12, 0.04, seed=1)
+    roof = roof_structure(xyz)
+    assert roof.status == "ok" and roof.ridge_kind == ["ridge"]
+    assert roof.outline.area == pytest.approx(m.outline.area, rel=0.05)
+    assert shapely.union_all([shapely.force_2d(f) for f in roof.faces]).area == pytest.approx(roof.outline.area, rel=1e-6)
+
+
+def test_point_hull_keeps_concavity():
+    m = models.l_hip()
+    xyz, _ = models.sample_roof(m, 12, 0.0, seed=1)
+    hull = point_hull(xyz, 1.0)
+    assert hull.area == pytest.approx(m.outline.area, rel=0.05)
+    assert hull.area < 0.9 * m.outline.convex_hull.area  # 200 of 235 m²
+
+
+@pytest.mark.parametrize(
+    "xyz, status",
+    [
+        (np.zeros((5, 3)), "too_few_points"),
+        (np.column_stack([np.arange(50.0), 2 * np.arange(50.0), np.ones(50)]), "degenerate"),
+        (np.random.default_rng(0).uniform(0, 10, (400, 3)), "no_planes"),
+    ],
+    ids=["few", "collinear", "random"],
+)
+def test_degenerate_input_gives_a_status(xyz, status):
+    roof = roof_structure(xyz, building_id=3)
+    assert roof.status == status and roof.building_id == 3
+    assert len(roof.labels) == len(xyz) and (roof.labels == -1).all()
+    assert roof.planes.shape == (0, 4) and roof.faces == [] and roof.ridges == []
+    assert len(faces_layer([roof])) == 0 and len(ridges_layer([roof])) == 0
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="shape"):
+        roof_structure(np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="NaN"):
+        roof_structure(np.full((20, 3), np.nan))
+    with pytest.raises(ValueError, match="normal_angle"):
+        RoofOptions(normal_angle=0)
+    with pytest.raises(ValueError, match="cell"):
+        RoofOptions(cell=-1.0)
+
+
+def test_options_from_config():
+    opt = make_options(RoofOptions, {"planes": {"min_area": 3.0, "step_height": 0.8}}, ridge_max_slope=None)
+    assert opt.min_area == 3.0 and opt.step_height == 0.8 and opt.ridge_max_slope == 5.0
+    with pytest.raises(InputError, match="unknown key"):
+        make_options(RoofOptions, {"planes": {"min_aera": 3.0}})
+
+
+def test_translation_and_shuffle_invariance(rng):
+    m = models.hip(angle=12)
+    xyz, _ = models.sample_roof(m, 12, 0.04, seed=8)
+    r1 = roof_structure(xyz, m.outline)
+    shift = np.array([120000.0, 480000.0, 0.0])
+    perm = rng.permutation(len(xyz))
+    r2 = roof_structure(xyz[perm] + shift, shapely.affinity.translate(m.outline, *shift[:2]))
+    assert sorted(r1.ridge_kind) == sorted(r2.ridge_kind)
+    l1 = sorted(round(g.length, 2) for g in r1.ridges)
+    l2 = sorted(round(g.length, 2) for g in r2.ridges)
+    assert np.allclose(l1, l2, atol=0.02)
