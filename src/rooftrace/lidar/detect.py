@@ -1,0 +1,265 @@
+"""The detection flow: outliers → ground → segmentation → building/vegetation.
+
+Class rules (first match wins):
+
+1. noise (outlier filter) → 7;
+2. ground (TIN filter, height above the TIN at most ``ground_tolerance``) → 2,
+   whatever stands on it;
+3. a point of a roof-level cluster judged building, in a building of at least
+   T_Np points → 6, with its ``building_id`` and ``roof_level_id``;
+4. a point of another cluster of at least T_Np points, not linear → 5 (high
+   vegetation);
+5. anything else (low objects, small or linear clusters) → 1.
+
+The input's own classification is never read.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rooftrace.cloud import ASPRS, PointCloud
+from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
+from rooftrace.errors import GeometryError, InputError
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, eigen_features, separate_buildings
+from rooftrace.lidar.ground import GroundOptions, progressive_tin
+from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
+from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching, order_labels, region_growing
+from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
+from rooftrace.progress import Reporter
+
+__all__ = ["DetectOptions", "Detection", "detect_buildings"]
+
+log = logging.getLogger(__name__)
+
+KNOWN_SECTIONS.update({"outliers", "ground", "segment", "classify"})
+
+
+@dataclass(frozen=True)
+class DetectOptions:
+    """Options of every detection stage, one frozen dataclass per stage."""
+
+    outliers: OutlierOptions = field(default_factory=OutlierOptions)
+    ground: GroundOptions = field(default_factory=GroundOptions)
+    segment: SegmentOptions = field(default_factory=SegmentOptions)
+    classify: ClassifyOptions = field(default_factory=ClassifyOptions)
+
+    @classmethod
+    def from_config(cls, config: dict | None = None, **overrides: Any) -> "DetectOptions":
+        """Build from a TOML config dict; ``overrides`` are ``"section.key"``-free per-stage dicts.
+
+        ``overrides`` maps a section name (``"segment"`` ...) to a dict of
+        option overrides (``None`` values ignored), e.g. from CLI flags.
+        """
+        parts = {}
+        for name, opt_cls in (("outliers", OutlierOptions), ("ground", GroundOptions),
+                              ("segment", SegmentOptions), ("classify", ClassifyOptions)):
+            parts[name] = make_options(opt_cls, config, **overrides.get(name, {}))
+        return cls(**parts)
+
+
+@dataclass
+class Detection:
+    """Result of :func:`detect_buildings`.
+
+    Attributes
+    ----------
+    classification : ndarray of shape (N,), uint8
+        ASPRS classes: 2 ground, 6 building, 5 high vegetation, 7 noise, 1 other.
+    building_id : ndarray of shape (N,), int32
+        1..B, numbered by each building's lowest (x, y) point; 0 = none.
+    roof_level_id : ndarray of shape (N,), int32
+        Roof-level cluster of building points, 1..R, numbered the same way; 0 = none.
+    hag : ndarray of shape (N,), float64
+        Height above the ground TIN (m).
+    mean_spacing, density, sigma_h : float
+        s_avg (m), d_avg (pts/m²), sigma_H (m).
+    params : dict
+        Every resolved threshold, per stage.
+    timings : dict
+        Seconds per stage.
+    """
+
+    classification: np.ndarray
+    building_id: np.ndarray
+    roof_level_id: np.ndarray
+    hag: np.ndarray
+    mean_spacing: float
+    density: float
+    sigma_h: float
+    params: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def n_buildings(self) -> int:
+        return int(self.building_id.max(initial=0))
+
+
+class _Clock:
+    def __init__(self, reporter: Reporter) -> None:
+        self.reporter = reporter
+        self.timings: dict[str, float] = {}
+
+    def __call__(self, name: str):
+        clock = self
+
+        class _Stage:
+            def __enter__(self):
+                self.cm = clock.reporter.stage(name)
+                self.cm.__enter__()
+                self.t0 = time.perf_counter()
+
+            def __exit__(self, *exc):
+                clock.timings[name] = clock.timings.get(name, 0.0) + time.perf_counter() - self.t0
+                self.cm.__exit__(*exc)
+
+        return _Stage()
+
+
+def _check_cloud(cloud: PointCloud) -> None:
+    where = ", ".join(cloud.sources) or "point cloud"
+    if len(cloud) < 3:
+        raise InputError(f"{where}: {len(cloud)} points; detection needs a LiDAR cloud with at least 3 points")
+    if not np.isfinite(cloud.xyz).all():
+        raise InputError(f"{where}: NaN or infinite coordinates; clean the file first")
+    if cloud.crs is not None and cloud.crs.is_geographic:
+        raise InputError(
+            f"{where}: CRS {cloud.crs.name} is geographic (degrees); reproject to a projected CRS in metres"
+        )
+    span = np.ptp(cloud.xyz[:, :2], axis=0)
+    if not (span > 0).all():
+        raise InputError(f"{where}: all points lie on one line; detection needs an area")
+
+
+def detect_buildings(
+    cloud: PointCloud,
+    options: DetectOptions | None = None,
+    *,
+    config: dict | None = None,
+    reporter: Reporter | None = None,
+) -> Detection:
+    """Classify a LiDAR cloud into ground, buildings, vegetation and noise.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        Points in a projected CRS (metres).  Its ``classification`` field is
+        ignored.
+    options : DetectOptions, optional
+        Stage options; when omitted they come from ``config`` (a dict from
+        :func:`rooftrace.config.load_config`) or the defaults.
+    config : dict, optional
+        TOML config, used when ``options`` is None.
+    reporter : Reporter, optional
+        Progress reporter (silent by default).
+
+    Returns
+    -------
+    Detection
+
+    Raises
+    ------
+    InputError
+        Fewer than 3 points, non-finite coordinates, geographic CRS, or all
+        points on one line.
+    """
+    _check_cloud(cloud)
+    opt = options or DetectOptions.from_config(config)
+    clock = _Clock(reporter or Reporter())
+    xyz = cloud.xyz
+    n = len(xyz)
+    cls = np.full(n, ASPRS.UNCLASSIFIED, np.uint8)
+    params: dict[str, Any] = {}
+
+    with clock("outliers"):
+        noise = histogram_outliers(xyz, opt.outliers)
+        params["outliers"] = {**options_dict(opt.outliers), "n_noise": int(noise.sum())}
+    clean = xyz[~noise]
+    if len(clean) < 3:
+        raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: every point is an outlier")
+
+    with clock("spacing"):
+        try:
+            s_avg = mean_spacing(clean[:, :2])
+            d_avg = point_density(clean[:, :2])
+            sigma_h = height_precision(clean)
+        except ValueError as exc:
+            raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
+        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h}
+
+    with clock("ground"):
+        try:
+            ground, hag, gparams = progressive_tin(xyz, s_avg, sigma_h, opt.ground, exclude=noise)
+        except GeometryError as exc:
+            raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
+        params["ground"] = {**options_dict(opt.ground), **gparams}
+
+    so = opt.segment
+    link_d = so.link_distance or 2.0 * s_avg
+    link_h = so.link_height or 2.0 * sigma_h
+    min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
+    with clock("segment"):
+        cand = np.flatnonzero(~noise & ~ground & (hag >= so.min_height))
+        pts = xyz[cand] - xyz[cand].min(axis=0) if len(cand) else np.empty((0, 3))
+        pairs = link_pairs(pts[:, :2], link_d)
+        levels = region_growing(pts, link_d, link_h, so.max_slope, pairs=pairs)
+        sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
+        params["segment"] = {
+            **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
+            "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
+        }
+
+    co = opt.classify
+    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
+    with clock("classify"):
+        big = sizes >= min_pts
+        in_big = big[levels] if len(levels) else np.zeros(0, bool)
+        feats = eigen_features(pts[in_big], k_nb)
+        lab_big = levels[in_big]
+        ent = cluster_means(lab_big, feats[:, 3], len(sizes))
+        lin = cluster_means(lab_big, feats[:, 0], len(sizes))
+        is_bld, cparams = separate_buildings(ent[big], lin[big], co)
+        building_level = np.zeros(len(sizes), bool)
+        building_level[np.flatnonzero(big)[is_bld]] = True
+        linear = np.zeros(len(sizes), bool)
+        linear[np.flatnonzero(big)] = lin[big] > co.max_linearity
+        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
+                              "n_building_levels": int(building_level.sum())}
+
+    with clock("buildings"):
+        group = merge_touching(levels, pairs, building_level)
+        group_pt = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
+        gsize = np.bincount(group_pt[group_pt >= 0], minlength=int(group.max(initial=-1)) + 1)
+        group_pt = np.where((group_pt >= 0) & (gsize[np.maximum(group_pt, 0)] >= min_pts), group_pt, -1)
+        bid_local = order_labels(pts, group_pt)
+        level_local = order_labels(pts, np.where(bid_local >= 0, levels, -1))
+        building_id = np.zeros(n, np.int32)
+        roof_level_id = np.zeros(n, np.int32)
+        building_id[cand] = bid_local + 1
+        roof_level_id[cand] = level_local + 1
+        veg = big[levels] & ~linear[levels] & (bid_local < 0) if len(levels) else np.zeros(0, bool)
+        cls[cand[veg]] = ASPRS.HIGH_VEGETATION
+        cls[building_id > 0] = ASPRS.BUILDING
+        cls[ground] = ASPRS.GROUND
+        cls[noise] = ASPRS.NOISE
+        building_id[cls != ASPRS.BUILDING] = 0
+        roof_level_id[cls != ASPRS.BUILDING] = 0
+        params["buildings"] = {"n_buildings": int(building_id.max(initial=0))}
+
+    log.info("detected %d buildings in %d points", int(building_id.max(initial=0)), n)
+    return Detection(
+        classification=cls,
+        building_id=building_id,
+        roof_level_id=roof_level_id,
+        hag=hag,
+        mean_spacing=s_avg,
+        density=d_avg,
+        sigma_h=sigma_h,
+        params=params,
+        timings=clock.timings,
+    )

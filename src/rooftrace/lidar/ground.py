@@ -1,0 +1,301 @@
+"""Ground filtering by progressive TIN densification, and height above ground.
+
+Axelsson (2000) as used in the thesis (Santos 2019, §3.2): the lowest point of
+each cell of a coarse grid seeds a TIN; a point joins the ground when its
+distance to the plane of the TIN facet below it and the angles from the point
+to the facet's three vertices are both under the iteration thresholds; the
+TIN is rebuilt and the test repeated until nothing is added.
+
+Two choices keep this fast on city blocks (850k points in a few seconds):
+the densification runs on the lowest point of each small cell (about
+``3·s_avg`` wide; the ground is never above the lowest point of its cell), and
+every accepted point of a round is added at once.  Every point of the cloud is
+then labelled from the final TIN: ground when its height above the TIN is at
+most ``ground_tolerance``.
+
+:func:`grid_minimum_ground` is the baseline a user might script (lowest point
+per cell plus a height threshold), kept for the benchmark.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+from rooftrace.errors import GeometryError
+
+__all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GroundOptions:
+    """Options of the ground filter (TOML table ``[ground]``).
+
+    Attributes
+    ----------
+    seed_cell : float, default 30.0
+        Side (m) of the seed grid; must exceed the largest building so that
+        every cell reaches the ground (thesis §3.2; LAStools "city" uses 25 m).
+    iteration_distance : float, default 1.4
+        Largest distance (m) from a point to the plane of its TIN facet
+        (Axelsson 2000; DESIGN stage 3).
+    iteration_angle : float, default 6.0
+        Largest angle (deg) between the facet plane and the lines from the
+        point to the facet's vertices (Axelsson 2000).
+    candidate_cell : float or None
+        Side (m) of the cells whose lowest point takes part in the
+        densification.  ``None``: ``max(0.5, 3·s_avg)`` (about 1 m in a 12 pts/m² city survey).
+    ground_tolerance : float or None
+        Largest height (m) above the final TIN of a ground point.  ``None``:
+        ``max(0.2, 5·sigma_H)``.
+    max_iterations : int, default 40
+        Upper bound on densification rounds.
+    facet_rounds : int, default 0
+        During the first ``facet_rounds`` rounds only the best candidate of
+        each facet is added (Axelsson's rule); afterwards every accepted
+        candidate is, which needs far fewer rounds.
+    """
+
+    section: ClassVar[str] = "ground"
+    seed_cell: float = 30.0
+    iteration_distance: float = 1.4
+    iteration_angle: float = 6.0
+    candidate_cell: float | None = None
+    ground_tolerance: float | None = None
+    max_iterations: int = 40
+    facet_rounds: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("seed_cell", "iteration_distance", "iteration_angle", "candidate_cell", "ground_tolerance"):
+            v = getattr(self, name)
+            if v is not None and not v > 0:
+                raise ValueError(f"ground.{name} must be > 0, got {v}")
+        if not 0 < self.iteration_angle < 90:
+            raise ValueError(f"ground.iteration_angle must be in (0, 90) deg, got {self.iteration_angle}")
+        if self.max_iterations < 1:
+            raise ValueError(f"ground.max_iterations must be >= 1, got {self.max_iterations}")
+
+
+def _cell_keys(xy: np.ndarray, origin: np.ndarray, cell: float) -> np.ndarray:
+    ij = np.floor((xy - origin) / cell).astype(np.int64)
+    return ij[:, 0] * (int(ij[:, 1].max(initial=0)) + 1) + ij[:, 1]
+
+
+def _lowest_per_cell(xyz: np.ndarray, origin: np.ndarray, cell: float) -> np.ndarray:
+    """Index of the lowest point in each occupied cell (ties: lowest index)."""
+    key = _cell_keys(xyz[:, :2], origin, cell)
+    order = np.lexsort((np.arange(len(xyz)), xyz[:, 2], key))
+    first = np.ones(len(order), bool)
+    first[1:] = key[order[1:]] != key[order[:-1]]
+    return order[first]
+
+
+def _spatial_order(xy: np.ndarray, width: float) -> np.ndarray:
+    """Serpentine strip order: consecutive queries are neighbours, so Qhull's walk is short."""
+    strip = np.floor((xy[:, 0] - xy[:, 0].min()) / width).astype(np.int64)
+    y = np.where(strip % 2 == 0, xy[:, 1], -xy[:, 1])
+    return np.lexsort((y, strip))
+
+
+def _triangulate(xy: np.ndarray) -> Delaunay:
+    try:
+        return Delaunay(xy)
+    except QhullError as exc:
+        raise GeometryError(f"ground TIN: cannot triangulate {len(xy)} points ({exc.__class__.__name__})") from None
+
+
+def tin_height(tin_xyz: np.ndarray, query_xy: np.ndarray, *, tri: Delaunay | None = None) -> np.ndarray:
+    """Height of a TIN below query points (linear in each triangle).
+
+    Parameters
+    ----------
+    tin_xyz : ndarray of shape (M, 3), float64
+        TIN vertices, in a local frame (coordinates near zero, for Qhull).
+    query_xy : ndarray of shape (N, 2), float64
+        Query positions in the same frame.
+    tri : scipy.spatial.Delaunay, optional
+        The triangulation of ``tin_xyz[:, :2]`` when already built.
+
+    Returns
+    -------
+    ndarray of shape (N,), float64
+        Interpolated height; NaN outside the TIN's convex hull.
+    """
+    if tri is None:
+        tri = _triangulate(tin_xyz[:, :2])
+    order = _spatial_order(query_xy, 10.0)
+    simplex = np.empty(len(query_xy), np.int64)
+    simplex[order] = tri.find_simplex(query_xy[order])
+    inside = simplex >= 0
+    s = simplex[inside]
+    t = tri.transform[s]
+    b = np.einsum("nij,nj->ni", t[:, :2], query_xy[inside] - t[:, 2])
+    bary = np.column_stack([b, 1 - b.sum(axis=1)])
+    z = np.full(len(query_xy), np.nan)
+    z[inside] = np.einsum("ni,ni->n", bary, tin_xyz[tri.simplices[s], 2])
+    return z
+
+
+def progressive_tin(
+    xyz: np.ndarray,
+    mean_spacing: float,
+    sigma_h: float,
+    options: GroundOptions | None = None,
+    *,
+    exclude: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Classify ground points by progressive TIN densification.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Coordinates (m) in a projected CRS.
+    mean_spacing : float
+        s_avg (m), see :func:`rooftrace.lidar.spacing.mean_spacing`.
+    sigma_h : float
+        Height precision (m), see :func:`rooftrace.lidar.spacing.height_precision`.
+    options : GroundOptions, optional
+        Thresholds; defaults when omitted.
+    exclude : ndarray of shape (N,), bool, optional
+        Points that take no part (noise); they get a height above ground but
+        are never ground.
+
+    Returns
+    -------
+    ground : ndarray of shape (N,), bool
+        Ground points.
+    hag : ndarray of shape (N,), float64
+        Height above the final TIN (m), for every point.
+    params : dict
+        Resolved ``candidate_cell``, ``ground_tolerance``, the number of
+        rounds and of TIN vertices.
+
+    Notes
+    -----
+    A candidate ``p`` inside facet ``(v0, v1, v2)`` with unit upward normal
+    ``n`` is accepted when ``|n·(p − v0)| < iteration_distance`` and
+    ``arcsin(|n·(p − v0)| / |p − v_k|) < iteration_angle`` for k = 0, 1, 2.
+    The bounding box corners (1 m outside the data) are TIN vertices with the
+    height of the nearest seed, so every point lies inside the TIN.
+
+    References
+    ----------
+    Axelsson, P. (2000). DEM generation from laser scanner data using
+    adaptive TIN models. IAPRS 33(B4), 110-117.
+    """
+    opt = options or GroundOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    n = len(xyz)
+    if n < 3:
+        raise GeometryError(f"ground filter needs at least 3 points, got {n}")
+    usable = np.ones(n, bool) if exclude is None else ~np.asarray(exclude, bool)
+    idx_usable = np.flatnonzero(usable)
+    if len(idx_usable) < 3:
+        raise GeometryError("ground filter: fewer than 3 points left after removing noise")
+    cand_cell = opt.candidate_cell or max(0.5, 3.0 * mean_spacing)
+    tol = opt.ground_tolerance or max(0.2, 5.0 * sigma_h)
+    origin = xyz[idx_usable].min(axis=0)
+    local = xyz - origin  # Qhull needs coordinates near zero
+    pts = local[idx_usable]
+
+    cand = _lowest_per_cell(pts, np.zeros(2), cand_cell)
+    cand = cand[_spatial_order(pts[cand, :2], 10.0)]
+    cxyz = pts[cand]
+    seeds = np.unique(_lowest_per_cell(cxyz, np.zeros(2), opt.seed_cell))
+    lo, hi = pts[:, :2].min(axis=0) - 1.0, pts[:, :2].max(axis=0) + 1.0
+    corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    d2 = ((corners[:, None, :] - cxyz[None, seeds, :2]) ** 2).sum(axis=-1)
+    corner_xyz = np.column_stack([corners, cxyz[seeds[np.argmin(d2, axis=1)], 2]])
+
+    is_ground = np.zeros(len(cxyz), bool)
+    is_ground[seeds] = True
+    tan_angle = np.tan(np.radians(opt.iteration_angle))
+    rounds = 0
+    for rounds in range(1, opt.max_iterations + 1):
+        tin = np.concatenate([corner_xyz, cxyz[is_ground]])
+        tri = _triangulate(tin[:, :2])
+        todo = np.flatnonzero(~is_ground)
+        if len(todo) == 0:
+            break
+        p = cxyz[todo]
+        simplex = tri.find_simplex(p[:, :2])
+        ok = simplex >= 0
+        todo, p, simplex = todo[ok], p[ok], simplex[ok]
+        v = tin[tri.simplices[simplex]]  # (k, 3, 3)
+        normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        dist = np.abs(np.einsum("ij,ij->i", normal, p - v[:, 0]))
+        # sin(angle) = dist / |p - v_k|; compare tangents to avoid arcsin
+        reach = np.linalg.norm(p[:, None, :] - v, axis=2).min(axis=1)
+        sin_max = dist / np.maximum(reach, 1e-9)
+        angle_ok = sin_max < tan_angle / np.sqrt(1 + tan_angle**2)
+        accept = np.flatnonzero((dist < opt.iteration_distance) & angle_ok)
+        if rounds <= opt.facet_rounds:
+            # Axelsson adds, per facet and round, only the candidate closest to
+            # it: a car roof inside a large seed facet loses to the street
+            order = np.lexsort((dist[accept], simplex[accept]))
+            accept = accept[order]
+            first = np.ones(len(accept), bool)
+            first[1:] = simplex[accept[1:]] != simplex[accept[:-1]]
+            accept = accept[first]
+        added = len(accept)
+        log.debug("ground round %d: %d TIN vertices, %d added", rounds, len(tin), added)
+        if added == 0:
+            break
+        is_ground[todo[accept]] = True
+
+    tin = np.concatenate([corner_xyz, cxyz[is_ground]])
+    tri = _triangulate(tin[:, :2])
+    hag = local[:, 2] - tin_height(tin, local[:, :2], tri=tri)
+    # outside the padded hull cannot happen for usable points; excluded ones may lie outside
+    hag = np.where(np.isfinite(hag), hag, local[:, 2] - np.nanmin(tin[:, 2]))
+    ground = usable & (hag <= tol)
+    params = {
+        "candidate_cell": cand_cell,
+        "ground_tolerance": tol,
+        "seed_cell": opt.seed_cell,
+        "iteration_distance": opt.iteration_distance,
+        "iteration_angle": opt.iteration_angle,
+        "rounds": rounds,
+        "tin_vertices": int(len(tin)),
+    }
+    return ground, hag, params
+
+
+def grid_minimum_ground(xyz: np.ndarray, cell: float = 25.0, threshold: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Baseline ground filter: a point is ground when within ``threshold`` of its cell's lowest point.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Coordinates (m).
+    cell : float, default 25.0
+        Grid cell side (m).
+    threshold : float, default 0.5
+        Height (m) above the cell minimum still counted as ground.
+
+    Returns
+    -------
+    ground : ndarray of shape (N,), bool
+    hag : ndarray of shape (N,), float64
+        Height above the cell's lowest point (m).
+
+    Examples
+    --------
+    >>> p = np.array([[0, 0, 0.0], [1, 1, 0.3], [2, 2, 5.0]])
+    >>> grid_minimum_ground(p)[0].tolist()
+    [True, True, False]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    key = _cell_keys(xyz[:, :2], xyz[:, :2].min(axis=0), cell)
+    _, inv = np.unique(key, return_inverse=True)
+    zmin = np.full(inv.max() + 1, np.inf)
+    np.minimum.at(zmin, inv, xyz[:, 2])
+    hag = xyz[:, 2] - zmin[inv]
+    return hag <= threshold, hag
