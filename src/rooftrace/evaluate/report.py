@@ -25,6 +25,8 @@ from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import PathPatch
 from matplotlib.path import Path as MplPath
+from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.axes_grid1 import make_axes_locatable
 
 from rooftrace.io.atomic import atomic_path
 
@@ -79,7 +81,11 @@ def _outline(ax, geom, **kw) -> None:
 
 
 def _scene_map(metrics, extracted, reference, points_xy) -> Figure:
-    fig = Figure(figsize=(9, 8))
+    geoms = [g for g in (*extracted, *reference) if g is not None and not g.is_empty]
+    x0, y0, x1, y1 = shapely.total_bounds(geoms) if geoms else (0.0, 0.0, 1.0, 1.0)
+    # the figure follows the scene's shape so that the map fills it
+    height = float(np.clip(9.0 * (y1 - y0) / max(x1 - x0, 1e-9), 3.0, 10.0)) + 1.0
+    fig = Figure(figsize=(10, height))
     ax = fig.add_subplot()
     if points_xy is not None and len(points_xy):
         step = max(1, len(points_xy) // _MAX_POINTS_MAP)
@@ -95,7 +101,8 @@ def _scene_map(metrics, extracted, reference, points_xy) -> Figure:
         coll.set_array(values)
         coll.set_clim(0.0, max(vmax, 1e-3))
         ax.add_collection(coll)
-        fig.colorbar(coll, ax=ax, shrink=0.7, label="PoLiS (m)", extend="max")
+        cax = make_axes_locatable(ax).append_axes("right", size="2.5%", pad=0.15)
+        fig.colorbar(coll, cax=cax, label="PoLiS (m)", extend="max")
     fps = [_path(_union(extracted, b["extracted_index"])) for b in units if b["status"] == "false_positive"]
     if fps:
         ax.add_collection(PatchCollection([PathPatch(p) for p in fps], facecolor=_FP, alpha=0.7, linewidths=0))
@@ -124,11 +131,12 @@ def _histograms(metrics) -> Figure:
         if len(v):
             ax.hist(v, bins=min(40, max(5, int(np.sqrt(len(v))) * 2)), color="#3b75af", edgecolor="white")
             ax.axvline(float(v.mean()), color=_EXT, lw=1.2, label=f"mean {v.mean():.3f} m")
-            ax.legend(frameon=False)
+            ax.legend(frameon=True, loc="upper right")
         else:
             ax.text(0.5, 0.5, "no matched buildings", ha="center", va="center", transform=ax.transAxes)
         ax.set_xlabel(label)
         ax.set_ylabel("buildings")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     fig.tight_layout()
     return fig
 
@@ -266,10 +274,11 @@ _MAX_ROWS = 500
 _CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',sans-serif;margin:2em auto;max-width:1150px;color:#222;padding:0 1em}
 h1{font-size:1.6em;margin-bottom:.2em} h2{font-size:1.2em;margin-top:1.8em;border-bottom:1px solid #ddd}
-table{border-collapse:collapse;font-size:.9em} td,th{padding:.25em .7em;border-bottom:1px solid #eee;text-align:right}
+table{border-collapse:collapse;font-size:.9em}
+td,th{padding:.25em .7em;border-bottom:1px solid #eee;text-align:right;white-space:nowrap}
 th{background:#f4f5f7;position:sticky;top:0} td:first-child,th:first-child{text-align:left}
 .summary td:first-child{font-weight:600} .note{color:#666;font-size:.9em}
-.missed{color:#b30000} .false_positive{color:#c25e00}
+.scroll{overflow-x:auto} .missed{color:#b30000} .false_positive{color:#c25e00}
 figure{margin:1em 0} figure img{max-width:100%;border:1px solid #ddd} figcaption{color:#555;font-size:.9em}
 """
 
@@ -280,7 +289,7 @@ def _fmt(value, unit: str) -> str:
     if isinstance(value, list):
         return ", ".join(str(v) for v in value[:4]) + (" …" if len(value) > 4 else "")
     if unit == "%":
-        return f"{100 * value:.1f} %"
+        return f"{100 * value:.1f}\u00a0%"
     if unit == "m":
         return f"{value:.3f}"
     if unit == "a":
@@ -334,7 +343,7 @@ RMSE of reference vertices against their closest points on the extracted outline
 {figs or '<p class="note">No figures.</p>'}
 <h2>Buildings</h2>
 {more}
-<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>
+<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>
 </body></html>
 """
 
