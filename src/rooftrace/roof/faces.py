@@ -129,32 +129,37 @@ def partition_outline(
     _, idx = cKDTree(P[:, :2]).query(C, k=kk)
     idx = idx.reshape(len(C), kk)
     cand = lab[idx]
-    rows = np.arange(len(C))
+    choice = cand[:, 0].copy()
+    # Only cells whose neighbours disagree need a decision.
+    rows = np.flatnonzero((cand != cand[:, :1]).any(axis=1))
+    cm, Cm = cand[rows], C[rows]
     # Majority of the k nearest points (ties to the nearest): a boundary
     # smoother than the nearest point's Voronoi staircase.
-    votes = (cand[:, :, None] == cand[:, None, :]).sum(axis=2)
+    votes = (cm[:, :, None] == cm[:, None, :]).sum(axis=2)
     score = -votes * (kk + 1) + np.arange(kk)[None, :]
-    if lines is not None and len(lines.lines):
+    if lines is not None and len(lines.lines) and len(rows):
         K = len(planes)
         segidx = np.full((K, K), -1)
         for s, (a, b) in enumerate(lines.pairs):
             segidx[a, b] = segidx[b, a] = s
         seg = np.array([np.asarray(g.coords)[[0, -1], :2] for g in lines.lines])
         sign = np.asarray(lines.convex)
-        dist = _segment_distance(C, seg[:, 0], seg[:, 1])
-        z = plane_height(planes[cand], np.broadcast_to(C[:, None, :], cand.shape + (2,)))
-        viol = np.zeros(cand.shape, dtype=np.int64)
+        dist = _segment_distance(Cm, seg[:, 0], seg[:, 1])
+        z = plane_height(planes[cm], np.broadcast_to(Cm[:, None, :], cm.shape + (2,)))
+        viol = np.zeros(cm.shape, dtype=np.int64)
+        r = np.arange(len(rows))
         for i in range(kk):
             for j in range(kk):
-                s = segidx[cand[:, i], cand[:, j]]
+                s = segidx[cm[:, i], cm[:, j]]
                 ok = s >= 0
                 sg = np.where(ok, sign[np.maximum(s, 0)], 0)
-                near = ok & (dist[rows, np.maximum(s, 0)] <= line_tolerance)
+                near = ok & (dist[r, np.maximum(s, 0)] <= line_tolerance)
                 wrong = ((sg > 0) & (z[:, i] > z[:, j])) | ((sg < 0) & (z[:, i] < z[:, j]))
                 viol[:, i] += near & wrong
         # Fewest violations first, then the vote.
         score = score + viol * (kk + 1) ** 2
-    choice = cand[rows, np.argmin(score, axis=1)]
+    if len(rows):
+        choice[rows] = cm[np.arange(len(rows)), np.argmin(score, axis=1)]
     grid = choice.reshape(ny, nx).astype(np.int32)
     transform = Affine(cell, 0, x0, 0, -cell, y1)
     regions, ids = [], []
