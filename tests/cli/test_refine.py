@@ -1,0 +1,88 @@
+"""``rooftrace refine`` end to end: GeoPackage + image + camera.json in, refined layers out; user errors."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pyproj
+import pytest
+from shapely.affinity import translate
+
+from rooftrace.cli.main import main
+from rooftrace.evaluate.metrics import polis
+from rooftrace.io.camera import write_camera
+from rooftrace.io.raster import write_geotiff
+from rooftrace.io.vector import Layer, read_layer, write_layers
+from tests.test_refine import _perturb, _scene
+
+RD = pyproj.CRS.from_user_input("EPSG:28992")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("refine")
+    cam, img, truth, ridges, _ = _scene()
+    rng = np.random.default_rng(7)
+    lidar = [_perturb(p, rng) for p in truth]
+    lidar_ridges = [_perturb(r, rng, sigma=0.2) for r in ridges]
+    write_layers(tmp / "lidar.gpkg", {
+        "roof_outlines": Layer(lidar, {"building_id": [11, 12], "name": ["flat", "gable"]}, "PolygonZ"),
+        "ridges": Layer(lidar_ridges, {"building_id": [12], "kind": ["ridge"]}, "LineStringZ"),
+    }, RD)
+    write_layers(tmp / "far.gpkg", {"roof_outlines": Layer([translate(p, 5000, 0) for p in lidar], {}, "PolygonZ")}, RD)
+    write_layers(tmp / "noroofs.gpkg", {"ridges": Layer(lidar_ridges, {}, "LineStringZ")}, RD)
+    write_geotiff(tmp / "image.tif", np.clip(np.round(img * 255), 0, 255).astype(np.uint8))
+    write_camera(tmp / "camera.json", replace(cam, crs=RD))
+    write_camera(tmp / "camera_wgs.json", replace(cam, crs=pyproj.CRS.from_user_input("EPSG:3857")))
+    return tmp, truth, lidar
+
+
+def _run(tmp, *args):
+    return main(["refine", str(tmp / "lidar.gpkg"), "--image", str(tmp / "image.tif"), "--camera",
+                 str(tmp / "camera.json"), *map(str, args)])
+
+
+def test_refine_writes_refined_layers_with_attributes(files, capsys):
+    tmp, truth, lidar = files
+    out = tmp / "out.gpkg"
+    assert _run(tmp, "-o", out, "--json", "--quiet", "--seed", "3") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["buildings"] == 2 and summary["status"] == {"refined": 2}
+    assert summary["exact_checked"] == 2 and summary["ga_reached_exact"] == 2
+    roofs = read_layer(out, "roof_outlines")
+    assert roofs.crs.equals(RD)
+    assert roofs.attributes["name"] == ["flat", "gable"] and roofs.attributes["building_id"] == [11, 12]
+    assert roofs.attributes["candidates_per_side"][1].count(",") == 3
+    assert set(roofs.attributes) >= {"refine_status", "refined_sides", "refine_energy", "ga_exact_gap"}
+    for before, after, true in zip(lidar, roofs.geometries, truth):
+        assert polis(after, true) < 0.5 * polis(before, true)
+    ridges = read_layer(out, "ridges")
+    assert ridges.attributes["kind"] == ["ridge"] and ridges.attributes["refined"] == [1]
+    # an existing output needs --overwrite
+    assert _run(tmp, "-o", out, "--quiet") == 2
+    assert "exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("case, message", [
+    ("crs", "different CRSs"),
+    ("far", "does not cover"),
+    ("nolayer", "no layer 'roof_outlines'"),
+    ("suffix", "GeoPackage"),
+])
+def test_user_errors_exit_2(files, capsys, case, message):
+    tmp, _, _ = files
+    src, cam, out = tmp / "lidar.gpkg", tmp / "camera.json", tmp / f"bad_{case}.gpkg"
+    if case == "crs":
+        cam = tmp / "camera_wgs.json"
+    elif case == "far":
+        src = tmp / "far.gpkg"
+    elif case == "nolayer":
+        src = tmp / "noroofs.gpkg"
+    else:
+        out = tmp / "bad.shp"
+    code = main(["refine", str(src), "--image", str(tmp / "image.tif"), "--camera", str(cam), "-o", str(out), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error:") and message in err, err
+    assert not out.exists()
