@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
 import pyproj
 import pytest
 import shapely
@@ -111,6 +110,7 @@ def test_missing_crs_is_a_warning(tmp_path, files, capsys):
     assert "has no CRS" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_bgt_against_itself_and_buffered(tmp_path):
     src = need(DELFT / "bgt_pand.sqlite")
     out = tmp_path / "self"
