@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely
 from shapely import Polygon, box
+from shapely.affinity import translate
 
 from rooftrace.evaluate.metrics import (
     area_scores,
@@ -199,3 +200,36 @@ def test_ridge_scores():
     assert r["ridge_completeness"] == 0.0 and math.isnan(r["ridge_correctness"])
     with pytest.raises(ValueError, match="buffer"):
         ridge_scores(ext, ref, buffer=0)
+
+
+_SEEN: list = []
+
+
+def test_properties_hold_for_random_polygons():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    coords = st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=3, max_size=12)
+
+    @settings(max_examples=60, deadline=None, derandomize=True)
+    @given(coords, coords, st.floats(-100, 100), st.floats(-100, 100))
+    def check(ca, cb, dx, dy):
+        a, b = shapely.convex_hull(shapely.MultiPoint(ca)), shapely.convex_hull(shapely.MultiPoint(cb))
+        if not (isinstance(a, Polygon) and isinstance(b, Polygon)) or a.area < 1e-3 or b.area < 1e-3:
+            return
+        p = polis(a, b)
+        _SEEN.append(p)
+        assert p == pytest.approx(polis(b, a), abs=1e-9)  # symmetric
+        assert 0.0 <= p <= hausdorff(a, b) + 1e-9  # a mean of vertex distances never exceeds their maximum
+        moved = polis(translate(a, dx, dy), translate(b, dx, dy))
+        assert moved == pytest.approx(p, abs=1e-6 * (1 + abs(dx) + abs(dy)))
+        s = area_scores(a, b)
+        for key in ("completeness", "correctness", "f_score", "quality"):
+            assert -1e-12 <= s[key] <= 1 + 1e-12
+        assert s["quality"] <= s["f_score"] + 1e-12
+        assert min(s["completeness"], s["correctness"]) - 1e-12 <= s["f_score"]
+        assert s["f_score"] <= max(s["completeness"], s["correctness"]) + 1e-12
+
+    _SEEN.clear()
+    check()
+    assert len(_SEEN) >= 30  # most examples are real polygons, not skipped
