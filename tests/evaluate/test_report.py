@@ -52,6 +52,11 @@ def test_figures_deterministic_and_without_points(scene):
         render_figures(m, ext, ref, points_xy=np.zeros(5))
 
 
+def test_only_false_detections_get_overlays():
+    m = evaluate([box(0, 0, 5, 5)], [])
+    assert "overlays.png" in render_figures(m, [box(0, 0, 5, 5)], [])
+
+
 def test_empty_report():
     m = evaluate([], [])
     images = render_figures(m, [], [])

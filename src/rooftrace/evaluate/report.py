@@ -41,7 +41,7 @@ FIGURES = {
     "histograms.png": "Distribution of PoLiS and Hausdorff distances over the matched buildings.",
     "overlays.png": "Per building: reference (black) and extracted (red, dashed) outlines over the points, "
                     "ridges dotted. "
-                    "The worst buildings by PoLiS first, then the best, then missed ones.",
+                    "The worst buildings by PoLiS first, then the best, then missed ones and false detections.",
 }
 _REF, _EXT, _MISS, _FP, _PTS = "#111111", "#d62728", "#e31a1c", "#ff7f00", "#8a9bb0"
 _MAX_POINTS_MAP = 300_000
@@ -132,6 +132,7 @@ def _histograms(metrics) -> Figure:
             ax.hist(v, bins=min(40, max(5, int(np.sqrt(len(v))) * 2)), color="#3b75af", edgecolor="white")
             ax.axvline(float(v.mean()), color=_EXT, lw=1.2, label=f"mean {v.mean():.3f} m")
             ax.legend(frameon=True, loc="upper right")
+            ax.set_xlim(left=0.0)  # distances: the axis starts at zero
         else:
             ax.text(0.5, 0.5, "no matched buildings", ha="center", va="center", transform=ax.transAxes)
         ax.set_xlabel(label)
@@ -148,7 +149,8 @@ def _pick(metrics) -> list[dict]:
     worst = matched[:_N_WORST]
     best = matched[_N_WORST:][-_N_BEST:][::-1]
     missed = [b for b in units if b["status"] == "missed"][:_N_MISSED]
-    return worst + best + missed
+    false = [b for b in units if b["status"] == "false_positive"][:_N_MISSED]
+    return worst + best + missed + false
 
 
 def _ridges_in(lines, bounds) -> list:
@@ -191,12 +193,15 @@ def _overlays(metrics, extracted, reference, points_xy, ridges=(None, None)) -> 
         ax.set_aspect("equal")
         ax.set_xticks([])
         ax.set_yticks([])
-        ids = ",".join(str(i) for i in b["reference_ids"][:3]) + ("…" if len(b["reference_ids"]) > 3 else "")
+        side, label = ("extracted_ids", "ext") if b["status"] == "false_positive" else ("reference_ids", "ref")
+        ids = ",".join(str(i) for i in b[side][:3]) + ("…" if len(b[side]) > 3 else "")
         if b["status"] == "matched":
             ax.set_title(f"ref {ids}\nPoLiS {b['polis']:.2f} m · H {b['hausdorff']:.2f} m · Q {b['quality']:.0%}",
                          fontsize=8)
-        else:
+        elif b["status"] == "missed":
             ax.set_title(f"ref {ids}\nmissed", fontsize=8, color=_MISS)
+        else:
+            ax.set_title(f"{label} {ids}\nfalse detection", fontsize=8, color=_FP)
     fig.tight_layout()
     return fig
 
