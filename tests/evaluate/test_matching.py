@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from shapely import box
+from shapely import Polygon, box
 
 from rooftrace.evaluate.matching import coverage, match_buildings, overlaps
 
@@ -52,6 +52,8 @@ def test_coverage_counts_overlapping_others_once():
 
 def test_empty_and_bad_arguments():
     assert match_buildings([], []).units == []
+    units = match_buildings([None, box(0, 0, 1, 1), Polygon()], [box(0, 0, 1, 1), None]).units
+    assert units == [((1,), (0,)), ((), (1,)), ((0,), ()), ((2,), ())]
     assert match_buildings([box(0, 0, 1, 1)], []).units == [((0,), ())]
     with pytest.raises(ValueError, match="min_overlap"):
         match_buildings([], [], min_overlap=0)

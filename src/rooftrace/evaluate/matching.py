@@ -135,7 +135,8 @@ def match_buildings(extracted, reference, *, min_overlap: float = 0.5, merge_blo
     Parameters
     ----------
     extracted, reference : sequence of Polygon/MultiPolygon
-        Valid polygons; z is ignored (planimetric overlap).
+        Valid polygons; z is ignored (planimetric overlap). None or empty
+        entries never match: each becomes a unit of its own.
     min_overlap : float, default 0.5
         Fraction in (0, 1] of the smaller polygon that the intersection must
         cover for a pair to match (see the module notes).
