@@ -79,7 +79,7 @@ def partition_outline(
     line_tolerance: float,
     k: int = 8,
     min_area: float | None = None,
-    simplify: float = 3.0,
+    simplify: float = 5.0,
 ):
     """Split the outline among the planes.
 

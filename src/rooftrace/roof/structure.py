@@ -85,7 +85,9 @@ class RoofOptions:
         Raster cell (m) of the face partition; default ``s / 2``.
     hull_edge : float or None
         Longest triangle edge (m) of the point hull used when no outline is
-        given; default ``3 s``.
+        given; default ``max(3 s, 2 P95)``, ``P95`` the 95th percentile of
+        the Delaunay edge lengths (scan-line patterns have long edges across
+        the lines).
     """
 
     section = "planes"
@@ -200,11 +202,13 @@ class RoofStructure:
         return np.where(np.hypot(a, b) < 1e-9, np.nan, asp)
 
 
-def point_hull(xy: np.ndarray, max_edge: float):
+def point_hull(xy: np.ndarray, max_edge: float | None = None, *, floor: float = 0.0):
     """Plan outline of points: union of Delaunay triangles with no edge over ``max_edge`` (m).
 
-    The largest polygon is returned; the convex hull when the triangles do
-    not make one.
+    The default ``max_edge`` is ``max(floor, 2 P95)``, ``P95`` the 95th
+    percentile of the Delaunay edge lengths, which adapts to anisotropic patterns (scan lines farther
+    apart than the along-line spacing).  The largest polygon is returned; the
+    convex hull when the triangles do not make one.
     """
     xy = np.asarray(xy, dtype=np.float64)[:, :2]
     try:
@@ -213,12 +217,22 @@ def point_hull(xy: np.ndarray, max_edge: float):
         raise GeometryError("cannot outline the points: they are collinear") from None
     s = tri.simplices
     p = xy[s]
-    e = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
+    e = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
+    if max_edge is None:
+        max_edge = max(floor, 2.0 * float(np.percentile(e, 95)))
+    e = e.max(axis=1)
+    # Duplicated points (overlapping strips) leave zero-area triangles.
+    u, v = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]) / 2
+    e[area < 1e-9] = np.inf
     keep = s[e <= max_edge]
     if len(keep) == 0:
         return shapely.convex_hull(shapely.multipoints(xy))
     polys = shapely.polygons(xy[keep])
-    u = shapely.coverage_union_all(polys)
+    try:
+        u = shapely.coverage_union_all(polys)
+    except shapely.errors.GEOSException:
+        u = shapely.union_all(polys)
     parts = list(getattr(u, "geoms", [u]))
     return max(parts, key=lambda g: g.area)
 
@@ -272,7 +286,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         return _empty(building_id, n, "degenerate")
     if outline is None:
         try:
-            outline = point_hull(xyz, opt.hull_edge or 3.0 * s)
+            outline = point_hull(xyz, opt.hull_edge, floor=3.0 * s)
         except GeometryError:
             return _empty(building_id, n, "degenerate", s)
     outline2d = shapely.make_valid(shapely.force_2d(outline))
