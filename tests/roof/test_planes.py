@@ -110,3 +110,20 @@ def test_segment_is_deterministic_and_order_free(rng):
 def test_segment_rejects_tiny_input():
     with pytest.raises(GeometryError, match="points"):
         segment_planes(np.zeros((5, 3)), 0.3)
+
+
+def test_wall_points_are_not_a_roof_plane():
+    """Façade points under the eaves (ALS at a scan angle) stay unassigned."""
+    m = models.gable(length=14, width=9, eave=5, slope=35)
+    xyz, face = models.sample_roof(m, 12, 0.03, seed=2)
+    rng = np.random.default_rng(0)
+    # Two long walls, 14 m x 5 m, 8 pts/m².
+    n = 560
+    x = rng.uniform(0, 14, n)
+    z = rng.uniform(0.2, 4.9, n)
+    y = np.where(rng.random(n) < 0.5, 0.0, 9.0) + rng.normal(0, 0.03, n)
+    walls = np.column_stack([x, y, z])
+    labels, fit, _ = segment_planes(np.vstack([xyz, walls]), estimate_spacing(xyz))
+    assert len(fit.planes) == 2
+    assert np.allclose(np.degrees(np.arccos(fit.planes[:, 2])), 35, atol=0.5)
+    assert np.mean(labels[len(xyz):] < 0) > 0.95

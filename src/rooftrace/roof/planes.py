@@ -249,6 +249,7 @@ def segment_planes(
     min_area: float = 2.0,
     merge_angle: float = 5.0,
     iterations: int = 4,
+    max_slope: float = 75.0,
 ) -> tuple[np.ndarray, PlaneFit, float]:
     """Segment a building's points into roof planes.
 
@@ -277,6 +278,9 @@ def segment_planes(
         lie on each other's plane within ``distance`` are merged.
     iterations : int
         Rounds of refit and reassignment.
+    max_slope : float
+        Regions and planes steeper than this (deg) are walls, not roof planes:
+        their points stay unassigned.
 
     Returns
     -------
@@ -323,8 +327,11 @@ def segment_planes(
         g = sparse.coo_matrix((np.ones(e.sum()), (i[e], j[e])), shape=(N, N))
         _, comp = csgraph.connected_components(g, directed=False)
         comp = np.where(planar, comp, -1)
-        size = np.bincount(np.maximum(comp, 0), weights=(comp >= 0).astype(float))
-        labels = _compact(comp, size >= min_pts)
+        w = (comp >= 0).astype(float)
+        size = np.bincount(np.maximum(comp, 0), weights=w)
+        # Walls: the mean normal of the region is close to horizontal.
+        nz = np.bincount(np.maximum(comp, 0), weights=w * normals[:, 2]) / np.maximum(size, 1)
+        labels = _compact(comp, (size >= min_pts) & (nz >= np.cos(np.radians(max_slope))))
         if labels.max() < 0 or level == 3:
             break
         fit = fit_planes(xyz, labels)
@@ -360,7 +367,7 @@ def segment_planes(
         if not merged and it >= 1:
             break
     fit = fit_planes(xyz, labels)
-    bad = ~np.isfinite(fit.planes).all(axis=1)
+    bad = ~np.isfinite(fit.planes).all(axis=1) | (fit.planes[:, 2] < np.cos(np.radians(max_slope)))
     if bad.any():
         labels = _compact(labels, ~bad)
         fit = fit_planes(xyz, labels)

@@ -64,6 +64,8 @@ class RoofOptions:
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
         Rounds of plane refit and point reassignment.
+    max_slope : float
+        Steeper regions (deg) are walls, not roof planes (points unassigned).
     adjacency_radius : float or None
         Plan distance (m) between points of two planes that makes them
         adjacent; default ``2.5 s``.
@@ -99,6 +101,7 @@ class RoofOptions:
     min_area: float = 2.0
     merge_angle: float = 5.0
     iterations: int = 4
+    max_slope: float = 75.0
     adjacency_radius: float | None = None
     min_links: int = 3
     line_tolerance: float | None = None
@@ -118,8 +121,9 @@ class RoofOptions:
             v = getattr(self, name)
             if not 0 < v < 90:
                 raise ValueError(f"{name} must be in (0, 90) degrees, got {v}")
-        if not 0 <= self.ridge_max_slope < 90:
-            raise ValueError(f"ridge_max_slope must be in [0, 90) degrees, got {self.ridge_max_slope}")
+        for name in ("ridge_max_slope", "max_slope"):
+            if not 0 <= getattr(self, name) < 90:
+                raise ValueError(f"{name} must be in [0, 90) degrees, got {getattr(self, name)}")
         for name in ("min_area", "min_ridge_length", "step_height"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -297,6 +301,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         labels, fit, _ = segment_planes(
             xyz, s, k=opt.k_neighbours, normal_angle=opt.normal_angle, max_local_rms=opt.max_local_rms,
             distance=opt.distance, min_area=opt.min_area, merge_angle=opt.merge_angle, iterations=opt.iterations,
+            max_slope=opt.max_slope,
         )
     except GeometryError as exc:
         log.debug("building %s: %s", building_id, exc)
