@@ -132,3 +132,16 @@ def test_bgt_against_itself_and_buffered(tmp_path):
     # every buffered vertex lies 0.3 m off the original outline or on a reflex corner's offset
     assert 0.3 - 1e-6 <= m["polis_mean"] < 0.36 and m["n_matched"] == 160
     assert not math.isnan(m["rmse_x"])
+
+
+def test_shapefile_reference(tmp_path, files):
+    e, r, ext, ref = files
+    import geopandas
+
+    # written directly: write_layers' atomic rename moves the .shp but not its sidecar files
+    shp = tmp_path / "ref.shp"
+    geopandas.GeoDataFrame({"bid": [10, 11, 12]}, geometry=ref, crs=RD).to_file(shp)
+    out = tmp_path / "o"
+    assert main(["evaluate", str(e), str(shp), "-o", str(out), "-q", "--json"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["polis_mean"] == pytest.approx(0.2, abs=1e-9) and m["n_matched"] == 3
