@@ -20,6 +20,7 @@ says why.  No I/O here: the CLI and the pipeline read and write.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -117,7 +118,13 @@ class RefineOptions:
 
 @dataclass
 class BuildingRefinement:
-    """The refinement of one building (geometry in object space, attributes)."""
+    """The refinement of one building.
+
+    ``outline`` and ``ridges`` are in object space; ``image_outline`` (V, 2),
+    ``references`` (M, 2, 2), ``selected`` (M, 2, 2) and ``candidate_sets``
+    (M arrays (K_s, 2, 2)) are pixels, one per topology line (``kinds``),
+    kept for diagnostics and evaluation.
+    """
 
     outline: Polygon
     ridges: list
@@ -130,6 +137,12 @@ class BuildingRefinement:
     ga_exact_gap: float = float("nan")
     choice: np.ndarray | None = None
     image_outline: np.ndarray | None = None
+    kinds: tuple = ()
+    ring_sizes: tuple = ()
+    references: np.ndarray | None = None
+    selected: np.ndarray | None = None
+    candidate_sets: list = field(default_factory=list)
+    seconds: float = float("nan")
 
 
 @dataclass
@@ -216,6 +229,7 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     -------
     BuildingRefinement
     """
+    t0 = time.perf_counter()
     opt = options or RefineOptions()
     try:
         topo = roof_topology(outline, ridges, opt.junction_tolerance)
@@ -285,7 +299,8 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         refined_sides=sides[:n_out], energy=float(e_used),
         exact_energy=float(exact.energy) if exact is not None else float("nan"),
         ga_exact_gap=float(ga.energy - exact.energy) if exact is not None else float("nan"),
-        choice=choice, image_outline=rec.points[:n_out])
+        choice=choice, image_outline=rec.points[:n_out], kinds=topo.kinds, ring_sizes=topo.ring_sizes, references=refs, selected=selected,
+        candidate_sets=[np.asarray(c.candidates, float) for c in candidates], seconds=time.perf_counter() - t0)
 
 
 def assign_ridges(outlines: Sequence, ridges: Sequence) -> list[int]:

@@ -1,0 +1,250 @@
+"""Benchmark of the image refinement (issue 7 part B) on simulated scenes.
+
+For each scene (``rooftrace.synth``, 0.2 m GSD) and LiDAR density:
+
+1. LiDAR-only roofs: the pipeline without the image (outlines, planes, ridges);
+2. refinement with the TRUE camera -> object-space scores: mean PoLiS of the
+   outlines to the truth (LiDAR-only vs refined) and ridge position error;
+3. refinement with a camera perturbed by ~3 px (``write_scene``'s
+   ``camera_perturbed.json``) -> image-space scores: PoLiS (px) between the
+   refined outline in the image and the truth projected with the true
+   camera, and line-grouping correctness / completeness per side;
+4. GA vs exact minimum on every building, and seconds per building.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_refine.py --seeds 1 2 --densities 2 12
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, Polygon
+
+from rooftrace.evaluate.matching import match_buildings
+from rooftrace.evaluate.metrics import polis
+from rooftrace.io.camera import read_camera
+from rooftrace.pipeline import run_pipeline
+from rooftrace.refine import RefineOptions, refine_buildings
+from rooftrace.synth import SceneOptions, simulate_scene, write_scene
+
+SIDE_TOL_PX = 1.5  # a selected line is right when its ends and middle lie this close to the true line
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    img = np.asarray(image, float)
+    if img.ndim == 3:
+        img = img.mean(axis=0)
+    return img / 255.0
+
+
+def _segments_px(camera, geoms) -> np.ndarray:
+    """Projected segments (S, 2, 2) of the rings / lines of geoms."""
+    segs = []
+    for g in geoms:
+        parts = [g.exterior, *g.interiors] if isinstance(g, Polygon) else [g]
+        for part in parts:
+            xyz = shapely.get_coordinates(part, include_z=True)
+            px = camera.project(xyz)
+            segs.append(np.stack([px[:-1], px[1:]], axis=1))
+    return np.concatenate(segs) if segs else np.zeros((0, 2, 2))
+
+
+def _dist_to_segments(p: np.ndarray, segs: np.ndarray) -> np.ndarray:
+    """Distance of points (N, 2) to the nearest of segments (S, 2, 2), and that segment's index."""
+    a, b = segs[:, 0][None], segs[:, 1][None]
+    ab = b - a
+    t = np.clip(np.einsum("nsk,nsk->ns", p[:, None] - a, ab) / np.maximum(np.einsum("nsk,nsk->ns", ab, ab), 1e-12), 0, 1)
+    d = np.linalg.norm(a + t[..., None] * ab - p[:, None], axis=2)
+    return d.min(axis=1), d.argmin(axis=1)
+
+
+def _line_correct(line: np.ndarray, segs: np.ndarray) -> bool:
+    if not len(segs):
+        return False
+    pts = np.stack([line[0], line.mean(axis=0), line[1]])
+    d, idx = _dist_to_segments(pts, segs)
+    return bool(d.max() <= SIDE_TOL_PX)
+
+
+def _ridge_errors(extracted: list, truth: list) -> list[float]:
+    """Plan distance of extracted ridge end points to their true ridge line (horizontal ridges matched by midpoint)."""
+    out = []
+    for t in truth:
+        txy = np.asarray(t.coords)[:, :2]
+        if np.ptp(np.asarray(t.coords)[:, 2]) > 0.3:  # hips, valleys: only horizontal ridges
+            continue
+        u = (txy[-1] - txy[0]) / np.linalg.norm(txy[-1] - txy[0])
+        best = None
+        for e in extracted:
+            exy = np.asarray(e.coords)[:, :2]
+            v = exy[-1] - exy[0]
+            if np.linalg.norm(v) < 1e-6 or abs(u @ v) / np.linalg.norm(v) < np.cos(np.radians(15)):
+                continue
+            d = LineString(txy).distance(shapely.Point(exy.mean(axis=0)))
+            if d < 1.5 and (best is None or d < best[0]):
+                n = np.array([-u[1], u[0]])
+                best = (d, float(np.mean(np.abs((exy[[0, -1]] - txy[0]) @ n))))
+        if best is not None:
+            out.append(best[1])
+    return out
+
+
+def lidar_roofs(scene, mode: str, seed: int):
+    """LiDAR-only roofs: outlines, ids, planes per outline, ridges, ridge ids.
+
+    ``'pipeline'``: the whole LiDAR method (detection included).
+    ``'known'``: the outline and roof stages on each true building's own
+    points (detection assumed right), i.e. seed 000's premise that the LiDAR
+    roof is topologically right and only inaccurate.
+    """
+    if mode == "pipeline":
+        lidar = run_pipeline(scene.cloud, seed=seed)
+        outlines = [o for o in lidar.outlines if o.polygon is not None and not o.polygon.is_empty]
+        structures = lidar.structures
+    else:
+        from rooftrace.contour.outline import outline_buildings
+        from rooftrace.roof import roof_structure
+
+        xyz = scene.cloud.xyz
+        bid = np.where(scene.cloud.fields["truth_class"] == 6, scene.cloud.fields["truth_building_id"], 0)
+        outlines = [o for o in outline_buildings(xyz, bid) if o.polygon is not None and not o.polygon.is_empty]
+        structures = []
+        for o in outlines:
+            pts = xyz[bid == o.building_id]
+            try:
+                structures.append(roof_structure(pts, o.polygon, building_id=o.building_id))
+            except Exception:  # a failed roof only loses its planes
+                pass
+    polys = [o.polygon for o in outlines]
+    ids = [o.building_id for o in outlines]
+    planes_by = {s.building_id: s.planes for s in structures}
+    ridges = [r for s in structures for r in s.ridges]
+    ridge_ids = [s.building_id for s in structures for _ in s.ridges]
+    return polys, ids, [planes_by.get(i) for i in ids], ridges, ridge_ids
+
+
+def run_case(seed: int, density: float, perturb_px: float = 3.0, options: RefineOptions | None = None,
+             mode: str = "known") -> dict:
+    t0 = time.perf_counter()
+    scene = simulate_scene(SceneOptions(seed=seed, density=density, gsd=0.2))
+    grey = _grey(scene.image)
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = write_scene(tmp, scene, perturbed_camera_px=perturb_px)
+        cam_perturbed = read_camera(paths["camera_perturbed"])
+    t_sim = time.perf_counter() - t0
+    polys, ids, planes, ridges, ridge_ids = lidar_roofs(scene, mode, seed)
+    kw = dict(points_xyz=scene.cloud.xyz, planes=planes, building_ids=ids,
+              ridge_building_ids=ridge_ids, options=options, seed=seed)
+    t1 = time.perf_counter()
+    true_run = refine_buildings(polys, ridges, grey, scene.camera, **kw)
+    t_refine = time.perf_counter() - t1
+    pert_run = refine_buildings(polys, ridges, grey, cam_perturbed, **kw)
+
+    truth = scene.truth["roof_outlines"].geometries
+    truth_ids = scene.truth["roof_outlines"].attributes["building_id"]
+    truth_ridges = scene.truth["ridges"]
+    match = match_buildings([shapely.force_2d(p) for p in polys], [shapely.force_2d(t) for t in truth],
+                            merge_blocks=False)
+    rows = []
+    for e_idx, r_idx in match.units:
+        if len(e_idx) != 1 or len(r_idx) != 1:
+            continue
+        e, r = e_idx[0], r_idx[0]
+        tb = truth_ids[r]
+        t_ridges = [g for g, b in zip(truth_ridges.geometries, truth_ridges.attributes["building_id"]) if b == tb]
+        my_ridges = [i for i, b in enumerate(ridge_ids) if b == ids[e]]
+        bt, bp = true_run.buildings[e], pert_run.buildings[e]
+        row = {"building": ids[e], "sides": len(bt.refined_sides), "status": bt.status,
+               "polis_lidar": polis(polys[e], truth[r]), "polis_refined": polis(true_run.outlines[e], truth[r]),
+               "ridge_err_lidar": _ridge_errors([ridges[i] for i in my_ridges], t_ridges),
+               "ridge_err_refined": _ridge_errors([true_run.ridges[i] for i in my_ridges], t_ridges),
+               "gap": [bt.ga_exact_gap, bp.ga_exact_gap], "seconds": bt.seconds}
+        if bp.status == "refined" and bp.image_outline is not None:
+            sizes = np.cumsum((0,) + tuple(bp.ring_sizes))
+            ring = Polygon(bp.image_outline[:sizes[1]], [bp.image_outline[a:b] for a, b in zip(sizes[1:-1], sizes[2:])])
+            t = truth[r]
+            true_px = Polygon(scene.camera.project(shapely.get_coordinates(t.exterior, include_z=True)),
+                              [scene.camera.project(shapely.get_coordinates(h, include_z=True)) for h in t.interiors])
+            row["polis_px"] = polis(ring, true_px) if ring.is_valid else None
+            segs_out = _segments_px(scene.camera, [truth[r]])
+            segs_ridge = _segments_px(scene.camera, t_ridges)
+            correct = chosen = has_correct = total = 0
+            for s, kind in enumerate(bp.kinds):
+                segs = segs_out if kind == "outline" else segs_ridge
+                total += 1
+                cand_ok = [_line_correct(c, segs) for c in bp.candidate_sets[s]]
+                has_correct += any(cand_ok)
+                is_image = bool(not np.allclose(bp.selected[s], bp.references[s]))
+                chosen += is_image
+                correct += is_image and _line_correct(bp.selected[s], segs)
+            row.update(lines=total, lines_image=chosen, lines_correct=correct, lines_with_correct=has_correct)
+        rows.append(row)
+    return {"seed": seed, "density": density, "mode": mode, "buildings": len(polys), "matched": len(rows),
+            "t_simulate_and_lidar": time.perf_counter() - t0 - t_refine, "t_refine": t_refine,
+            "t_per_building": t_refine / max(len(polys), 1), "rows": rows}
+
+
+def summarise(cases: list[dict]) -> dict:
+    out = {}
+    for density in sorted({c["density"] for c in cases}):
+        rows = [r for c in cases if c["density"] == density for r in c["rows"]]
+        ok = [r for r in rows if r["status"] == "refined"]
+        img = [r for r in rows if "lines" in r]
+        gaps = np.array([g for r in rows for g in r["gap"] if np.isfinite(g)])
+        px = [r["polis_px"] for r in img if r.get("polis_px") is not None]
+        sec = [(r["sides"], r["seconds"]) for r in rows if np.isfinite(r["seconds"])]
+        s812 = [t for n, t in sec if 8 <= n <= 12]
+        lines = sum(r["lines"] for r in img)
+        out[density] = {
+            "buildings": len(rows), "refined": len(ok),
+            "polis_lidar": float(np.mean([r["polis_lidar"] for r in rows])),
+            "polis_refined": float(np.mean([r["polis_refined"] for r in rows])),
+            "ridge_err_lidar": float(np.mean([e for r in rows for e in r["ridge_err_lidar"]] or [np.nan])),
+            "ridge_err_refined": float(np.mean([e for r in rows for e in r["ridge_err_refined"]] or [np.nan])),
+            "polis_px_perturbed": float(np.mean(px)) if px else float("nan"),
+            "correctness": sum(r["lines_correct"] for r in img) / max(sum(r["lines_image"] for r in img), 1),
+            "completeness": sum(r["lines_correct"] for r in img) / max(sum(r["lines_with_correct"] for r in img), 1),
+            "side_coverage": sum(r["lines_correct"] for r in img) / max(lines, 1),
+            "ga_exact_rate": float(np.mean(gaps <= 1e-9)) if len(gaps) else float("nan"),
+            "ga_exact_runs": int(len(gaps)),
+            "sec_per_building": float(np.mean([t for _, t in sec])) if sec else float("nan"),
+            "sec_8_12_sides_max": float(np.max(s812)) if s812 else float("nan"),
+            "sec_8_12_sides_mean": float(np.mean(s812)) if s812 else float("nan"),
+            "n_8_12": len(s812),
+        }
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--densities", type=float, nargs="+", default=[2.0, 12.0])
+    ap.add_argument("--mode", choices=["known", "pipeline"], default="known",
+                    help="LiDAR roofs from true building points (seed 000's premise) or the whole pipeline")
+    ap.add_argument("--json", type=Path, default=None, help="write all rows here")
+    args = ap.parse_args(argv)
+    cases = []
+    for density in args.densities:
+        for seed in args.seeds:
+            case = run_case(seed, density, mode=args.mode)
+            cases.append(case)
+            print(f"seed {seed} density {density}: {case['buildings']} buildings, refine {case['t_refine']:.1f} s",
+                  file=sys.stderr)
+    summary = summarise(cases)
+    print(json.dumps(summary, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps({"summary": summary, "cases": cases}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
