@@ -36,13 +36,13 @@ MAX_CELLS = 1_000_000
 
 
 def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Plan distance of points (M, 2) to segments (S, 2)-(S, 2): (M, S)."""
+    """Plan distance of points (V, 2) to segments a-b (V, 2) each, elementwise."""
     ab = b - a
     L2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
-    ap = p[:, None, :] - a[None, :, :]
-    t = np.clip((ap * ab[None]).sum(axis=2) / L2, 0, 1)
-    d = ap - t[..., None] * ab[None]
-    return np.hypot(d[..., 0], d[..., 1])
+    ap = p - a
+    t = np.clip((ap * ab).sum(axis=1) / L2, 0, 1)
+    d = ap - t[:, None] * ab
+    return np.hypot(d[:, 0], d[:, 1])
 
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
@@ -124,7 +124,10 @@ def partition_outline(
     cx = x0 + (np.arange(nx) + 0.5) * cell
     cy = y1 - (np.arange(ny) + 0.5) * cell
     gx, gy = np.meshgrid(cx, cy)
-    C = np.column_stack([gx.ravel(), gy.ravel()])
+    C_all = np.column_stack([gx.ravel(), gy.ravel()])
+    # Cells away from the outline are cut off anyway: label them -1.
+    inside = shapely.contains_xy(outline.buffer(2 * cell), C_all[:, 0], C_all[:, 1])
+    C = C_all[inside]
     kk = int(min(k, len(P)))
     _, idx = cKDTree(P[:, :2]).query(C, k=kk)
     idx = idx.reshape(len(C), kk)
@@ -144,23 +147,24 @@ def partition_outline(
             segidx[a, b] = segidx[b, a] = s
         seg = np.array([np.asarray(g.coords)[[0, -1], :2] for g in lines.lines])
         sign = np.asarray(lines.convex)
-        dist = _segment_distance(Cm, seg[:, 0], seg[:, 1])
-        z = plane_height(planes[cm], np.broadcast_to(Cm[:, None, :], cm.shape + (2,)))
+        # Only candidate pairs joined by a line matter: gather those.
+        S = segidx[cm[:, :, None], cm[:, None, :]]
+        m, i, j = np.nonzero(S >= 0)
+        sv = S[m, i, j]
+        near = _segment_distance(Cm[m], seg[sv, 0], seg[sv, 1]) <= line_tolerance
+        m, i, j, sv = m[near], i[near], j[near], sv[near]
+        zi = plane_height(planes[cm[m, i]], Cm[m])
+        zj = plane_height(planes[cm[m, j]], Cm[m])
+        wrong = ((sign[sv] > 0) & (zi > zj)) | ((sign[sv] < 0) & (zi < zj))
         viol = np.zeros(cm.shape, dtype=np.int64)
-        r = np.arange(len(rows))
-        for i in range(kk):
-            for j in range(kk):
-                s = segidx[cm[:, i], cm[:, j]]
-                ok = s >= 0
-                sg = np.where(ok, sign[np.maximum(s, 0)], 0)
-                near = ok & (dist[r, np.maximum(s, 0)] <= line_tolerance)
-                wrong = ((sg > 0) & (z[:, i] > z[:, j])) | ((sg < 0) & (z[:, i] < z[:, j]))
-                viol[:, i] += near & wrong
+        np.add.at(viol, (m[wrong], i[wrong]), 1)
         # Fewest violations first, then the vote.
         score = score + viol * (kk + 1) ** 2
     if len(rows):
         choice[rows] = cm[np.arange(len(rows)), np.argmin(score, axis=1)]
-    grid = choice.reshape(ny, nx).astype(np.int32)
+    grid = np.full(len(C_all), -1, dtype=np.int32)
+    grid[inside] = choice
+    grid = grid.reshape(ny, nx)
     transform = Affine(cell, 0, x0, 0, -cell, y1)
     regions, ids = [], []
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
@@ -169,6 +173,8 @@ def partition_outline(
     regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     polys, pids = [], []
     for reg, pid in zip(regions, ids):
+        if pid < 0:
+            continue
         part = shapely.intersection(shapely.make_valid(reg), outline)
         for g in getattr(part, "geoms", [part]):
             if isinstance(g, Polygon) and not g.is_empty and g.area > 0:
