@@ -85,10 +85,25 @@ def test_noisy_hip_lines_within_tolerance(seed):
     assert _max_vertex_error(lines.lines, model.ridges) < 0.5
 
 
-def test_lines_lie_on_their_planes():
-    model = models.l_hip(angle=-20)
+@pytest.mark.parametrize("make, atol", [(models.hip, 1e-9), (models.l_hip, 0.03)], ids=["hip", "l_hip"])
+def test_lines_lie_on_their_planes(make, atol):
+    """Exactly where at most three planes meet; within cm where the four planes
+    of the L's centre share one least-squares junction."""
+    model = make(angle=-20)
     _, _, fit, _, lines = _segment_lines(model, noise=0.04)
     for g, (a, b) in zip(lines.lines, lines.pairs):
         c = np.asarray(g.coords)
         for k in (a, b):
-            assert np.allclose(plane_height(fit.planes[k][None], c[:, :2])[:, 0], c[:, 2], atol=1e-9)
+            assert np.allclose(plane_height(fit.planes[k][None], c[:, :2])[:, 0], c[:, 2], atol=atol)
+
+
+def test_l_hip_centre_is_one_junction():
+    """Ridge A, ridge B, the outer hip and the valley meet at one point."""
+    model = models.l_hip(angle=8)
+    _, _, fit, _, lines = _segment_lines(model, noise=0.05, seed=4)
+    centre = np.asarray(model.ridges[0].coords[0])
+    ends = np.array([c for g in lines.lines for c in g.coords])
+    near = ends[np.linalg.norm(ends[:, :2] - centre[:2], axis=1) < 0.5]
+    assert len(near) == 4
+    assert np.ptp(near, axis=0).max() < 1e-9
+    assert np.linalg.norm(near[0] - centre) < 0.15

@@ -182,6 +182,7 @@ def intersection_lines(
         neighbours[a].add(b)
         neighbours[b].add(a)
     conv = {(int(a), int(b)): c for (a, b), c in zip(adj.pairs, adj.convexity)}
+    on_outline = []
     tree = None
     if xyz is not None and labels is not None and (labels >= 0).any():
         sel = labels >= 0
@@ -212,6 +213,8 @@ def intersection_lines(
         if best is None or best[1] - best[0] < min_length:
             continue
         t0, t1 = best
+        ends_out = (any(abs(t0 - v) < 1e-9 for iv in intervals for v in iv),
+                    any(abs(t1 - v) < 1e-9 for iv in intervals for v in iv))
         if tree is not None:
             ts = np.linspace(t0, t1, max(5, int((t1 - t0) / (line_tolerance / 4))))
             side = np.array([-u[1], u[0]]) * (line_tolerance / 2)
@@ -231,5 +234,48 @@ def intersection_lines(
         out.kinds.append(kind)
         out.pairs.append((int(a), int(b)))
         out.convex.append(cv)
+        on_outline.append(ends_out)
+    _merge_junctions(out, planes, on_outline, line_tolerance / 2)
     log.debug("%d intersection lines from %d adjacent pairs", len(out.lines), len(adj))
     return out
+
+
+def _merge_junctions(out: IntersectionLines, planes: np.ndarray, on_outline: list, tol: float) -> None:
+    """Make line ends that meet inside the roof one point.
+
+    Ends within ``tol`` (m, plan) of each other and not on the outline form a
+    junction; with three or more planes involved it becomes their
+    least-squares point (the exact common point of three planes).  Lines
+    meeting at four planes (the centre of an L-shaped hip roof) then share
+    one end instead of ends a few centimetres apart.
+    """
+    if len(out.lines) < 2:
+        return
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    ends = np.array([np.asarray(g.coords)[[0, -1]] for g in out.lines]).reshape(-1, 3)
+    free = ~np.asarray(on_outline, dtype=bool).ravel()
+    idx = np.flatnonzero(free)
+    if len(idx) < 2:
+        return
+    ij = cKDTree(ends[idx, :2]).query_pairs(tol, output_type="ndarray")
+    if len(ij) == 0:
+        return
+    n = len(idx)
+    _, comp = connected_components(coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n)), directed=False)
+    coords = ends.copy()
+    for c in np.unique(comp):
+        members = idx[comp == c]
+        if len(members) < 2:
+            continue
+        pl = sorted({k for m in members for k in out.pairs[m // 2]})
+        if len(pl) < 3:
+            continue
+        A = planes[pl, :3]
+        x, *_ = np.linalg.lstsq(A, -planes[pl, 3], rcond=None)
+        if np.linalg.norm(x[:2] - ends[members, :2].mean(axis=0)) > tol:
+            continue
+        coords[members] = x
+    coords = coords.reshape(-1, 2, 3)
+    out.lines = [LineString(c) for c in coords]
