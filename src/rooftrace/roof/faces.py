@@ -115,18 +115,20 @@ def partition_outline(
     if len(P) == 0 or outline.is_empty:
         return [], []
     minx, miny, maxx, maxy = outline.bounds
-    area = (maxx - minx + 4 * cell) * (maxy - miny + 4 * cell)
+    area = (maxx - minx + 20 * cell) * (maxy - miny + 20 * cell)
     if area / cell**2 > MAX_CELLS:
         cell = float(np.sqrt(area / MAX_CELLS))
-    x0, y1 = minx - 2 * cell, maxy + 2 * cell
-    nx = int(np.ceil((maxx - minx) / cell)) + 4
-    ny = int(np.ceil((maxy - miny) / cell)) + 4
+    pad = int(np.ceil(simplify)) + 3
+    x0, y1 = minx - pad * cell, maxy + pad * cell
+    nx = int(np.ceil((maxx - minx) / cell)) + 2 * pad
+    ny = int(np.ceil((maxy - miny) / cell)) + 2 * pad
     cx = x0 + (np.arange(nx) + 0.5) * cell
     cy = y1 - (np.arange(ny) + 0.5) * cell
     gx, gy = np.meshgrid(cx, cy)
     C_all = np.column_stack([gx.ravel(), gy.ravel()])
     # Cells away from the outline are cut off anyway: label them -1.
-    inside = shapely.contains_xy(outline.buffer(2 * cell), C_all[:, 0], C_all[:, 1])
+    # (wider than the simplification tolerance, which can move region edges)
+    inside = shapely.contains_xy(outline.buffer((simplify + 2) * cell), C_all[:, 0], C_all[:, 1])
     C = C_all[inside]
     kk = int(min(k, len(P)))
     _, idx = cKDTree(P[:, :2]).query(C, k=kk)

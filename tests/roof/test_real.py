@@ -1,0 +1,61 @@
+"""Roof structure on real clouds (skipped when ../shared/data is absent)."""
+
+import numpy as np
+import pytest
+import shapely
+
+from rooftrace.roof import faces_layer, ridges_layer, roof_structure
+from tests.conftest import DELFT, IGN, need
+
+
+@pytest.fixture(scope="module")
+def delft_hip_roof():
+    from rooftrace.io.points import read_points
+    from rooftrace.io.vector import read_layer
+
+    pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
+    b = pc.xyz[pc.fields["classification"] == 6]
+    # BGT feature 77: a detached hip roof (checked in docs/images by eye).
+    fp = shapely.force_2d(read_layer(need(DELFT / "bgt_pand.geojson")).geometries[77])
+    outline = fp.buffer(0.5, join_style="mitre")
+    return b[shapely.contains_xy(outline, b[:, 0], b[:, 1])], outline
+
+
+def test_delft_hip_roof(delft_hip_roof):
+    xyz, outline = delft_hip_roof
+    roof = roof_structure(xyz, outline, building_id=77)
+    assert roof.status == "ok"
+    kinds = sorted(roof.ridge_kind)
+    assert kinds.count("ridge") == 1 and kinds.count("hip") == 4
+    # Four planes of 40-50°, about 6-12 cm RMSE (tiles).
+    assert len(roof.planes) == 4 and np.all((roof.slope_deg > 40) & (roof.slope_deg < 50))
+    assert np.all(roof.plane_sigma < 0.15)
+    # The ridge is horizontal and above every eave.
+    (ridge,) = [g for g, k in zip(roof.ridges, roof.ridge_kind) if k == "ridge"]
+    z = np.asarray(ridge.coords)[:, 2]
+    assert abs(z[0] - z[1]) < 0.2 and z.min() > np.percentile(xyz[:, 2], 95) - 0.2
+    # Faces tile the outline; the layers are well formed.
+    assert shapely.union_all([shapely.force_2d(f) for f in roof.faces]).area == pytest.approx(outline.area, rel=1e-6)
+    assert len(faces_layer([roof])) == len(roof.faces) and len(ridges_layer([roof])) == len(roof.ridges)
+
+
+def test_ign_pitched_roof_without_outline():
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    from rooftrace.io.points import read_points
+
+    pc = read_points([need(IGN / "test_data_77055_627760_LA93_IGN69.laz")])
+    b = pc.xyz[pc.fields["classification"] == 6]
+    ij = cKDTree(b[:, :2]).query_pairs(1.0, output_type="ndarray")
+    _, comp = connected_components(coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(len(b),) * 2), directed=False)
+    found = 0
+    for c in np.flatnonzero(np.bincount(comp) >= 2000):
+        roof = roof_structure(b[comp == c])
+        assert roof.status == "ok"
+        pitched = (roof.slope_deg > 15) & (roof.plane_n * roof.spacing**2 > 10)
+        if pitched.sum() >= 2:
+            found += any(k in ("ridge", "hip", "valley") for k in roof.ridge_kind)
+            assert shapely.union_all([shapely.force_2d(f) for f in roof.faces]).area == pytest.approx(roof.outline.area, rel=1e-6)
+    assert found >= 1
