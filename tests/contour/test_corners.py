@@ -55,8 +55,8 @@ def test_angle_filter_drops_a_shallow_bend():
 def test_curve_breaks_kept_on_arcs():
     t = np.linspace(0, 2 * np.pi, 200, endpoint=False)
     ring = np.column_stack([8 * np.cos(t), 8 * np.sin(t), np.zeros_like(t)])
-    thesis = ring_corners(ring, CornerOptions(keep_curve_breaks=False))
-    kept = ring_corners(ring)
+    thesis = ring_corners(ring)
+    kept = ring_corners(ring, CornerOptions(keep_curve_breaks=True))
     assert len(kept) >= 8 and len(kept) > len(thesis)
 
 

@@ -62,6 +62,10 @@ class AlphaOptions:
     min_hole_area : float
         Courtyards smaller than this (m²) are filled; default Ar_min = 4 m²
         (thesis Table 6.1), the smallest building worth mapping.
+    scale : float
+        Multiplies every alpha of the chosen strategy (1 = the thesis).
+        Scan patterns leave wider gaps along roof edges than inside; a
+        slightly larger alpha bridges them (see benchmarks/RESULTS.md).
     """
 
     section = "alpha"
@@ -71,6 +75,7 @@ class AlphaOptions:
     radius: float = 3.0
     long_edge_sigma: float = 3.0
     min_hole_area: float = 4.0
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
@@ -79,6 +84,8 @@ class AlphaOptions:
             raise ValueError(f"alpha.alpha must be > 0 m, not {self.alpha}")
         if not self.radius > 0:
             raise ValueError(f"alpha.radius must be > 0 m, not {self.radius}")
+        if not self.scale > 0:
+            raise ValueError(f"alpha.scale must be > 0, not {self.scale}")
         if self.min_hole_area < 0:
             raise ValueError(f"alpha.min_hole_area must be >= 0 m², not {self.min_hole_area}")
 
@@ -97,7 +104,7 @@ class AlphaShape:
         Alpha in metres (the median of the per-edge values for S3).
     strategy : str
     spacing : ndarray of shape (N,) float64
-        Local mean spacing per point (ps_avg for S3, else alpha everywhere).
+        Local mean spacing per point (ps_avg for S3, else the unscaled alpha everywhere).
     """
 
     rings: list[np.ndarray]
@@ -367,6 +374,7 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
             alpha_value = building_alpha(lengths, options.long_edge_sigma)
         alpha = np.full(len(edges), alpha_value)
         spacing[:] = alpha_value
+    alpha_scale = alpha_scale * options.scale
     alpha = alpha * alpha_scale
     tree = cKDTree(xy)
     directed = boundary_edges(xy, edges, alpha, tree)
@@ -382,5 +390,5 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     holes = [r for r, a in zip(rings, areas) if a < 0 and -a >= options.min_hole_area
              and shell.contains(shapely.Point(xy[r].mean(axis=0)))]
     log.debug("alpha shape: %d rings traced, outer of %.1f m², %d holes kept", len(rings), outer_areas.max(), len(holes))
-    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing * alpha_scale)
+    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing)
 

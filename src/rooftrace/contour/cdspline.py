@@ -20,6 +20,7 @@ the same spline space.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, field
 
@@ -28,7 +29,8 @@ from scipy import stats
 
 from rooftrace.errors import GeometryError
 
-__all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline"]
+__all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline",
+           "refine_corners", "spline_outline"]
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +54,23 @@ class CDSplineOptions:
         insignificant raise, freezes that segment and goes on with the next
         worst one, so one long straight wall cannot stop the curved ones
         from being raised.
+    points_per_degree : int
+        Interior points a segment needs per degree above 1 (a segment with n
+        interior points gets at most degree 1 + n // points_per_degree), so
+        short, jagged pieces stay straight.
+    max_overshoot : float
+        A raise is refused when the raised segment's curve strays farther
+        from the polyline of the segment's points than this (metres) and
+        than the curve before the raise did (loops, overshoots).
+    refine : int
+        Beyond the thesis: rounds of moving each corner to the ring point
+        nearest its least-squares corner of an all-straight fit (the
+        Douglas-Peucker vertex is only the farthest point, often a little off).
+    split : bool
+        Beyond the thesis: a segment that needs degree >= 4 is split at the
+        Douglas-Peucker vertex inside it that gives the best fit, when the
+        split fit is no worse and needs no more control points (a straight
+        wall running tangentially into an arc becomes a line and a curve).
     densify : float
         Spacing in metres of the output vertices along curved (degree >= 2)
         segments; straight segments are output as their two corners.
@@ -62,6 +81,10 @@ class CDSplineOptions:
     significance: float = 0.10
     max_degree: int = 5
     test: str = "segment"
+    points_per_degree: int = 3
+    max_overshoot: float = 0.3
+    refine: int = 0
+    split: bool = True
     densify: float = 0.5
 
     def __post_init__(self) -> None:
@@ -207,7 +230,28 @@ class CDSpline:
         return self.evaluate(np.asarray(params)), np.asarray(corner_index, dtype=np.int64)
 
 
-def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None) -> CDSpline:
+def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None) -> np.ndarray:
+    """cd_basis for sorted ``t`` (closed), with each span's block cached by (span, degree)."""
+    offsets = np.concatenate([[0], np.cumsum(degrees)])
+    bounds = np.searchsorted(t, breaks[:-1], side="left")
+    bounds = np.append(bounds, len(t))
+    a = np.zeros((len(t), offsets[-1] + 1))
+    for k, d in enumerate(degrees):
+        lo, hi = bounds[k], bounds[k + 1]
+        key = (k, d, breaks[k], breaks[k + 1])
+        block = cache.get(key) if cache is not None else None
+        if block is None:
+            knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
+            block = _cox_de_boor(t[lo:hi], knots, d)
+            if cache is not None:
+                cache[key] = block
+        a[lo:hi, offsets[k]:offsets[k] + d + 1] = block
+    a[:, 0] += a[:, -1]
+    return a[:, :-1]
+
+
+def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None,
+                 _cache: dict | None = None) -> CDSpline:
     """Least-squares closed CD-spline through a ring's points (eq. 5.7).
 
     Parameters
@@ -225,10 +269,12 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
     Returns
     -------
     CDSpline
-        x, y and z are fitted together with one design matrix.
+        x, y and z are fitted together with one design matrix; the normal
+        equations P = (AᵀA)⁻¹AᵀQ are solved directly (AᵀA is small and banded).
     """
     points = np.asarray(points, dtype=np.float64)
     corners = np.asarray(corners, dtype=np.int64)
+    degrees = [int(d) for d in degrees]
     q = len(points)
     start = int(corners[0])
     rolled = np.roll(points, -start, axis=0)
@@ -237,14 +283,42 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
     breaks = np.append(t[corners - start], 1.0)
     if np.any(np.diff(breaks) <= 0):
         raise GeometryError("degenerate_segment")
-    a = cd_basis(t, breaks, degrees)
+    a = _design(t, breaks, degrees, _cache)
     if a.shape[1] > q:
         raise GeometryError("too_few_points")
-    ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
+    try:
+        ctrl = np.linalg.solve(a.T @ a, a.T @ rolled)
+    except np.linalg.LinAlgError:
+        ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
     res = np.linalg.norm(a @ ctrl - rolled, axis=1)
     seg = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(corners) - 1)
     back = (np.arange(q) - start) % q  # original order
-    return CDSpline(ctrl, breaks, list(map(int, degrees)), t[back], res[back], seg[back])
+    return CDSpline(ctrl, breaks, degrees, t[back], res[back], seg[back])
+
+
+def _segment_points(points: np.ndarray, corners: np.ndarray, k: int) -> np.ndarray:
+    q = len(points)
+    lo = corners[k]
+    hi = corners[k + 1] if k + 1 < len(corners) else corners[0] + q
+    return points[np.arange(lo, hi + 1) % q]
+
+
+def _overshoot(fit: CDSpline, k: int, seg_points: np.ndarray) -> float:
+    """Largest distance from samples of segment k's curve to the polyline of its points (metres)."""
+    if len(seg_points) < 2:
+        return 0.0
+    u = np.linspace(fit.breaks[k], fit.breaks[k + 1], 4 * fit.degrees[k] + 6)[1:-1]
+    curve = fit.evaluate(u)[:, None, :]
+    a, b = seg_points[None, :-1], seg_points[None, 1:]
+    ab = b - a
+    s = np.clip(np.sum((curve - a) * ab, axis=2) / np.maximum(np.sum(ab * ab, axis=2), 1e-12), 0.0, 1.0)
+    d = np.linalg.norm(curve - (a + s[..., None] * ab), axis=2)
+    return float(d.min(axis=1).max())
+
+
+@functools.lru_cache(maxsize=4096)
+def _f_low(significance: float, dof: int) -> float:
+    return float(stats.f.ppf(significance / 2, dof, dof))
 
 
 def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplineOptions | None = None) -> CDSpline:
@@ -275,13 +349,14 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
     start = int(corners[0])
     t = chord_parameters(np.roll(points, -start, axis=0))
     interior = np.diff(np.append(corners, corners[0] + q)) - 1
-    cap = np.minimum(options.max_degree, interior + 1)
+    cap = np.minimum(options.max_degree, 1 + interior // options.points_per_degree)
     if len(corners) == 1:
         cap = np.minimum(cap, max(options.max_degree, 2))
     degrees = np.ones(len(corners), dtype=np.int64)
     if len(corners) < 2:
         degrees[:] = min(2, int(cap[0]))  # a one-segment closed curve cannot be a straight line
-    fit = fit_cdspline(points, corners, degrees, t=t)
+    cache: dict = {}
+    fit = fit_cdspline(points, corners, degrees, t=t, _cache=cache)
     history = [(degrees.tolist(), fit.sigma)]
     frozen = degrees >= cap
     lo, hi = stats.f.ppf([options.significance / 2, 1 - options.significance / 2], q - 1, q - 1)
@@ -293,8 +368,12 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         trial[k] += 1
         if trial.sum() > q:
             break
-        new = fit_cdspline(points, corners, trial, t=t)
+        new = fit_cdspline(points, corners, trial, t=t, _cache=cache)
         history.append((trial.tolist(), new.sigma))
+        seg_points = _segment_points(points, corners, k)
+        if _overshoot(new, k, seg_points) > max(options.max_overshoot, _overshoot(fit, k, seg_points)):
+            frozen[k] = True
+            continue
         if options.test == "global":
             f_c = (new.sigma / fit.sigma) ** 2 if fit.sigma > 0 else 1.0
             if lo < f_c < hi:
@@ -305,7 +384,7 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
             n_k = int(sel.sum())
             old_s = np.sum(fit.residuals[sel] ** 2)
             new_s = np.sum(new.residuals[sel] ** 2)
-            f_lo = stats.f.ppf(options.significance / 2, max(n_k - 1, 1), max(n_k - 1, 1))
+            f_lo = _f_low(options.significance, max(n_k - 1, 1))
             if old_s > 0 and new_s / old_s < f_lo:
                 degrees, fit = trial, new
             else:
@@ -313,4 +392,73 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         frozen |= degrees >= cap
     fit.history = history
     log.debug("cd-spline: degrees %s after %d fits", degrees.tolist(), len(history))
+    return fit
+
+
+def refine_corners(points: np.ndarray, corners: np.ndarray, rounds: int = 2) -> np.ndarray:
+    """Move each corner to the ring point nearest its corner in an all-straight least-squares fit.
+
+    Returns sorted unique ring indices (corners that collapse are merged).
+    """
+    corners = np.unique(np.asarray(corners, dtype=np.int64))
+    if len(corners) < 3:
+        return corners
+    for _ in range(rounds):
+        fit = fit_cdspline(points, corners, [1] * len(corners))
+        # the all-straight fit's control points are the fitted corners, in corner order
+        d = np.linalg.norm(points[None, :, :2] - fit.control_points[:, None, :2], axis=2)
+        moved = np.unique(np.argmin(d, axis=1))
+        if len(moved) < 3 or np.array_equal(moved, corners):
+            break
+        corners = moved
+    return corners
+
+
+def spline_outline(points: np.ndarray, corners: np.ndarray, candidates: np.ndarray | None = None,
+                   options: CDSplineOptions | None = None) -> CDSpline:
+    """Refined corners, iterative CD-spline, and splitting of segments that need degree >= 4.
+
+    Parameters
+    ----------
+    points : ndarray of shape (Q, 3) float64
+        Closed ring.
+    corners : ndarray of int
+        Knots (thesis corners).
+    candidates : ndarray of int, optional
+        Extra ring indices where a segment may be split (the Douglas-Peucker
+        vertices the angle filter dropped).
+    options : CDSplineOptions, optional
+    """
+    options = options or CDSplineOptions()
+    corners = np.unique(np.asarray(corners, dtype=np.int64))
+    if options.refine and len(corners) >= 3:
+        try:
+            corners = refine_corners(points, corners, options.refine)
+        except GeometryError:
+            pass
+    fit = iterative_cdspline(points, corners, options)
+    if not options.split or candidates is None or len(candidates) == 0:
+        return fit
+    q = len(points)
+    changed = True
+    while changed:
+        changed = False
+        for k in np.flatnonzero(np.asarray(fit.degrees) >= 4):
+            lo = corners[k]
+            hi = corners[k + 1] if k + 1 < len(corners) else corners[0] + q
+            inside = [int(c) for c in candidates if lo < c < hi or lo < c + q < hi]
+            best = None
+            for c in inside:
+                trial = np.unique(np.append(corners, c % q))
+                try:
+                    new = iterative_cdspline(points, trial, options)
+                except GeometryError:
+                    continue
+                if sum(new.degrees) <= sum(fit.degrees) and new.sigma <= 1.02 * fit.sigma:
+                    if best is None or new.sigma < best[1].sigma:
+                        best = (trial, new)
+            if best is not None:
+                corners, fit = best
+                changed = True
+                break
     return fit

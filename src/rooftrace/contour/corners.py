@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CornerOptions", "douglas_peucker", "turning_angles", "segment_deviation", "ring_corners"]
+__all__ = ["CornerOptions", "douglas_peucker", "ring_douglas_peucker", "turning_angles", "segment_deviation", "ring_corners"]
 
 log = logging.getLogger(__name__)
 
@@ -33,14 +33,16 @@ class CornerOptions:
         leave a segment that is not straight (a point farther than ``t_dist``
         from the chord), so arcs keep their Douglas-Peucker vertices as knots
         and straight walls that run tangentially into an arc stay separate
-        segments.  With False the filter is the thesis's.
+        segments.  False (default) is the thesis's filter; the CD-spline stage
+        splits badly fitting segments at the dropped vertices instead
+        (``cdspline.split``), which measures better.
     """
 
     section = "corners"
 
     t_dist: float = 0.6
     t_ang: float = 50.0
-    keep_curve_breaks: bool = True
+    keep_curve_breaks: bool = False
 
     def __post_init__(self) -> None:
         if not self.t_dist > 0:
@@ -101,6 +103,21 @@ def _closed_dp(points: np.ndarray, start: int, tolerance: float) -> np.ndarray:
     return np.sort((idx + start) % n)
 
 
+def ring_douglas_peucker(points: np.ndarray, tolerance: float) -> np.ndarray:
+    """Critical vertices of a closed ring by Douglas-Peucker, vertex 0 not forced (thesis §5.5).
+
+    Runs once from vertex 0 (and the vertex farthest from it), then again
+    from the sharpest vertex found, so vertex 0 stays only if it is critical.
+    Returns sorted ring indices.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 4:
+        return np.arange(len(points), dtype=np.int64)
+    first = _closed_dp(points, 0, tolerance)
+    sharpest = int(first[np.argmax(turning_angles(points, first))]) if len(first) >= 3 else int(first[-1])
+    return _closed_dp(points, sharpest, tolerance).astype(np.int64)
+
+
 def turning_angles(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """Turning angle in degrees at each corner of a closed polygon (eq. 5.10; 0 = straight on)."""
     c = points[corners]
@@ -144,12 +161,7 @@ def ring_corners(points: np.ndarray, options: CornerOptions | None = None) -> np
     n = len(points)
     if n < 4:
         return np.arange(n, dtype=np.int64)
-    first = _closed_dp(points, 0, options.t_dist)
-    if len(first) >= 3:
-        sharpest = int(first[np.argmax(turning_angles(points, first))])
-    else:
-        sharpest = int(first[-1])
-    corners = list(_closed_dp(points, sharpest, options.t_dist))
+    corners = list(ring_douglas_peucker(points, options.t_dist))
     locked: set[int] = set()
     while len(corners) > 3:
         c = np.asarray(corners)

@@ -17,14 +17,14 @@ import shapely
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
-from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
-from rooftrace.contour.corners import CornerOptions, ring_corners
+from rooftrace.contour.cdspline import CDSplineOptions, spline_outline
+from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
-__all__ = ["OutlineOptions", "RoofOutline", "trace_outline", "outline_buildings", "outlines_layer"]
+__all__ = ["OutlineOptions", "RoofOutline", "trace_outline", "outline_buildings", "outlines_layer", "connected_buildings"]
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +124,9 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions) -> t
     if len(xyz) < 4:
         return xyz, np.arange(len(xyz)), [1] * len(xyz), 0.0
     corners = ring_corners(xyz, options.corners)
-    spline = iterative_cdspline(xyz, corners, options.cdspline)
+    # finer Douglas-Peucker vertices are where a mixed straight/curved segment may split
+    candidates = np.setdiff1d(ring_douglas_peucker(xyz, options.corners.t_dist / 3), corners)
+    spline = spline_outline(xyz, corners, candidates, options.cdspline)
     vertices, corner_index = spline.ring(options.cdspline.densify)
     degrees = spline.degrees
     reg = options.regularize
@@ -175,7 +177,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if not np.isfinite(xyz).all():
         raise GeometryError("non_finite")
     _, first = np.unique(xyz[:, :2], axis=0, return_index=True)
-    pts = xyz[np.sort(first)]
+    # work near the origin: map coordinates (1e5 m) cost the least-squares fits digits
+    origin = np.append(np.floor(xyz[:, :2].min(axis=0)), 0.0)
+    pts = xyz[np.sort(first)] - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
     status = "ok"
@@ -197,7 +201,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
         if i == 0:
             sigma = s
-        rings.append(vertices)
+        rings.append(vertices + origin)
         degrees.append(list(deg))
         corners.append(corner_index)
     polygon = shapely.Polygon(rings[0], rings[1:])
@@ -300,3 +304,39 @@ def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list
             raise ValueError(f"outlines_layer: {key!r} has {len(values)} values for {len(outlines)} outlines")
         attrs[key] = list(values)
     return Layer([o.polygon for o in outlines], attrs, "PolygonZ")
+
+
+def connected_buildings(xy: np.ndarray, radius: float, min_points: int = 3) -> np.ndarray:
+    """Building ids of building points from connected components in plan view.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+        Building (class 6) points, metres.
+    radius : float
+        Points closer than this (m) are linked; ~2 * mean spacing (L_Dxy, thesis §3.3).
+    min_points : int
+        Components with fewer points get id 0.
+
+    Returns
+    -------
+    ndarray of shape (N,) int64
+        1, 2, ... in order of each component's first point; 0 = dropped.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = len(xy)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    counts = np.bincount(label)
+    _, first = np.unique(label, return_index=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(1, len(first) + 1)
+    ids = rank[label]
+    ids[counts[label] < min_points] = 0
+    return ids

@@ -1,0 +1,133 @@
+import numpy as np
+import pytest
+import shapely
+
+from rooftrace.contour.outline import (OutlineOptions, RoofOutline, connected_buildings, outline_buildings,
+                                       outlines_layer, trace_outline)
+from rooftrace.errors import GeometryError, InputError
+from rooftrace.evaluate.metrics import area_scores, polis
+from tests.contour.shapes import CIRCLE, COURTYARD, L_SHAPE, RECT, STADIUM, sample
+
+
+@pytest.mark.parametrize("truth", [RECT, L_SHAPE, COURTYARD], ids=["rect", "L", "courtyard"])
+def test_straight_shapes(truth):
+    xyz = sample(truth, 10, seed=1)
+    out = trace_outline(xyz)
+    poly = out.polygon
+    assert out.status == "ok" and poly.is_valid and poly.has_z
+    assert poly.exterior.is_ccw
+    assert all(not r.is_ccw for r in poly.interiors)
+    assert len(poly.interiors) == len(truth.interiors)
+    assert len(out.degrees[0]) == len(truth.exterior.coords) - 1  # one segment per true side
+    assert polis(poly, truth) < 0.2
+    assert area_scores(poly, truth)["f_score"] > 0.97
+    # corners index the ring's vertices and sit near true corners
+    ring = np.asarray(poly.exterior.coords)[:-1]
+    true_corners = np.asarray(truth.exterior.coords)[:-1]
+    d = np.min(np.linalg.norm(ring[out.corners[0], None, :2] - true_corners[None], axis=2), axis=1)
+    assert d.max() < 0.5
+    np.testing.assert_allclose(ring[:, 2], 10.0, atol=0.2)
+    assert out.z_min < out.z_mean < out.z_max
+
+
+@pytest.mark.parametrize("truth,name", [(CIRCLE, "circle"), (STADIUM, "stadium")])
+def test_curved_shapes_get_curved_segments(truth, name):
+    xyz = sample(truth, 10, seed=2)
+    out = trace_outline(xyz)
+    assert polis(out.polygon, truth) < 0.2
+    ring = np.asarray(out.polygon.exterior.coords)[:-1, :2]
+    corners = out.corners[0]
+    degrees = np.asarray(out.degrees[0])
+    ends = np.append(corners[1:], len(ring))
+    for k, d in enumerate(degrees):
+        mid = ring[(corners[k] + ends[k]) // 2] if d > 1 else 0.5 * (ring[corners[k]] + ring[ends[k] % len(ring)])
+        length = np.linalg.norm(ring[ends[k] % len(ring)] - ring[corners[k]])
+        on_arc = np.hypot(*(mid - (0, 0))) > 7.5 if name == "circle" else mid[0] > 14.3
+        if length > 2.0 and on_arc:
+            assert d >= 2, (k, degrees)
+        if name == "stadium" and mid[0] < 12 and length > 2.0:  # the straight walls
+            assert d == 1, (k, degrees)
+    assert degrees.max() >= 2
+
+
+def test_shuffle_and_translation_invariance():
+    xyz = sample(L_SHAPE, 10, seed=4)
+    a = trace_outline(xyz)
+    perm = np.random.default_rng(0).permutation(len(xyz))
+    b = trace_outline(xyz[perm])
+    shift = np.array([85000.0, 447000.0, 0.0])
+    c = trace_outline(xyz + shift)
+    assert shapely.equals_exact(shapely.normalize(a.polygon), shapely.normalize(b.polygon), 1e-9)
+    moved = shapely.affinity.translate(c.polygon, -shift[0], -shift[1])
+    assert shapely.hausdorff_distance(moved, a.polygon) < 1e-5
+    assert a.degrees == c.degrees
+
+
+def test_outward_correction_measures_better():
+    xyz = sample(RECT, 10, seed=5)
+    inner = trace_outline(xyz, OutlineOptions.from_config({}, offset_factor=0.0)).polygon
+    outer = trace_outline(xyz).polygon
+    assert outer.area > inner.area
+    assert area_scores(outer, RECT)["f_score"] > area_scores(inner, RECT)["f_score"]
+
+
+def test_snapping_makes_sides_orthogonal():
+    rot = shapely.affinity.rotate(RECT, 17, origin=(0, 0))
+    xyz = sample(rot, 10, seed=6)
+    out = trace_outline(xyz, OutlineOptions.from_config({}, snap=True))
+    ring = np.asarray(out.polygon.exterior.coords)[:-1, :2][out.corners[0]]
+    d = np.roll(ring, -1, axis=0) - ring
+    ang = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    dev = (ang - 17 + 45) % 90 - 45
+    assert np.abs(dev).max() < 1.0
+
+
+def test_outline_buildings_records_status_and_sorts_ids():
+    a = sample(RECT, 10, seed=7)
+    b = sample(shapely.affinity.translate(L_SHAPE, 40, 0), 10, seed=8)
+    line = np.column_stack([np.linspace(80, 90, 20), np.full(20, 3.0), np.full(20, 5.0)])
+    two = np.array([[100.0, 0, 5], [101, 0, 5]])
+    xyz = np.concatenate([b, a, line, two, [[0.0, 0, 0]]])
+    ids = np.concatenate([np.full(len(b), 7), np.full(len(a), 3), np.full(20, 9), [11, 11], [0]])
+    outs = outline_buildings(xyz, ids)
+    assert [o.building_id for o in outs] == [3, 7, 9, 11]
+    assert [o.status for o in outs] == ["ok", "ok", "collinear", "too_few_points"]
+    assert outs[2].polygon is None and outs[2].n_points == 20
+    layer = outlines_layer(outs, {"source": ["a", "b", "c", "d"]})
+    assert layer.geometry_type == "PolygonZ" and len(layer) == 4
+    for key in ("building_id", "n_points", "alpha_strategy", "area", "z_min", "z_mean", "z_max", "degrees", "status"):
+        assert key in layer.attributes
+    assert layer.attributes["degrees"][0].count(",") == 3
+    assert layer.attributes["area"][2] == 0.0
+
+
+def test_degrees_attribute_joins_rings():
+    out = RoofOutline(1, None, degrees=[[1, 1, 2, 1], [1, 1, 1]])
+    assert outlines_layer([out]).attributes["degrees"] == ["1,1,2,1;1,1,1"]
+
+
+def test_trace_outline_raises_for_degenerate_input():
+    with pytest.raises(GeometryError, match="too_few_points"):
+        trace_outline(np.array([[0.0, 0, 0], [1, 1, 1]]))
+    with pytest.raises(ValueError, match="shape"):
+        trace_outline(np.zeros((5, 2)))
+
+
+def test_options_from_config_and_overrides():
+    cfg = {"alpha": {"strategy": "global", "radius": 2.0}, "cdspline": {"max_degree": 3}}
+    o = OutlineOptions.from_config(cfg, strategy="building", snap=None, t_dist=0.4)
+    assert o.alpha.strategy == "building" and o.alpha.radius == 2.0
+    assert o.cdspline.max_degree == 3 and o.corners.t_dist == 0.4 and o.regularize.snap is False
+    with pytest.raises(InputError, match="unknown"):
+        OutlineOptions.from_config({"alpha": {"radiuss": 1}})
+    with pytest.raises(InputError, match="unknown option"):
+        OutlineOptions.from_config({}, nonsense=1)
+    with pytest.raises(InputError, match="strategy"):
+        OutlineOptions.from_config({}, strategy="nope")
+
+
+def test_connected_buildings():
+    a = sample(RECT, 10)[:, :2]
+    b = a + (30, 0)
+    ids = connected_buildings(np.concatenate([a, b, [[100.0, 100.0]]]), radius=0.8)
+    assert set(ids[: len(a)]) == {1} and set(ids[len(a):-1]) == {2} and ids[-1] == 0
