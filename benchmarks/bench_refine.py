@@ -98,6 +98,48 @@ def _ridge_errors(extracted: list, truth: list) -> list[float]:
     return out
 
 
+def emulated_roofs(scene, seed: int):
+    """Truth topology with LiDAR-sized errors; planes and ridges from the LiDAR points.
+
+    With s = 1/sqrt(density) the mean point spacing, each outline is shrunk
+    by s/2 (boundary points lie inside the true edge, half a spacing on
+    average) and every vertex gets N(0, (0.35 s)^2) in x and y; Z is the
+    truth's plus N(0, 0.1^2).  Roof planes and ridges come from
+    ``roof_structure`` on the building's own LiDAR points.
+    """
+    from rooftrace.roof import roof_structure
+
+    rng = np.random.default_rng([seed, 7])
+    s = 1.0 / np.sqrt(scene.options.density)
+    xyz = scene.cloud.xyz
+    bid = np.where(scene.cloud.fields["truth_class"] == 6, scene.cloud.fields["truth_building_id"], 0)
+    polys, ids, planes, ridges, ridge_ids = [], [], [], [], []
+    layer = scene.truth["roof_outlines"]
+    for geom, b in zip(layer.geometries, layer.attributes["building_id"]):
+        flat = shapely.force_2d(geom).buffer(-0.5 * s, join_style="mitre")
+        if flat.geom_type != "Polygon" or flat.is_empty:
+            continue
+        tz = shapely.get_coordinates(geom, include_z=True)
+
+        def ring(r):
+            xy = np.asarray(r.coords)[:-1]
+            z = tz[np.argmin(np.linalg.norm(tz[None, :, :2] - xy[:, None], axis=2), axis=1), 2]
+            xy = xy + rng.normal(0, 0.35 * s, xy.shape)
+            out = np.column_stack([xy, z + rng.normal(0, 0.1, len(z))])
+            return np.vstack([out, out[:1]])
+
+        poly = Polygon(ring(flat.exterior), [ring(h) for h in flat.interiors])
+        if not poly.is_valid:
+            continue
+        polys.append(poly)
+        ids.append(int(b))
+        roof = roof_structure(xyz[bid == b], poly, building_id=int(b))
+        planes.append(roof.planes if len(roof.planes) else None)
+        ridges += list(roof.ridges)
+        ridge_ids += [int(b)] * len(roof.ridges)
+    return polys, ids, planes, ridges, ridge_ids
+
+
 def lidar_roofs(scene, mode: str, seed: int):
     """LiDAR-only roofs: outlines, ids, planes per outline, ridges, ridge ids.
 
@@ -110,6 +152,8 @@ def lidar_roofs(scene, mode: str, seed: int):
         lidar = run_pipeline(scene.cloud, seed=seed)
         outlines = [o for o in lidar.outlines if o.polygon is not None and not o.polygon.is_empty]
         structures = lidar.structures
+    elif mode == "emulated":
+        return emulated_roofs(scene, seed)
     else:
         from rooftrace.contour.outline import outline_buildings
         from rooftrace.roof import roof_structure
@@ -133,7 +177,7 @@ def lidar_roofs(scene, mode: str, seed: int):
 
 
 def run_case(seed: int, density: float, perturb_px: float = 3.0, options: RefineOptions | None = None,
-             mode: str = "known") -> dict:
+             mode: str = "emulated") -> dict:
     t0 = time.perf_counter()
     scene = simulate_scene(SceneOptions(seed=seed, density=density, gsd=0.2))
     grey = _grey(scene.image)
@@ -228,14 +272,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--densities", type=float, nargs="+", default=[2.0, 12.0])
-    ap.add_argument("--mode", choices=["known", "pipeline"], default="known",
-                    help="LiDAR roofs from true building points (seed 000's premise) or the whole pipeline")
+    ap.add_argument("--mode", choices=["emulated", "known", "pipeline"], default="emulated",
+                    help="LiDAR roofs: truth topology with LiDAR-sized errors (seed 000's premise), the outline "
+                         "stage on true building points, or the whole pipeline")
+    ap.add_argument("--no-terrain-filter", action="store_true", help="refine without the terrain-line filter")
     ap.add_argument("--json", type=Path, default=None, help="write all rows here")
     args = ap.parse_args(argv)
     cases = []
     for density in args.densities:
         for seed in args.seeds:
-            case = run_case(seed, density, mode=args.mode)
+            case = run_case(seed, density, mode=args.mode,
+                            options=RefineOptions(terrain_filter=not args.no_terrain_filter))
             cases.append(case)
             print(f"seed {seed} density {density}: {case['buildings']} buildings, refine {case['t_refine']:.1f} s",
                   file=sys.stderr)

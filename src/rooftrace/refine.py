@@ -33,7 +33,7 @@ from rooftrace import config as _config
 from rooftrace.errors import GeometryError
 from rooftrace.grouping import (
     GAOptions, MRFOptions, build_problem, exact_minimise, genetic_minimise, junction_planes, reconstruct_image,
-    roof_topology, to_object_space,
+    ridge_lines, roof_topology, to_object_space,
 )
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
@@ -53,6 +53,16 @@ class RefineOptions:
     junction_tolerance : float, default 1.0
         Plan distance (m) joining ridge ends to outline vertices, sides and
         each other (topology; ours).
+    simplify_tolerance : float or None, default None
+        Douglas-Peucker tolerance (m, plan) applied to the LiDAR outline
+        first, so that vertices that do not change its shape do not become
+        sides of their own; None: half the image GSD (ours).
+    min_side_px : float, default 6
+        Sides projecting shorter than this (px) keep their projected line
+        as their only candidate (ours: a few pixels of edge fix no direction).
+    ridges_on_planes : bool, default True
+        Move ridge points only along the intersection of their two LiDAR
+        roof planes (ours; see :func:`rooftrace.grouping.ridge_lines`).
     plane_tolerance : float, default 0.5
         Largest vertical distance (m) of a LiDAR vertex to the roof plane it
         is re-projected onto; beyond it, a horizontal plane (ours).
@@ -70,6 +80,9 @@ class RefineOptions:
     context : float, default 10.0
         Margin (m) around a building within which LiDAR points are used for
         the terrain-line filter.
+    terrain_filter : bool, default True
+        Remove candidate lines lying on the terrain (seed 000 §2.1) when
+        LiDAR points are given.
     mrf, ga : MRFOptions, GAOptions
         Energy and optimiser (a TOML ``[mrf]`` / ``[ga]`` table, see
         :meth:`from_config`).
@@ -78,6 +91,9 @@ class RefineOptions:
     section = "refine"
 
     junction_tolerance: float = 1.0
+    simplify_tolerance: float | None = None
+    min_side_px: float = 6.0
+    ridges_on_planes: bool = True
     plane_tolerance: float = 0.5
     max_shift_k: float = 3.0
     max_shift_margin_px: float = 3.0
@@ -85,6 +101,7 @@ class RefineOptions:
     solver: str = "ga"
     exact_max_table: int = 2**22
     context: float = 10.0
+    terrain_filter: bool = True
     mrf: MRFOptions = field(default_factory=MRFOptions)
     ga: GAOptions = field(default_factory=GAOptions)
     candidates: object = None
@@ -100,6 +117,8 @@ class RefineOptions:
         for name in ("junction_tolerance", "plane_tolerance", "max_move", "context"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"refine.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.simplify_tolerance is not None and self.simplify_tolerance < 0:
+            raise ValueError(f"refine.simplify_tolerance must be >= 0, got {self.simplify_tolerance!r}")
         if self.max_shift_k < 0 or self.max_shift_margin_px < 0 or self.exact_max_table < 0:
             raise ValueError("refine.max_shift_k, max_shift_margin_px and exact_max_table must be >= 0")
 
@@ -193,6 +212,17 @@ def _inside_image(camera, cr: np.ndarray) -> bool:
                 and (cr[:, 1] >= 0).all() and (cr[:, 1] <= h - 1).all())
 
 
+def _rings(xyz: np.ndarray, sizes) -> Polygon:
+    bounds = np.cumsum((0,) + tuple(sizes))
+    return Polygon(xyz[: bounds[1]], [xyz[a:b] for a, b in zip(bounds[1:-1], bounds[2:])])
+
+
+def _acceptable(refined: Polygon, outline) -> bool:
+    """Valid in plan, and its area within a factor 2 of the LiDAR outline's."""
+    flat = shapely.force_2d(refined)
+    return bool(flat.is_valid and 0.5 <= flat.area / max(shapely.force_2d(outline).area, 1e-12) <= 2.0)
+
+
 def _kept(outline, ridges, status: str) -> BuildingRefinement:
     return BuildingRefinement(outline, list(ridges), [False] * len(ridges), status)
 
@@ -231,13 +261,18 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     """
     t0 = time.perf_counter()
     opt = options or RefineOptions()
+    tol = opt.simplify_tolerance if opt.simplify_tolerance is not None else 0.5 * camera.ground_sample_distance
+    source_outline = outline
+    if outline is not None and outline.geom_type == "Polygon" and tol > 0:
+        simple = shapely.simplify(outline, tol, preserve_topology=True)
+        outline = simple if simple.geom_type == "Polygon" and not simple.is_empty else outline
     try:
         topo = roof_topology(outline, ridges, opt.junction_tolerance)
     except GeometryError as exc:
-        return _kept(outline, ridges, f"degenerate: {exc}")
+        return _kept(source_outline, ridges, f"degenerate: {exc}")
     ref_points = camera.project(np.array([j.point for j in topo.junctions]))
     if not _inside_image(camera, ref_points):
-        return _kept(outline, ridges, "outside_image")
+        return _kept(source_outline, ridges, "outside_image")
     if candidates is None:
         from rooftrace.image.candidates import extract_candidates
 
@@ -250,57 +285,69 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
 
         corners = harris_corners(image, np.stack([c.window for c in candidates]), options=opt.corners)
     refs = np.stack([np.asarray(c.reference, float) for c in candidates])
-    problem = build_problem(refs, [c.candidates for c in candidates], topo.pairs, corners, opt.mrf)
+    cand_sets = [np.asarray(c.candidates, float).reshape(-1, 2, 2) for c in candidates]
+    image_line = [np.array([not getattr(c, "projected_only", False) and (not c.source or c.source[k] != "projected")
+                            for k in range(len(cs))]) for c, cs in zip(candidates, cand_sets)]
+    # a side a few pixels long has no trustworthy image line: it keeps its projection
+    short = np.linalg.norm(refs[:, 1] - refs[:, 0], axis=1) < opt.min_side_px
+    for s_ in np.flatnonzero(short):
+        cand_sets[s_], image_line[s_] = refs[s_:s_ + 1], np.zeros(1, bool)
+    problem = build_problem(refs, cand_sets, topo.pairs, corners, opt.mrf)
     ga = genetic_minimise(problem, opt.ga, seed=seed)
     exact = exact_minimise(problem, opt.exact_max_table) if opt.exact_max_table > 0 else None
     choice = exact.choice if (opt.solver == "exact" and exact is not None) else ga.choice
-    selected = np.stack([np.asarray(c.candidates, float)[k] for c, k in zip(candidates, choice)])
+    selected = np.stack([cs[k] for cs, k in zip(cand_sets, choice)])
 
     error = np.array([c.registration_error for c in candidates], float)
     limit = np.array([opt.max_shift_k * max(error[line] for line, _ in j.members) + opt.max_shift_margin_px
                       for j in topo.junctions])
     rec = reconstruct_image(topo, selected, ref_points, limit)
     jplanes = junction_planes(topo, planes, opt.plane_tolerance)
+    jlines = ridge_lines(topo, planes, opt.plane_tolerance) if opt.ridges_on_planes else None
     original = np.array([j.point for j in topo.junctions])
-    xyz, ok = to_object_space(camera, rec.points, jplanes, original, opt.max_move)
-    xyz = np.where((rec.moved & ok)[:, None], xyz, original)
+    xyz, ok = to_object_space(camera, rec.points, jplanes, original, opt.max_move, jlines)
+    moved = rec.moved & ok
+    xyz = np.where(moved[:, None], xyz, original)
 
+    # an invalid ring (tiny or crossing sides): give back the largest moves one by one
     n_out = topo.n_outline
-    rings, start = [], 0
-    for size in topo.ring_sizes:
-        rings.append(xyz[start:start + size])
-        start += size
-    refined = Polygon(rings[0], rings[1:])
-    status = "refined"
-    flat = shapely.force_2d(refined)
-    if not flat.is_valid or not 0.5 <= flat.area / max(shapely.force_2d(outline).area, 1e-12) <= 2.0:
-        refined, status = outline, "kept: invalid refined outline"
+    shift = np.linalg.norm(rec.points - ref_points, axis=1)
+    refined = _rings(xyz, topo.ring_sizes)
+    while not _acceptable(refined, outline) and moved[:n_out].any():
+        j = int(np.argmax(np.where(moved[:n_out], shift[:n_out], -1.0)))
+        moved[j], xyz[j] = False, original[j]
+        refined = _rings(xyz, topo.ring_sizes)
+    status = "refined" if moved.any() else "kept: no vertex moved"
+    if not _acceptable(refined, outline):
+        refined, status = source_outline, "kept: invalid refined outline"
+        moved[:] = False
+        xyz = original
+    elif not moved.any():
+        refined = source_outline
 
     end_of = {(line, end): j for j, junction in enumerate(topo.junctions) for line, end in junction.members if end >= 0}
     out_ridges, ridge_refined = [], []
     for r, ridge in enumerate(ridges):
         line = int(topo.ridge_index[r]) if r < len(topo.ridge_index) else -1
-        if line < 0 or status != "refined":
+        if line < 0 or not moved.any():
             out_ridges.append(ridge)
             ridge_refined.append(False)
             continue
         j0, j1 = end_of[(line, 0)], end_of[(line, 1)]
         out_ridges.append(LineString([xyz[j0], xyz[j1]]))
-        ridge_refined.append(bool(rec.moved[j0] or rec.moved[j1]))
+        ridge_refined.append(bool(moved[j0] or moved[j1]))
 
-    sides = [int(not getattr(c, "projected_only", False) and (not c.source or c.source[k] != "projected"))
-             for c, k in zip(candidates, choice)]
-    if status != "refined":
-        sides = [0] * len(sides)
+    sides = [int(image_line[s_][k] and moved[end_of[(s_, 0)]] and moved[end_of[(s_, 1)]])
+             for s_, k in enumerate(choice)]
     e_used = problem.energy(choice)
     return BuildingRefinement(
         refined, out_ridges, ridge_refined, status,
-        candidates_per_side=[len(c.candidates) for c in candidates[:n_out]],
+        candidates_per_side=[len(c) for c in cand_sets[:n_out]],
         refined_sides=sides[:n_out], energy=float(e_used),
         exact_energy=float(exact.energy) if exact is not None else float("nan"),
         ga_exact_gap=float(ga.energy - exact.energy) if exact is not None else float("nan"),
         choice=choice, image_outline=rec.points[:n_out], kinds=topo.kinds, ring_sizes=topo.ring_sizes, references=refs, selected=selected,
-        candidate_sets=[np.asarray(c.candidates, float) for c in candidates], seconds=time.perf_counter() - t0)
+        candidate_sets=cand_sets, seconds=time.perf_counter() - t0)
 
 
 def assign_ridges(outlines: Sequence, ridges: Sequence) -> list[int]:
@@ -382,7 +429,11 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             x0, y0, x1, y1 = poly.bounds
             near = tree.query_ball_point([(x0 + x1) / 2, (y0 + y1) / 2], np.hypot(x1 - x0, y1 - y0) / 2 + opt.context)
             local = pts[np.sort(np.asarray(near, int))]
-            inside = local[shapely.contains_xy(shapely.force_2d(poly), local[:, 0], local[:, 1])]
+            # the building's own points would mark the true edges, which lie outside a LiDAR outline
+            # shrunk by half a point spacing, as "off the building": the projected lines stand for it
+            inside = None
+        if not opt.terrain_filter:
+            local = None
         try:
             res = refine_building(poly, [ridges[r] for r in mine], img, camera, points_xyz=local, building_xyz=inside,
                                   planes=None if planes is None else planes[i], options=opt, seed=seed + i)

@@ -22,7 +22,7 @@ import numpy as np
 
 from rooftrace.grouping.topology import RoofTopology
 
-__all__ = ["ImageReconstruction", "reconstruct_image", "junction_planes", "to_object_space"]
+__all__ = ["ImageReconstruction", "reconstruct_image", "junction_planes", "ridge_lines", "to_object_space"]
 
 
 @dataclass(frozen=True)
@@ -155,12 +155,61 @@ def junction_planes(topology: RoofTopology, planes: np.ndarray | None, tolerance
     return out
 
 
+def ridge_lines(topology: RoofTopology, planes: np.ndarray | None, tolerance: float = 0.5,
+                min_angle_deg: float = 5.0, max_slope: float = 0.1) -> np.ndarray:
+    """The 3D ridge line (point, unit direction) each ridge junction lies on, (J, 2, 3); NaN where none.
+
+    A ridge lies on the two roof planes that hold both its LiDAR end points
+    (vertical residuals within ``tolerance``); their intersection is the
+    line.  Outline vertices get one only where a level ridge (slope below
+    ``max_slope``) ends on them, as at a gable apex; others get NaN and use
+    :func:`junction_planes`.
+    Plane intersections are far more precise across the ridge than any
+    image line at 0.2 m GSD, so ridge points are only moved *along* them.
+    """
+    out = np.full((len(topology.junctions), 2, 3), np.nan)
+    if planes is None or len(planes) < 2:
+        return out
+    pl = np.asarray(planes, float).reshape(-1, 4)
+    pl = pl * np.where(pl[:, 2:3] < 0, -1.0, 1.0)
+    pl = pl / np.linalg.norm(pl[:, :3], axis=1, keepdims=True)
+    pl = pl[pl[:, 2] >= 0.2]  # walls hold no ridge
+    if len(pl) < 2:
+        return out
+    n_outline = topology.n_outline
+    for j, junction in enumerate(topology.junctions):
+        ridges = [line for line, end in junction.members if line >= n_outline and end >= 0]
+        if junction.vertex >= 0:
+            # an outline vertex follows a level ridge (gable apex), never a hip: the eave plane
+            # leaves the image free to place a corner in both directions
+            seg = topology.lines[ridges] if ridges else np.zeros((0, 2, 3))
+            ridges = [r for r, ln in zip(ridges, seg)
+                      if abs(ln[1, 2] - ln[0, 2]) <= max_slope * np.linalg.norm(ln[1, :2] - ln[0, :2])]
+        if not ridges:
+            continue
+        res = _vertical_residual(pl, topology.lines[ridges[0]]).max(axis=0)
+        a, b = np.argsort(res)[:2]
+        if res[b] > tolerance:
+            continue
+        u = np.cross(pl[a, :3], pl[b, :3])
+        if np.linalg.norm(u) < np.sin(np.radians(min_angle_deg)):
+            continue
+        u /= np.linalg.norm(u)
+        # the point of the line nearest to the LiDAR ridge end
+        m = np.stack([pl[a, :3], pl[b, :3], u])
+        p = np.linalg.solve(m, [-pl[a, 3], -pl[b, 3], u @ junction.point])
+        out[j] = [p, u]
+    return out
+
+
 def to_object_space(camera, pixels: np.ndarray, planes: np.ndarray, fallback: np.ndarray,
-                    max_move: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+                    max_move: float = 5.0, lines: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Intersect the rays of pixels (J, 2) with planes (J, 4); returns (J, 3) and an ok flag (J,).
 
-    A ray that misses its plane (parallel, behind the camera) or lands more
-    than ``max_move`` (m, planimetric) from ``fallback`` (J, 3) keeps the
+    Where ``lines`` (J, 2, 3) (point, unit direction; NaN = none) is given,
+    the point is instead the one of that 3D line nearest to the ray.  A ray
+    that misses (parallel, behind the camera) or lands more than
+    ``max_move`` (m, planimetric) from ``fallback`` (J, 3) keeps the
     fallback point and gets ok = False.
     """
     pixels = np.asarray(pixels, float).reshape(-1, 2)
@@ -172,6 +221,16 @@ def to_object_space(camera, pixels: np.ndarray, planes: np.ndarray, fallback: np
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -(np.einsum("ij,ij->i", o, n) + off) / np.einsum("ij,ij->i", d, n)
     xyz = o + t[:, None] * d
+    if lines is not None:
+        p, u = lines[:, 0], lines[:, 1]
+        w = o - p
+        b = np.einsum("ij,ij->i", d, u)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (np.einsum("ij,ij->i", u, w) - b * np.einsum("ij,ij->i", d, w)) / (1.0 - b * b)
+        on_line = p + s[:, None] * u
+        use = np.isfinite(on_line).all(axis=1) & (1.0 - b * b > 1e-6)
+        xyz = np.where(use[:, None], on_line, xyz)
+        t = np.where(use, 1.0, t)
     ok = np.isfinite(xyz).all(axis=1) & (t > 0)
     ok &= np.linalg.norm(np.where(ok[:, None], xyz, 0)[:, :2] - fallback[:, :2], axis=1) <= max_move
     return np.where(ok[:, None], xyz, fallback), ok
