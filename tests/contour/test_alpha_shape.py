@@ -57,9 +57,9 @@ def test_density_change_global_alpha_breaks_point_alpha_holds():
     # thesis fig. 1.2: 16 pts/m² on the left half, 4 pts/m² on the right (strip overlap)
     xyz = sample(RECT, 16, density_right=4, seed=3)
     dense_spacing = 1 / np.sqrt(16)
-    s1 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="global"), mean_spacing=dense_spacing)
-    s2 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="building"))
-    s3 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="point"))
+    s1 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="global", scale=1.0), mean_spacing=dense_spacing)
+    s2 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="building", scale=1.0))
+    s3 = alpha_shape(xyz[:, :2], AlphaOptions(strategy="point", scale=1.0))
     a3 = _polygon(xyz[:, :2], s3).area
     # the sparse half falls apart with one alpha for the whole building
     assert _polygon(xyz[:, :2], s1).area < 0.6 * RECT.area

@@ -115,9 +115,10 @@ def test_trace_outline_raises_for_degenerate_input():
 
 def test_options_from_config_and_overrides():
     cfg = {"alpha": {"strategy": "global", "radius": 2.0}, "cdspline": {"max_degree": 3}}
-    o = OutlineOptions.from_config(cfg, strategy="building", snap=None, t_dist=0.4)
+    o = OutlineOptions.from_config(cfg, strategy="building", snap=None, offset_factor=0.5, t_dist=0.4)
     assert o.alpha.strategy == "building" and o.alpha.radius == 2.0
-    assert o.cdspline.max_degree == 3 and o.corners.t_dist == 0.4 and o.regularize.snap is False
+    assert o.cdspline.max_degree == 3 and o.corners.t_dist == 0.4 and o.regularize.snap is True
+    assert o.regularize.offset_factor == 0.5
     with pytest.raises(InputError, match="unknown"):
         OutlineOptions.from_config({"alpha": {"radiuss": 1}})
     with pytest.raises(InputError, match="unknown option"):

@@ -23,8 +23,9 @@ class CornerOptions:
     Attributes
     ----------
     t_dist : float
-        Douglas-Peucker distance threshold T_dist in metres (3D), thesis §5.5
-        and DESIGN.md stage 7: 0.6 m.
+        Douglas-Peucker distance threshold T_dist in metres (3D).  The thesis
+        (§5.5, DESIGN.md stage 7) used 0.6 m; 0.3 m measured better on
+        City3D/AHN3 at ~9 pts/m² (benchmarks/RESULTS.md).
     t_ang : float
         Turning-angle threshold T_ang in degrees (0 = straight on): corners
         turning less are redundant (thesis eq. 5.10; DESIGN.md: 50°).
@@ -40,7 +41,7 @@ class CornerOptions:
 
     section = "corners"
 
-    t_dist: float = 0.6
+    t_dist: float = 0.3
     t_ang: float = 50.0
     keep_curve_breaks: bool = False
 

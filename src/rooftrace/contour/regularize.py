@@ -30,11 +30,14 @@ class RegularizeOptions:
     offset_factor : float
         Outward correction as a fraction of the local mean spacing (ps_avg of
         the ring's points for the per-point alpha, else alpha): distance =
-        ``offset_factor`` * spacing, metres.  0 disables it.  Half the spacing
-        is the expected gap between the outermost points and the edge.
+        ``offset_factor`` * spacing, metres.  0 disables it.  About half a
+        grid spacing is the expected gap between the outermost points and the
+        edge; as the mean Delaunay edge is longer than the grid spacing, 0.3
+        measured best (benchmarks/RESULTS.md).
     snap : bool
         Snap straight segments within ``snap_tolerance`` of the dominant
-        direction (or its perpendicular) to it exactly.
+        direction (or its perpendicular) to it exactly (on by default: it
+        measured better).
     snap_tolerance : float
         Degrees.
     max_offset_ratio : float
@@ -43,8 +46,8 @@ class RegularizeOptions:
 
     section = "regularize"
 
-    offset_factor: float = 0.5
-    snap: bool = False
+    offset_factor: float = 0.3
+    snap: bool = True
     snap_tolerance: float = 10.0
     max_offset_ratio: float = 3.0
 
