@@ -114,3 +114,41 @@ def test_options_from_config_and_errors():
         RefineOptions(solver="annealing")
     with pytest.raises(ValueError, match="building_ids"):
         refine_buildings([Polygon([(0, 0), (1, 0), (1, 1)])], [], np.zeros((5, 5)), _camera(), building_ids=[1, 2])
+
+
+def _given_candidates(cam, lidar, truth, distractor_px=5.0):
+    """Part A's LineCandidates built by hand: the true side and an outward parallel distractor."""
+    from rooftrace.image.candidates import LineCandidates
+
+    lv = np.array(lidar.exterior.coords)[:-1]
+    tv = np.array(truth.exterior.coords)[:-1]
+    out = []
+    for k in range(len(lv)):
+        ref = cam.project(np.stack([lv[k], lv[(k + 1) % len(lv)]]))
+        true = cam.project(np.stack([tv[k], tv[(k + 1) % len(tv)]]))
+        u = (true[1] - true[0]) / np.linalg.norm(true[1] - true[0])
+        far = true + distractor_px * np.array([u[1], -u[0]])
+        window = np.array([ref[0], ref[1], ref[1], ref[0]])
+        out.append(LineCandidates(ref, 2.0, window, np.stack([far, true]), ["canny", "canny"]))
+    return out
+
+
+def test_refine_building_with_given_candidates_picks_the_true_lines(scene):
+    from rooftrace.refine import refine_building
+
+    cam, img, truth, _, planes = scene
+    flat = truth[0]
+    rng = np.random.default_rng(11)
+    lidar = _perturb(flat, rng, sigma=0.15)
+    cands = _given_candidates(cam, lidar, flat)
+    corners = cam.project(np.array(flat.exterior.coords)[:-1])
+    res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners, seed=0,
+                          options=RefineOptions(simplify_tolerance=0.0))
+    assert res.status == "refined" and res.choice.tolist() == [1] * 6
+    assert res.refined_sides == [1] * 6 and res.candidates_per_side == [2] * 6
+    assert polis(res.outline, flat) < 0.01
+    assert res.ga_exact_gap == pytest.approx(0.0)
+    # sides shorter than min_side_px keep their projected line: nothing moves
+    res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
+                          options=RefineOptions(min_side_px=1e6))
+    assert res.status == "kept: no vertex moved" and res.outline is lidar and res.refined_sides == [0] * 6

@@ -306,7 +306,10 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     jlines = ridge_lines(topo, planes, opt.plane_tolerance) if opt.ridges_on_planes else None
     original = np.array([j.point for j in topo.junctions])
     xyz, ok = to_object_space(camera, rec.points, jplanes, original, opt.max_move, jlines)
-    moved = rec.moved & ok
+    # a junction of projected lines only is the LiDAR point itself: keep it exactly
+    chosen_image = np.array([image_line[s_][k] for s_, k in enumerate(choice)])
+    supported = np.array([any(chosen_image[line] for line, _ in j.members) for j in topo.junctions])
+    moved = rec.moved & ok & supported
     xyz = np.where(moved[:, None], xyz, original)
 
     # an invalid ring (tiny or crossing sides): give back the largest moves one by one

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from shapely import LineString, Polygon
 
-from rooftrace.grouping.reconstruct import junction_planes, meet, reconstruct_image, to_object_space
+from rooftrace.grouping.reconstruct import junction_planes, meet, reconstruct_image, ridge_lines, to_object_space
 from rooftrace.grouping.topology import roof_topology
 from rooftrace.image.camera import FrameCamera
 
@@ -70,3 +70,22 @@ def test_junction_planes_pick_the_face_of_each_vertex():
     assert planes[4][2] == 1.0 and abs(planes[4][1]) == pytest.approx(2 / 3)  # a ridge end: either face
     flat = junction_planes(topo, None)
     np.testing.assert_allclose(flat[0], [0, 0, 1, -3.1])
+
+
+def test_ridge_points_move_along_the_planes_intersection():
+    south = np.array([0.0, -2 / 3, 1.0, -3.0])
+    north = np.array([0.0, 2 / 3, 1.0, -7.0])
+    roof = Polygon([(0, 0, 3), (10, 0, 3), (10, 6, 3), (0, 6, 3)])
+    topo = roof_topology(roof, [LineString([(0.5, 3.1, 5.05), (9.5, 2.9, 4.95)])])
+    lines = ridge_lines(topo, np.array([south, north]))
+    vertex = [j.vertex >= 0 for j in topo.junctions]
+    assert np.isnan(lines[vertex]).all() and np.isfinite(lines[~np.array(vertex)]).all()
+    np.testing.assert_allclose(np.abs(lines[~np.array(vertex), 1]), [[1, 0, 0]] * 2, atol=1e-12)
+    np.testing.assert_allclose(lines[~np.array(vertex), 0][:, 1:], [[3, 5]] * 2, atol=1e-12)
+    # a pixel 2 px off the projected ridge still lands on the ridge line, at the right x
+    cam = _nadir_camera()
+    target = np.array([[4.0, 3.0, 5.0]])
+    px = cam.project(target) + [0.0, 2.0]
+    j = int(np.flatnonzero(~np.array(vertex))[0])
+    xyz, ok = to_object_space(cam, px, np.array([south]), np.array([[4.5, 3.5, 5.0]]), lines=lines[j:j + 1])
+    assert ok.all() and xyz[0] == pytest.approx([4.0 * 1.0, 3.0, 5.0], abs=0.02)
