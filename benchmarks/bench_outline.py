@@ -30,9 +30,15 @@ CITY3D = DATA / "city3d_ahn3_single_buildings" / "instances_002"
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 
 
+THESIS = dict(scale=1.0, t_dist=0.6, offset_factor=0.0, snap=False, test="global", split=False,
+              points_per_degree=1, max_overshoot=1e9)
+
+
 def _variants():
     for strategy in ("global", "building", "point"):
-        for offset in (0.0, 0.5):
+        yield (f"thesis    {strategy:8s} (alpha x1, T_dist 0.6, F-test global)",
+               OutlineOptions.from_config({}, strategy=strategy, **THESIS))
+        for offset in (0.0, 0.3):
             for snap in (False, True):
                 yield (f"rooftrace {strategy:8s} offset={offset:.1f} snap={int(snap)}",
                        OutlineOptions.from_config({}, strategy=strategy, offset_factor=offset, snap=snap))
