@@ -26,6 +26,7 @@ from rooftrace.cli import cmd_info  # noqa: F401,E402
 from rooftrace.cli import cmd_outline  # noqa: F401,E402
 from rooftrace.cli import cmd_evaluate  # noqa: F401,E402
 from rooftrace.cli import cmd_refine  # noqa: F401,E402
+from rooftrace.cli import cmd_simulate  # noqa: F401,E402
 from rooftrace.cli import cmd_resect  # noqa: F401,E402
 
 __all__ = ["main"]

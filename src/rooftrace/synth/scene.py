@@ -1,0 +1,402 @@
+"""The scene's geometry: options, terrain, the default building mix, trees, a power line.
+
+Everything is a function of ``SceneOptions.seed`` through
+``numpy.random.default_rng``.  Terrain is analytic (a gentle plane plus a few
+long sinusoids), so the ALS and the image see exactly the same ground.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from rooftrace.errors import InputError
+from rooftrace.synth.buildings import Building
+
+__all__ = ["SceneOptions", "Terrain", "Trees", "PowerLine", "default_buildings", "make_terrain", "place_trees",
+           "make_power_line", "ROOF_PALETTE"]
+
+#: roof albedos (RGB): dark tiles, slate, red tiles, light gravel, white membrane, brown, copper green
+ROOF_PALETTE = (
+    (0.16, 0.15, 0.16), (0.24, 0.25, 0.29), (0.78, 0.36, 0.24), (0.62, 0.61, 0.57), (0.82, 0.82, 0.80),
+    (0.45, 0.30, 0.22), (0.40, 0.58, 0.50),
+)
+WALL_PALETTE = ((0.85, 0.82, 0.74), (0.70, 0.55, 0.45), (0.90, 0.90, 0.88), (0.62, 0.60, 0.58))
+
+
+@dataclass(frozen=True)
+class SceneOptions:
+    """Options of ``rooftrace simulate`` (config table ``[simulate]``).
+
+    Parameters
+    ----------
+    seed : int
+        Seed of everything random.
+    size : float
+        Side of the square scene (m).
+    density : float
+        Mean ALS pulse density over open ground and roofs (pts/m²), strip
+        overlap included.
+    gsd : float
+        Ground sample distance of the image (m/pixel).
+    origin : (float, float)
+        South-west corner of the scene in ``crs`` (m).
+    crs : str
+        Projected CRS of the scene.
+    flying_height : float
+        ALS flying height above the terrain (m).
+    scan_angle_deg : float
+        Largest scan angle off nadir (half the field of view, degrees).
+    strip_overlap : float
+        Side overlap of adjacent strips (fraction of the swath, 0-0.9).
+    flight_speed : float
+        Aircraft speed (m/s); sets the along-track line spacing.
+    range_noise : float
+        Standard deviation of the range (m).
+    outlier_fraction : float
+        Fraction of pulses that give an outlier above or below the surface.
+    image, orthophoto : bool
+        Render an aerial frame image; render a true orthophoto GeoTIFF instead.
+    camera_offnadir_deg, camera_azimuth_deg, camera_kappa_deg : float
+        Where the camera stands: the angle between the vertical and the line
+        from the projection centre to the scene centre, the azimuth (degrees
+        clockwise from north) of the projection centre seen from the scene
+        centre, and the kappa rotation of the frame.
+    focal_length_mm, pixel_size_mm : float
+        Interior orientation; the flying height of the camera follows from
+        ``gsd``.
+    sun_azimuth_deg, sun_elevation_deg : float
+        Direction of the sun (degrees, azimuth clockwise from north).
+    blur_sigma_px, image_noise : float
+        Gaussian blur (pixels) and noise (standard deviation in [0, 1] units).
+    trees : bool
+        Add trees (ellipsoid crowns, some over roof edges).
+    tree_density : float
+        Trees per hectare of open ground.
+    power_line : bool
+        Add a three-conductor power line across the scene (ASPRS class 14).
+    cell : float
+        Cell of the roof-face raster used by the ray caster (m); faces are
+        exact planes, only their boundaries are rasterised.
+    """
+
+    section = "simulate"
+
+    seed: int = 1
+    size: float = 160.0
+    density: float = 12.0
+    gsd: float = 0.2
+    origin: tuple[float, float] = (85000.0, 447000.0)
+    crs: str = "EPSG:28992"
+    flying_height: float = 500.0
+    scan_angle_deg: float = 12.0
+    strip_overlap: float = 0.3
+    flight_speed: float = 60.0
+    range_noise: float = 0.03
+    outlier_fraction: float = 0.0005
+    image: bool = True
+    orthophoto: bool = False
+    camera_offnadir_deg: float = 6.0
+    camera_azimuth_deg: float = 215.0
+    camera_kappa_deg: float = 4.0
+    focal_length_mm: float = 100.0
+    pixel_size_mm: float = 0.012
+    sun_azimuth_deg: float = 140.0
+    sun_elevation_deg: float = 42.0
+    blur_sigma_px: float = 0.7
+    image_noise: float = 0.012
+    trees: bool = True
+    tree_density: float = 14.0
+    power_line: bool = False
+    cell: float = 0.05
+
+    def __post_init__(self) -> None:
+        positive = ("size", "density", "gsd", "flying_height", "flight_speed", "focal_length_mm", "pixel_size_mm", "cell")
+        for name in positive:
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise InputError(f"simulate: {name} must be a positive number, got {value!r}")
+        if self.size < 20 or self.size > 2000:
+            raise InputError(f"simulate: size must be between 20 and 2000 m, got {self.size!r}")
+        if self.density > 200:
+            raise InputError(f"simulate: density must be at most 200 pts/m², got {self.density!r}")
+        if not 0.02 <= self.gsd <= 2.0:
+            raise InputError(f"simulate: gsd must be between 0.02 and 2 m, got {self.gsd!r}")
+        if self.size / self.gsd > 6000:
+            raise InputError(f"simulate: size / gsd gives an image over 6000 pixels wide; raise gsd (now {self.gsd})")
+        if not 1.0 <= self.scan_angle_deg <= 40.0:
+            raise InputError(f"simulate: scan_angle_deg must be between 1 and 40, got {self.scan_angle_deg!r}")
+        if not 0.0 <= self.strip_overlap <= 0.9:
+            raise InputError(f"simulate: strip_overlap must be between 0 and 0.9, got {self.strip_overlap!r}")
+        if not 0.0 <= self.range_noise <= 1.0:
+            raise InputError(f"simulate: range_noise must be between 0 and 1 m, got {self.range_noise!r}")
+        if not 0.0 <= self.outlier_fraction <= 0.1:
+            raise InputError(f"simulate: outlier_fraction must be between 0 and 0.1, got {self.outlier_fraction!r}")
+        if not 0.0 <= self.camera_offnadir_deg <= 30.0:
+            raise InputError(f"simulate: camera_offnadir_deg must be between 0 and 30, got {self.camera_offnadir_deg!r}")
+        if not 5.0 <= self.sun_elevation_deg <= 90.0:
+            raise InputError(f"simulate: sun_elevation_deg must be between 5 and 90, got {self.sun_elevation_deg!r}")
+        if self.cell > 0.25:
+            raise InputError(f"simulate: cell must be at most 0.25 m, got {self.cell!r}")
+        if len(tuple(self.origin)) != 2:
+            raise InputError(f"simulate: origin must be [x, y], got {self.origin!r}")
+        object.__setattr__(self, "origin", (float(self.origin[0]), float(self.origin[1])))
+
+    @property
+    def center(self) -> np.ndarray:
+        return np.array(self.origin) + self.size / 2.0
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        x0, y0 = self.origin
+        return (x0, y0, x0 + self.size, y0 + self.size)
+
+
+@dataclass(frozen=True)
+class Terrain:
+    """Analytic terrain z = z0 + g · (p − c) + Σ A_k sin(k_k · (p − c) + φ_k) (m)."""
+
+    center: tuple[float, float]
+    z0: float
+    gradient: tuple[float, float]
+    amplitude: np.ndarray  # (K,)
+    wavevector: np.ndarray  # (K, 2) rad/m
+    phase: np.ndarray  # (K,)
+
+    def height(self, x, y) -> np.ndarray:
+        dx, dy = np.asarray(x, float) - self.center[0], np.asarray(y, float) - self.center[1]
+        z = self.z0 + self.gradient[0] * dx + self.gradient[1] * dy
+        for a, (kx, ky), p in zip(self.amplitude, self.wavevector, self.phase):
+            z = z + a * np.sin(kx * dx + ky * dy + p)
+        return z
+
+    def coefficients(self) -> np.ndarray:
+        """Flat float64 array for the numba kernels: cx, cy, z0, gx, gy, then (A, kx, ky, phase) per term."""
+        terms = np.column_stack([self.amplitude, self.wavevector, self.phase]).ravel()
+        return np.concatenate([[*self.center, self.z0, *self.gradient], terms]).astype(np.float64)
+
+
+def make_terrain(options: SceneOptions, rng: np.random.Generator) -> Terrain:
+    """A gentle slope (1-2 %) in a random direction with three long undulations (0.15-0.4 m)."""
+    slope = rng.uniform(0.008, 0.02)
+    ang = rng.uniform(0, 2 * np.pi)
+    waves = rng.uniform(45.0, 140.0, 3)
+    dirs = rng.uniform(0, 2 * np.pi, 3)
+    kvec = np.column_stack([np.cos(dirs), np.sin(dirs)]) * (2 * np.pi / waves)[:, None]
+    return Terrain(tuple(options.center), float(rng.uniform(2.0, 12.0)), (slope * math.cos(ang), slope * math.sin(ang)),
+                   rng.uniform(0.15, 0.4, 3), kvec, rng.uniform(0, 2 * np.pi, 3))
+
+
+@dataclass
+class Trees:
+    """Tree crowns as ellipsoids: centres (N, 3) absolute, horizontal and vertical radii (N,), m."""
+
+    centers: np.ndarray
+    radius_h: np.ndarray
+    radius_v: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    def as_array(self) -> np.ndarray:
+        """(N, 5) float64: cx, cy, cz, rh, rv (for the numba kernels)."""
+        return np.column_stack([self.centers, self.radius_h, self.radius_v]).astype(np.float64).reshape(-1, 5)
+
+
+@dataclass(frozen=True)
+class PowerLine:
+    """Conductors hanging between two pylons: catenaries in vertical planes (m).
+
+    ``ends`` (2, 2) are the pylon positions; ``offsets`` the conductors'
+    lateral offsets; ``height`` the attachment height above the terrain;
+    ``sag`` the sag at mid-span.
+    """
+
+    ends: np.ndarray
+    offsets: tuple[float, ...]
+    z_ends: tuple[float, float]
+    sag: float
+
+    def as_array(self) -> np.ndarray:
+        """Rows per conductor: x0, y0, x1, y1, z0, z1, sag."""
+        (x0, y0), (x1, y1) = self.ends
+        d = np.array([x1 - x0, y1 - y0])
+        n = np.array([-d[1], d[0]]) / np.hypot(*d)
+        return np.array([[x0 + o * n[0], y0 + o * n[1], x1 + o * n[0], y1 + o * n[1], *self.z_ends, self.sag]
+                         for o in self.offsets], np.float64)
+
+
+def _fits(b: Building, slot: tuple[float, float, float, float]) -> bool:
+    return shapely.box(*slot).contains(b.roof_outline)
+
+
+def _template(i: int, bid: int, c: np.ndarray, rng: np.random.Generator, ang: float) -> list[Building]:
+    """The i-th building of the default mix centred at ``c`` (fits a 22 m square)."""
+    u = rng.uniform
+    e = float(u(5.5, 7.0))
+    kinds = [
+        lambda: [Building.l_shape(bid, c, u(16, 19), 8.0, u(5, 7), angle_deg=ang, kind="gable", eave_height=e,
+                                  ridge_height=e + 3.5, overhang=0.5, ridge_cap=True)],
+        lambda: [Building.rectangle(bid, c, u(13, 17), u(8, 10), angle_deg=ang, kind="hip", eave_height=e,
+                                    ridge_height=e + 3.2, overhang=0.6)],
+        lambda: [Building.courtyard(bid, c, u(19, 21), u(17, 19), 6.5, angle_deg=ang, eave_height=u(9, 11))],
+        lambda: [Building.round(bid, c, u(6, 8), eave_height=u(7, 12))],
+        lambda: Building.terrace(bid, c, [5.0, 5.0, 5.5, 4.5], 9.0, angle_deg=ang, eave_heights=[6.0, 6.0, 6.6, 5.6],
+                                 ridge_heights=[9.8, 9.8, 10.6, 9.2], overhang=0.4),
+        lambda: [Building.rectangle(bid, c, u(13, 16), 9.0, angle_deg=ang, kind="gable", eave_height=e,
+                                    ridge_height=e + 4.0, overhang=0.5).with_dormers([-3.2, 3.2])],
+        lambda: [Building.rectangle(bid, c, u(10, 14), u(7, 9), angle_deg=ang, kind="shed", eave_height=e - 1.5,
+                                    ridge_height=e + 0.5, overhang=0.4)],
+        lambda: [Building.t_shape(bid, c, u(17, 20), 8.0, u(5, 7), angle_deg=ang, kind="hip", eave_height=e,
+                                  ridge_height=e + 3.2, overhang=0.5)],
+        lambda: [Building.stadium(bid, c, u(18, 21), u(8, 10), angle_deg=ang, eave_height=u(6, 9))],
+        lambda: [Building.rectangle(bid, c, u(12, 15), u(8, 10), angle_deg=ang, kind="split", eave_height=e,
+                                    ridge_height=e + 3.5, overhang=0.4, ridge_cap=True)],
+        lambda: [Building.rectangle(bid, c, u(11, 13), u(10, 12), angle_deg=ang, kind="flat", eave_height=u(24, 30),
+                                    overhang=0.0)],
+        lambda: [Building.u_shape(bid, c, u(19, 21), 7.5, u(5, 6), angle_deg=ang, kind="gable", eave_height=e,
+                                  ridge_height=e + 3.2, overhang=0.5, ridge_cap=True)],
+        lambda: [_annexed(bid, c, ang, e, u)],
+        lambda: [_arc(bid, c, u)],
+        lambda: [Building.rectangle(bid, c, 10.0, 10.0, angle_deg=ang, kind="pyramid", eave_height=e,
+                                    ridge_height=e + 3.0, overhang=0.5, ridge_cap=True)],
+        lambda: [Building.l_shape(bid, c, u(16, 19), 8.0, u(5, 7), angle_deg=ang, kind="hip", eave_height=e,
+                                  ridge_height=e + 3.2, overhang=0.5)],
+    ]
+    if i < len(kinds):
+        return kinds[i]()
+    kind = ("gable", "hip", "flat", "gable")[i % 4]
+    return [Building.rectangle(bid, c, u(10, 16), u(7, 10), angle_deg=ang, kind=kind, eave_height=e,
+                               ridge_height=e + u(2.5, 4.0), overhang=0.0 if kind == "flat" else 0.5,
+                               ridge_cap=bool(rng.random() < 0.4))]
+
+
+def _annexed(bid, c, ang, e, u):
+    b = Building.rectangle(bid, c, 14.0, 9.0, angle_deg=ang, kind="hip", eave_height=e, ridge_height=e + 3.0,
+                           overhang=0.5)
+    a = math.radians(ang)
+    uu, vv = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
+    return b.with_annex(c + 2.0 * uu - (4.5 + 2.5) * vv, 7.0, 5.0, angle_deg=ang, eave_height=u(2.8, 3.4),
+                        wall_side="+v")
+
+
+def _arc(bid, c, u):
+    radius, sweep = 55.0, 20.0
+    start = 250.0  # the arc's middle points south-east of its centre -> a gentle curve
+    mid = math.radians(start + sweep / 2)
+    center = c - radius * np.array([math.cos(mid), math.sin(mid)])
+    return Building.arc(bid, center, radius, 8.5, sweep, start_deg=start, eave_height=u(7, 10))
+
+
+def default_buildings(seed: int = 1, size: float = 160.0, origin: tuple[float, float] = (85000.0, 447000.0),
+                      ) -> list[Building]:
+    """The default building mix on a grid of 30 m slots (five by five for a 160 m scene).
+
+    The first slots hold, in this order: a gable L with ridge caps, a hip
+    rectangle, a flat courtyard block (hole), a round building, four
+    terraced houses sharing walls, a gable with dormers, a shed, a hip T,
+    a stadium (semicircular ends), a split-level roof (step at the ridge),
+    a 24-30 m tower (occludes its neighbours), a gable U, a hip with a lower
+    annex, a gently curved arc, a pyramid and a hip L; further slots get
+    simple houses, one in three left open.  Small scenes get the first ones.
+
+    Returns
+    -------
+    list of Building
+        Ids from 1, in map coordinates; ``base_height`` unset.
+    """
+    rng = np.random.default_rng([int(seed), 7])
+    slot = 30.0
+    n = max(1, int(size // slot))
+    margin = (size - n * slot) / 2.0
+    x0, y0 = origin[0] + margin, origin[1] + margin
+    out: list[Building] = []
+    bid = 1
+    order = [(r, c) for r in range(n) for c in range(n)]
+    for i, (r, col) in enumerate(order):
+        if i >= 16 and (i - 16) % 3 == 2:
+            continue
+        box = (x0 + col * slot + 3.0, y0 + r * slot + 3.0, x0 + (col + 1) * slot - 3.0, y0 + (r + 1) * slot - 3.0)
+        c = np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2]) + rng.uniform(-1.0, 1.0, 2)
+        ang = float(rng.choice([0.0, 0.0, rng.uniform(-25, 25), 90.0 + rng.uniform(-10, 10)]))
+        state = rng.bit_generator.state
+        made = _template(i, bid, c, rng, ang)
+        if not all(_fits(b, box) for b in made):
+            rng.bit_generator.state = state
+            made = _template(i, bid, c, rng, 0.0)
+        if not all(_fits(b, box) for b in made):
+            continue
+        for b in made:
+            b.roof_colour = tuple(ROOF_PALETTE[int(rng.integers(len(ROOF_PALETTE)))])
+            b.wall_colour = tuple(WALL_PALETTE[int(rng.integers(len(WALL_PALETTE)))])
+        out.extend(made)
+        bid += len(made)
+    return out
+
+
+def place_trees(options: SceneOptions, buildings: list[Building], terrain: Terrain,
+                rng: np.random.Generator) -> Trees:
+    """Trees on open ground (``tree_density`` per hectare) plus a few whose crowns overhang roof edges.
+
+    Free trees keep their crown clear of every roof; overhanging trees stand
+    beside a wall with the crown bottom at least 0.5 m above that roof.
+    """
+    roofs = [b.roof_outline for b in buildings]
+    union = shapely.union_all(roofs) if roofs else shapely.Polygon()
+    x0, y0, x1, y1 = options.bounds
+    open_area = options.size**2 - union.area
+    n_free = int(round(options.tree_density * open_area / 1e4))
+    cs, rh, rv = [], [], []
+    tries = 0
+    while len(cs) < n_free and tries < 50 * max(n_free, 1):
+        tries += 1
+        p = rng.uniform([x0 + 2, y0 + 2], [x1 - 2, y1 - 2])
+        r = rng.uniform(1.8, 4.0)
+        if union.distance(shapely.Point(p)) < r + 0.8:
+            continue
+        if cs and np.min(np.hypot(*(np.array(cs)[:, :2] - p).T) - np.array(rh)) < 0.6 * r:
+            continue
+        v = r * rng.uniform(0.9, 1.4)
+        cs.append([p[0], p[1], float(terrain.height(*p)) + rng.uniform(2.0, 4.0) + v])
+        rh.append(r)
+        rv.append(v)
+    # crowns over roof edges: beside the first few low buildings
+    n_over = min(len(buildings), max(1, int(round(len(buildings) / 5)))) if buildings else 0
+    low = [b for b in buildings if b.ridge_height < 12][:n_over]
+    for b in low:
+        ring = b.roof_outline.exterior
+        p = np.asarray(ring.interpolate(rng.uniform(0, ring.length)).coords[0])
+        r = rng.uniform(2.8, 3.8)
+        away = p - np.asarray(b.roof_outline.centroid.coords[0])
+        p = p + away / max(np.hypot(*away), 1e-9) * r * 0.45
+        if not (x0 + r < p[0] < x1 - r and y0 + r < p[1] < y1 - r):
+            continue
+        others = [o for o in roofs if o is not b.roof_outline]
+        if others and shapely.union_all(others).distance(shapely.Point(p)) < r + 0.5:
+            continue
+        v = r * rng.uniform(1.0, 1.3)
+        ground = float(terrain.height(*p))
+        cz = ground + b.ridge_height + 1.0 + v
+        cs.append([p[0], p[1], cz])
+        rh.append(r)
+        rv.append(v)
+    return Trees(np.array(cs, float).reshape(-1, 3), np.array(rh, float), np.array(rv, float))
+
+
+def make_power_line(options: SceneOptions, terrain: Terrain, rng: np.random.Generator) -> PowerLine:
+    """Three conductors 1.8 m apart crossing the scene west to east, 14-16 m high, 1.5 m sag.
+
+    The line follows the gap between the first two rows of building slots so
+    it passes between buildings, as lines do.
+    """
+    x0, y0, x1, _ = options.bounds
+    n = max(1, int(options.size // 30.0))
+    y = y0 + (options.size - n * 30.0) / 2 + 30.0 if n >= 2 else y0 + 0.1 * options.size
+    dy = rng.uniform(-0.5, 0.5)
+    ends = np.array([[x0 - 20.0, y - dy], [x1 + 20.0, y + dy]])
+    h = rng.uniform(14.0, 16.0)
+    z = tuple(float(terrain.height(*e)) + h for e in ends)
+    return PowerLine(ends, (-1.8, 0.0, 1.8), z, 1.5)
