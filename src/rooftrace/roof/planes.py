@@ -209,12 +209,15 @@ def _best_candidate(xyz, nn, labels, planes, tol, include_self=True):
     return np.where(r[np.arange(len(cand)), j] <= tol, best, -1)
 
 
-def _merge_coplanar(xyz, nn, labels, fit, angle_deg, tol):
-    """Union adjacent labels whose planes agree in normal and height."""
+def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
+    """Union adjacent labels (points within ``link`` m in plan) whose planes agree."""
     K = len(fit.planes)
-    a = np.repeat(labels, nn.shape[1])
-    b = labels[nn].ravel()
-    m = (a >= 0) & (b >= 0) & (a != b)
+    sel = np.flatnonzero(labels >= 0)
+    ij = cKDTree(xyz[sel, :2]).query_pairs(link, output_type="ndarray")
+    if len(ij) == 0:
+        return labels, False
+    a, b = labels[sel[ij[:, 0]]], labels[sel[ij[:, 1]]]
+    m = a != b
     if not m.any():
         return labels, False
     pairs = np.unique(np.sort(np.stack([a[m], b[m]], axis=1), axis=1), axis=0)
@@ -223,11 +226,12 @@ def _merge_coplanar(xyz, nn, labels, fit, angle_deg, tol):
     ok = np.zeros(len(pairs), dtype=bool)
     for idx in np.flatnonzero(close):
         i, j = pairs[idx]
-        pi, pj = xyz[labels == i], xyz[labels == j]
-        # Each region's points on the other's plane: coplanar within tolerance.
-        ri = np.median(np.abs(plane_height(fit.planes[j], pi[:, :2]) - pi[:, 2]))
-        rj = np.median(np.abs(plane_height(fit.planes[i], pj[:, :2]) - pj[:, 2]))
-        ok[idx] = max(ri, rj) <= tol
+        both = xyz[(labels == i) | (labels == j)]
+        # Coplanar when one plane fits both regions about as well as each
+        # fits its own (a narrow region's own plane extrapolates badly, so
+        # testing each region against the other's plane is not enough).
+        joint = fit_planes(both, np.zeros(len(both), dtype=np.int64))
+        ok[idx] = joint.sigma[0] <= min(1.3 * max(fit.sigma[i], fit.sigma[j]), tol)
     if not ok.any():
         return labels, False
     g = sparse.coo_matrix((np.ones(ok.sum()), (pairs[ok, 0], pairs[ok, 1])), shape=(K, K))
@@ -250,6 +254,7 @@ def segment_planes(
     merge_angle: float = 5.0,
     iterations: int = 4,
     max_slope: float = 75.0,
+    link: float | None = None,
 ) -> tuple[np.ndarray, PlaneFit, float]:
     """Segment a building's points into roof planes.
 
@@ -274,13 +279,17 @@ def segment_planes(
     min_area : float
         Smallest plane kept (m²); fewer than ``min_area / s²`` points are dropped.
     merge_angle : float
-        Adjacent regions whose normals differ by less (deg) and whose points
-        lie on each other's plane within ``distance`` are merged.
+        Adjacent regions whose normals differ by less (deg) are merged when
+        one plane fits both with an RMS under ``min(1.3 max(sigma_i, sigma_j),
+        distance)``.
     iterations : int
         Rounds of refit and reassignment.
     max_slope : float
         Regions and planes steeper than this (deg) are walls, not roof planes:
         their points stay unassigned.
+    link : float, optional
+        Plan distance (m) within which points of two regions make them
+        neighbours for merging; default ``2.5 s``.
 
     Returns
     -------
@@ -347,23 +356,27 @@ def segment_planes(
     if labels.max() < 0:
         raise GeometryError("no planar region large enough for a roof plane")
 
+    # Candidate planes for growing and reassignment come from a wider
+    # neighbourhood (2k): on scan-line patterns the k nearest points of a
+    # point can all lie on its own line, which may be wholly unassigned.
+    _, nn_c = tree.query(xyz, k=min(2 * kk, N))
     for it in range(iterations):
         fit = fit_planes(xyz, labels)
         # Grow into unassigned points first (ridge zones), then let every
         # point choose among its neighbours' planes.
         for _ in range(3):
-            grow = _best_candidate(xyz, nn, labels, fit.planes, distance)
+            grow = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
             new = np.where(labels < 0, grow, labels)
             if np.array_equal(new, labels):
                 break
             labels = new
-        labels = _best_candidate(xyz, nn, labels, fit.planes, distance)
+        labels = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
         n = np.bincount(np.maximum(labels, 0), weights=(labels >= 0).astype(float), minlength=len(fit.planes))
         labels = _compact(labels, n >= min_pts)
         if labels.max() < 0:
             raise GeometryError("no roof plane kept after refinement")
         fit = fit_planes(xyz, labels)
-        labels, merged = _merge_coplanar(xyz, nn, labels, fit, merge_angle, distance)
+        labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, link or 2.5 * spacing)
         if not merged and it >= 1:
             break
     fit = fit_planes(xyz, labels)

@@ -117,6 +117,37 @@ def _inside_intervals(outline, x0, u, t0, t1):
     return out
 
 
+def _supported_run(tree, lab, a, b, x0, u, t0, t1, tol):
+    """Stretch of ``[t0, t1]`` with plane ``a`` on one side of the line and
+    ``b`` on the other (nearest labelled points at ``tol / 2``).
+
+    From the first to the last supported sample when at least half of that
+    stretch is supported, else the longest run (gaps up to ``tol / 2``
+    bridged); None when no sample is supported."""
+    step = tol / 4
+    ts = np.arange(t0, t1 + step / 2, step) if t1 > t0 else np.array([t0])
+    side = np.array([-u[1], u[0]]) * (tol / 2)
+    pts = x0[:2] + ts[:, None] * u[:2]
+    _, il = tree.query(pts + side)
+    _, ir = tree.query(pts - side)
+    ll, lr = lab[il], lab[ir]
+    ok = ((ll == a) & (lr == b)) | ((ll == b) & (lr == a))
+    if not ok.any():
+        return None
+    idx = np.flatnonzero(ok)
+    # Trim the unsupported ends; if the rest is mostly supported keep it
+    # whole (a dormer next to a ridge breaks the support locally) ...
+    if ok[idx[0] : idx[-1] + 1].mean() >= 0.5:
+        return float(ts[idx[0]]), float(ts[idx[-1]])
+    # ... else the longest run, splitting where supported samples are more
+    # than 2 steps apart.
+    breaks = np.flatnonzero(np.diff(idx) > 2)
+    starts = np.r_[idx[0], idx[breaks + 1]]
+    ends = np.r_[idx[breaks], idx[-1]]
+    k = int(np.argmax(ends - starts))
+    return float(ts[starts[k]]), float(ts[ends[k]])
+
+
 def intersection_lines(
     planes: np.ndarray,
     adj: Adjacency,
@@ -128,7 +159,6 @@ def intersection_lines(
     min_length: float = 1.0,
     xyz: np.ndarray | None = None,
     labels: np.ndarray | None = None,
-    min_support: float = 0.5,
 ) -> IntersectionLines:
     """Ridge, hip and valley lines of adjacent plane pairs.
 
@@ -148,12 +178,11 @@ def intersection_lines(
     min_length : float
         Shorter lines (m, in plan) are dropped.
     xyz, labels : ndarray of shape (N, 3) and (N,), optional
-        The labelled points.  When given, a line is kept only when, along at
-        least ``min_support`` of its length, the nearest points at
-        ``line_tolerance / 2`` on its two sides belong to its two planes: this
-        rejects lines between planes that only touch at a junction.
-    min_support : float
-        Fraction (0-1) of the line that must have its planes on both sides.
+        The labelled points.  When given, the line is first trimmed to its
+        longest stretch where the nearest points at ``line_tolerance / 2`` on
+        its two sides belong to its two planes (before snapping); this rejects
+        lines between planes that only touch at a junction and stops lines
+        where a dormer's top turns into its cheeks.
     """
     out = IntersectionLines()
     outline = shapely.force_2d(outline)
@@ -188,6 +217,12 @@ def intersection_lines(
         sel = labels >= 0
         tree, lab = cKDTree(np.asarray(xyz)[sel, :2]), np.asarray(labels)[sel]
     for a, b, x0, u, t0, t1 in lines:
+        if tree is not None:
+            run = _supported_run(tree, lab, a, b, x0, u, t0, t1, line_tolerance)
+            if run is None or run[1] - run[0] < min_length / 2:
+                log.debug("line %d-%d rejected: planes not on both sides", a, b)
+                continue
+            t0, t1 = run
         cands = []
         for c in (neighbours[a] | neighbours[b]) - {a, b}:
             p = triple_point(planes[a], planes[b], planes[c])
@@ -215,17 +250,6 @@ def intersection_lines(
         t0, t1 = best
         ends_out = (any(abs(t0 - v) < 1e-9 for iv in intervals for v in iv),
                     any(abs(t1 - v) < 1e-9 for iv in intervals for v in iv))
-        if tree is not None:
-            ts = np.linspace(t0, t1, max(5, int((t1 - t0) / (line_tolerance / 4))))
-            side = np.array([-u[1], u[0]]) * (line_tolerance / 2)
-            pts = x0[:2] + ts[:, None] * u[:2]
-            _, il = tree.query(pts + side)
-            _, ir = tree.query(pts - side)
-            ll, lr = lab[il], lab[ir]
-            ok = ((ll == a) & (lr == b)) | ((ll == b) & (lr == a))
-            if ok.mean() < min_support:
-                log.debug("line %d-%d rejected: supported on %.0f %%", a, b, 100 * ok.mean())
-                continue
         p0, p1 = x0 + t0 * u, x0 + t1 * u
         cv = 1 if conv[(int(a), int(b))] > 0 else -1
         incline = np.degrees(np.arctan(abs(u[2])))  # |u_xy| = 1

@@ -68,15 +68,17 @@ class RoofOptions:
         Steeper regions (deg) are walls, not roof planes (points unassigned).
     adjacency_radius : float or None
         Plan distance (m) between points of two planes that makes them
-        adjacent; default ``2.5 s``.
+        adjacent; default ``L = max(2.5 s, 1.5 P90)``, ``P90`` the 90th
+        percentile of the plan Delaunay edge lengths: scan lines farther apart
+        than the mean spacing (anisotropic patterns) still link across a ridge.
     min_links : int
         Fewest close point pairs for two planes to be adjacent.
     line_tolerance : float or None
         Plan distance (m) of shared-boundary points from an intersection line
-        for them to belong to it; default ``2.5 s``.
+        for them to belong to it; default ``L`` (as ``adjacency_radius``).
     snap_distance : float or None
         Largest move (m) of a line end to a junction or the outline; default
-        ``max(1.0, 4 s)``.
+        ``max(1.0, 4 s, 1.5 L)``.
     ridge_max_slope : float
         Convex intersection lines flatter than this (deg) are ridges, steeper hips.
     min_ridge_length : float
@@ -241,6 +243,15 @@ def point_hull(xy: np.ndarray, max_edge: float | None = None, *, floor: float = 
     return max(parts, key=lambda g: g.area)
 
 
+def _edge_percentile(xyz: np.ndarray, q: float) -> float:
+    """Percentile ``q`` of the plan Delaunay edge lengths (m)."""
+    try:
+        p = xyz[Delaunay(xyz[:, :2]).simplices][:, :, :2]
+    except QhullError:
+        return 0.0
+    return float(np.percentile(np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2), q))
+
+
 def _empty(building_id, n, status, spacing=float("nan"), outline=None) -> RoofStructure:
     return RoofStructure(building_id=building_id, labels=np.full(n, -1, np.int64), status=status, spacing=spacing, outline=outline)
 
@@ -297,11 +308,12 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if outline2d.geom_type != "Polygon":
         parts = [g for g in getattr(outline2d, "geoms", []) if g.geom_type == "Polygon"]
         outline2d = max(parts, key=lambda g: g.area) if parts else outline2d
+    link = max(2.5 * s, 1.5 * _edge_percentile(xyz, 90))
     try:
         labels, fit, _ = segment_planes(
             xyz, s, k=opt.k_neighbours, normal_angle=opt.normal_angle, max_local_rms=opt.max_local_rms,
             distance=opt.distance, min_area=opt.min_area, merge_angle=opt.merge_angle, iterations=opt.iterations,
-            max_slope=opt.max_slope,
+            max_slope=opt.max_slope, link=opt.adjacency_radius or link,
         )
     except GeometryError as exc:
         log.debug("building %s: %s", building_id, exc)
@@ -310,18 +322,19 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
     )
-    radius = opt.adjacency_radius or 2.5 * s
+    radius = opt.adjacency_radius or link
+    line_tol = opt.line_tolerance or link
     adj = plane_adjacency(xyz, labels, fit.planes, radius, opt.min_links)
     lines = intersection_lines(
-        fit.planes, adj, outline2d, line_tolerance=opt.line_tolerance or 2.5 * s,
-        snap=opt.snap_distance or max(1.0, 4.0 * s), ridge_max_slope=opt.ridge_max_slope,
+        fit.planes, adj, outline2d, line_tolerance=line_tol,
+        snap=opt.snap_distance or max(1.0, 4.0 * s, 1.5 * link), ridge_max_slope=opt.ridge_max_slope,
         min_length=opt.min_ridge_length, xyz=xyz, labels=labels,
     )
     roof.ridges, roof.ridge_kind, roof.ridge_planes = list(lines.lines), list(lines.kinds), list(lines.pairs)
     cell = opt.cell or s / 2
     try:
         polys, pids = partition_outline(
-            outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=opt.line_tolerance or 2.5 * s
+            outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol
         )
     except (GeometryError, shapely.errors.GEOSException) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
