@@ -76,7 +76,7 @@ def test_refinement_halves_the_lidar_error(scene):
     res = refine_buildings(lidar, lidar_ridges, img, cam, planes=planes, building_ids=[3, 5], seed=1)
     assert res.attributes["building_id"] == [3, 5]
     assert res.attributes["refine_status"] == ["refined", "refined"]
-    assert res.ridge_attributes["building_id"] == [5]
+    assert res.ridge_attributes["building_id"] == [5] and res.ridge_attributes["kind"] == ["ridge"]
     assert res.attributes["candidates_per_side"][0].count(",") == 5
     for before, after, true in zip(lidar, res.outlines, truth):
         p0, p1 = polis(before, true), polis(after, true)
@@ -152,3 +152,11 @@ def test_refine_building_with_given_candidates_picks_the_true_lines(scene):
     res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
                           options=RefineOptions(min_side_px=1e6))
     assert res.status == "kept: no vertex moved" and res.outline is lidar and res.refined_sides == [0] * 6
+
+
+def test_ridge_kinds_are_carried(scene):
+    cam, img, truth, ridges, planes = scene
+    res = refine_buildings(truth, ridges, img, cam, planes=planes, ridge_kinds=["hip"])
+    assert res.ridge_attributes["kind"] == ["hip"]
+    with pytest.raises(ValueError, match="ridge_kinds"):
+        refine_buildings(truth, ridges, img, cam, ridge_kinds=[])
