@@ -51,7 +51,8 @@ class GableScene:
     points_xyz: np.ndarray
 
 
-def gable_scene(*, shift=(0.25, -0.2), angle=20.0, noise=0.01, seed=3, ridge_cap=True, extra=()):
+def gable_scene(*, shift=(0.25, -0.2), angle=20.0, noise=0.01, seed=3, ridge_cap=True, extra=(), background=0.3,
+                roof=(0.62, 0.78, 0.95)):
     """A gable-roofed house seen by a nadir camera at 0.1 m GSD (roof at z = 8..10 m).
 
     The 3D lines handed to the extractor are the truth shifted by ``shift``
@@ -70,11 +71,11 @@ def gable_scene(*, shift=(0.25, -0.2), angle=20.0, noise=0.01, seed=3, ridge_cap
     pr = lambda xyz: cam.project(np.asarray(xyz, float))  # noqa: E731
     half_a = pr([outline[0], outline[1], ridge[1], ridge[0]])
     half_b = pr([ridge[0], ridge[1], outline[2], outline[3]])
-    layers = [*extra, (half_a, 0.62), (half_b, 0.78)]
+    layers = [*extra, (half_a, roof[0]), (half_b, roof[1])]
     if ridge_cap:
         r2 = pr(ridge)
-        layers.append((bar_polygon(r2[0], r2[1], 3.0), 0.95))
-    img = render((320, 320), layers, noise=noise, seed=seed)
+        layers.append((bar_polygon(r2[0], r2[1], 3.0), roof[2]))
+    img = render((320, 320), layers, noise=noise, seed=seed, background=background)
     truth = cam.project(truth3d.reshape(-1, 3)).reshape(-1, 2, 2)
     lines3d = truth3d + np.array([shift[0], shift[1], 0.0])
     rng = np.random.default_rng(seed)

@@ -103,10 +103,23 @@ def test_bad_arguments(scene):
         extract_candidates(img, cam, scene.lines3d, ["outline"])
     with pytest.raises(ValueError, match="'outline' or 'ridge'"):
         extract_candidates(img, cam, scene.lines3d[:1], ["eave"])
-    with pytest.raises(ValueError, match="2-D"):
+    with pytest.raises(ValueError, match="grey"):
         extract_candidates(np.stack([img] * 3), cam, scene.lines3d[:1], ["outline"])
     with pytest.raises(ValueError, match="candidates.canny_sigma"):
         CandidateOptions(canny_sigma=0)
     with pytest.raises(ValueError, match="candidates.max_angle"):
         CandidateOptions(max_angle=95)
     assert extract_candidates(img, cam, np.zeros((0, 2, 3)), []) == []
+
+
+def test_colour_image_finds_edges_of_equal_brightness():
+    # ground as bright as roof half A: side 0 (bordering half A) has no grey edge
+    s = gable_scene(noise=0.0, background=0.62)
+    ground = gable_scene(noise=0.0, background=1.0, roof=(0.0, 0.0, 0.0)).image  # 1 on the ground, 0 on the roof
+    rgb = s.image[..., None] + ground[..., None] * np.array([0.1, -0.1, 0.0])  # a hue shift of the ground
+    np.testing.assert_allclose(rgb.mean(axis=2), s.image)
+    out_grey = extract_candidates(s.image, s.camera, s.lines3d, s.kinds)
+    out_rgb = extract_candidates(rgb, s.camera, s.lines3d, s.kinds)
+    assert not close_to(out_grey[0].candidates, s.truth[0], px=1.5, deg=1.5)
+    assert close_to(out_rgb[0].candidates, s.truth[0])
+    assert close_to(out_rgb[4].candidates, s.truth[4])

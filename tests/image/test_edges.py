@@ -108,3 +108,19 @@ def test_link_chains_loops_junctions_and_subpixel_points():
     longest = max(ch, key=len)
     assert np.allclose(longest[:, 1], 7.4)
     assert link_chains(np.zeros((4, 4), bool)) == []
+
+
+def test_colour_canny_equals_grey_on_grey_images_and_sees_hue_edges():
+    img = render((40, 40), [([[20.3, -5], [60, -5], [60, 45], [20.3, 45]], 0.8)], background=0.2)
+    e1, p1 = canny_edges(img)
+    e3, p3 = canny_edges(np.stack([img] * 3, axis=-1))
+    np.testing.assert_array_equal(e1, e3)
+    np.testing.assert_allclose(p1[e1], p3[e3], atol=1e-9)
+    hue = np.full((40, 40, 3), 0.5)
+    hue[:, 20:, 0] += 0.1
+    hue[:, 20:, 1] -= 0.1  # the grey mean is flat
+    assert canny_edges(hue.mean(axis=2))[0].sum() == 0
+    e, p = canny_edges(hue)
+    assert np.abs(p[e][:, 0] - 19.5).max() < 0.05 and e.sum() >= 38
+    with pytest.raises(ValueError, match="colour"):
+        canny_edges(np.zeros((2, 3, 4, 5)))

@@ -130,3 +130,15 @@ def test_angles_are_undirected():
     assert segment_angles(s)[0] == pytest.approx(segment_angles(s)[1])
     with pytest.raises(ValueError, match="shape"):
         segment_lengths(np.zeros((3, 3)))
+
+
+def test_merge_collinear_keeps_side_by_side_parallels_apart():
+    roof_edge = _seg(0, 10, 60, 10)
+    wall_foot = _seg(2, 12, 58, 12.2)  # 2 px away, overlapping: two lines, not fragments
+    segs, src = merge_collinear([roof_edge, wall_foot], ["canny", "canny"])
+    assert len(segs) == 2 and src == ["canny", "canny"]
+    dup = _seg(5, 10.6, 50, 10.6)  # within 1 px: a duplicate, merged
+    assert len(merge_collinear([roof_edge, dup])[0]) == 1
+    inside = _seg(20, 12, 30, 12)  # contained entirely: overlap 100 %
+    assert len(merge_collinear([roof_edge, inside])[0]) == 2
+    assert len(merge_collinear([roof_edge, inside], duplicate_tol=2.5)[0]) == 1

@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from rooftrace.image.edges import canny_edges, link_chains, noise_sigma
+from rooftrace.image.edges import canny_edges, link_chains
 from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
 from rooftrace.image.projection import in_window, line_windows, project_lines, window_slices
 from rooftrace.image.steger import steger_lines, steger_sigma
@@ -156,12 +156,16 @@ class LineCandidates:
     projected_only: bool = False
 
 
-def _detect(crop: np.ndarray, mask: np.ndarray, opt: CandidateOptions, noise: float):
-    """Canny and Steger segments (crop pixel coordinates) inside the window mask."""
+def _detect(crop: np.ndarray, mask: np.ndarray, opt: CandidateOptions):
+    """Canny and Steger segments (crop pixel coordinates) inside the window mask.
+
+    Canny runs on the colour crop when there is one; Steger on its grey mean.
+    """
+    grey = crop if crop.ndim == 2 else crop.mean(axis=2)
     edges, epts = canny_edges(crop, opt.canny_sigma, opt.canny_low, opt.canny_high,
-                              min_contrast=opt.min_contrast, mask=mask, noise=noise)
-    lines, lpts = steger_lines(crop, opt.steger_sigma, opt.steger_low, opt.steger_high, line_width=opt.line_width,
-                               min_contrast=opt.min_contrast, mask=mask, noise=noise)
+                              min_contrast=opt.min_contrast, mask=mask)
+    lines, lpts = steger_lines(grey, opt.steger_sigma, opt.steger_low, opt.steger_high, line_width=opt.line_width,
+                               min_contrast=opt.min_contrast, mask=mask)
     canny = fit_segments(link_chains(edges, epts), opt.split_tolerance, opt.min_segment)
     steger = fit_segments(link_chains(lines, lpts), opt.split_tolerance, opt.min_segment)
     return canny, steger
@@ -181,8 +185,10 @@ def extract_candidates(
 
     Parameters
     ----------
-    image : ndarray of shape (H, W) float64
-        Grey image in [0, 1], indexed [row, col].
+    image : ndarray of shape (H, W) or (H, W, C) float64
+        Grey image in [0, 1], indexed [row, col]; or a colour image
+        (channels last), whose colour edges Canny also sees (roof and ground
+        of equal brightness but different colour).
     camera : FrameCamera or OrthoCamera
     lines3d : ndarray of shape (M, 2, 3) float64
         Object-space segments (outline sides and ridges), CRS units.
@@ -221,8 +227,10 @@ def extract_candidates(
     """
     opt = options or CandidateOptions()
     img = np.asarray(image, float)
-    if img.ndim != 2:
-        raise ValueError(f"image must be a 2-D grey array (H, W), got shape {img.shape}")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] > 4):
+        raise ValueError(f"image must be grey (H, W) or colour (H, W, C), got shape {img.shape}")
     lines = np.asarray(lines3d, float).reshape(-1, 2, 3) if np.size(lines3d) else np.zeros((0, 2, 3))
     kinds = list(kinds)
     if len(kinds) != len(lines):
@@ -255,15 +263,14 @@ def extract_candidates(
         ref, win = reference[i], windows[i]
         found = np.zeros((0, 2, 2))
         sources: list[str] = []
-        sl = window_slices(win, img.shape, pad) if np.isfinite(ref).all() else None
+        sl = window_slices(win, img.shape[:2], pad) if np.isfinite(ref).all() else None
         if sl is not None:
             crop = img[sl]
             r0, c0 = sl[0].start, sl[1].start
-            rows, cols = np.indices(crop.shape)
-            inside = in_window(np.column_stack([cols.ravel() + c0, rows.ravel() + r0]), win).reshape(crop.shape)
+            rows, cols = np.indices(crop.shape[:2])
+            inside = in_window(np.column_stack([cols.ravel() + c0, rows.ravel() + r0]), win).reshape(crop.shape[:2])
             if inside.any():
-                noise = noise_sigma(crop)
-                canny, steger = _detect(crop, inside, opt, noise)
+                canny, steger = _detect(crop, inside, opt)
                 found, sources = select_canny_steger(canny, steger, opt.select_angle, opt.select_separation,
                                                      opt.select_equidistance)
                 found = found + [c0, r0]

@@ -121,8 +121,8 @@ def harris_corners(image: np.ndarray, mask_or_window=None, *, options: HarrisOpt
 
     Parameters
     ----------
-    image : ndarray of shape (H, W)
-        Grey values, float (e.g. [0, 1]).
+    image : ndarray of shape (H, W) or (H, W, C)
+        Grey values, float (e.g. [0, 1]); a colour image is averaged to grey.
     mask_or_window : ndarray, optional
         ``None`` searches the whole image; a bool mask (H, W) searches where
         it is True; a window (4, 2) or windows (M, 4, 2) of corner pixels
@@ -144,8 +144,10 @@ def harris_corners(image: np.ndarray, mask_or_window=None, *, options: HarrisOpt
     """
     opt = options or HarrisOptions()
     img = np.asarray(image, float)
+    if img.ndim == 3:  # colour (H, W, C): corners of the grey mean
+        img = img.mean(axis=2)
     if img.ndim != 2:
-        raise ValueError(f"image must be 2-D (H, W), got shape {img.shape}")
+        raise ValueError(f"image must be 2-D (H, W) or colour (H, W, C), got shape {img.shape}")
     pad = int(np.ceil(3 * (opt.sigma_d + opt.sigma_i))) + 1
     sl, mask = _region(mask_or_window, img.shape, pad)
     if sl is None:

@@ -39,6 +39,7 @@ class TinSurface:
             raise ValueError(f"a TIN needs at least 3 points, got {len(pts)}")
         xy, idx = np.unique(pts[:, :2], axis=0, return_index=True)  # duplicates break Qhull
         self.points = pts[idx]
+        self.xy = xy
         try:
             self.tri = Delaunay(xy)
         except Exception as exc:  # scipy raises QhullError for collinear input
@@ -60,10 +61,19 @@ class TinSurface:
         out = np.full(len(xy), np.nan)
         ok = simplex >= 0
         if ok.any():
-            t = self.tri.transform[simplex[ok]]
-            b = np.einsum("nij,nj->ni", t[:, :2], xy[ok] - t[:, 2])
-            bary = np.column_stack([b, 1 - b.sum(axis=1)])
-            out[ok] = np.einsum("ni,ni->n", bary, self.z[self.tri.simplices[simplex[ok]]])
+            # barycentric coordinates from the vertices (scipy's ``transform``
+            # is computed for every triangle at once and takes seconds on 10^4)
+            tri = self.tri.simplices[simplex[ok]]
+            a, b, c = (self.xy[tri[:, k]] for k in range(3))
+            v0, v1, v2 = b - a, c - a, xy[ok] - a
+            d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+            d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+            den = d00 * d11 - d01 * d01
+            with np.errstate(divide="ignore", invalid="ignore"):
+                v = (d11 * d20 - d01 * d21) / den
+                w = (d00 * d21 - d01 * d20) / den
+            z = self.z[tri]
+            out[ok] = (1 - v - w) * z[:, 0] + v * z[:, 1] + w * z[:, 2]
         return out
 
 
