@@ -3,23 +3,15 @@
 import numpy as np
 import pytest
 import shapely
-from scipy.ndimage import map_coordinates, sobel
 
 from rooftrace.errors import InputError
 from rooftrace.image.camera import FrameCamera, OrthoCamera
 from rooftrace.synth import Building, SceneOptions, simulate_scene
+from rooftrace.synth.checks import edge_gradient_ratio, outline_distances, roof_density, roof_point_heights
 
 
 def _roof_points(scene):
-    """Building points split into roof-surface points and wall hits (below the roof by > 0.2 m)."""
-    c = scene.cloud
-    m = c.fields["truth_class"] == 6
-    pts = c.xyz[m]
-    zr = np.full(len(pts), -np.inf)
-    for f in scene.faces:
-        inside = shapely.contains_xy(f.polygon.buffer(0.05), pts[:, 0], pts[:, 1])
-        zr[inside] = np.maximum(zr[inside], f.plane[0] * pts[inside, 0] + f.plane[1] * pts[inside, 1] + f.plane[2])
-    return pts, pts[:, 2] - zr
+    return roof_point_heights(scene)
 
 
 def test_density_over_roofs_is_within_20_percent(small_scene):
@@ -28,6 +20,7 @@ def test_density_over_roofs_is_within_20_percent(small_scene):
     on_roof = np.abs(dz) < 0.2
     assert np.count_nonzero(on_roof) / area == pytest.approx(8.0, rel=0.2)
     assert len(pts) / area == pytest.approx(8.0, rel=0.2)  # walls included
+    assert roof_density(small_scene) == pytest.approx(np.count_nonzero(on_roof) / area)
     first = np.count_nonzero(small_scene.cloud.fields["return_number"] == 1) / 60.0**2
     assert first == pytest.approx(8.0, rel=0.05)
 
@@ -41,6 +34,7 @@ def test_building_points_lie_inside_their_roof_outline(small_scene):
         m = ids == b.building_id
         d = shapely.distance(b.roof_outline, shapely.points(c.xyz[m, :2]))
         assert d.max() < 0.08, (b.building_id, d.max())
+    assert outline_distances(small_scene).max() < 0.08
 
 
 def test_roof_heights_carry_the_range_noise(small_scene):
@@ -71,22 +65,7 @@ def test_cloud_is_raw_with_returns_strips_outliers_and_wires(small_scene):
 
 
 def _edge_ratio(scene, camera):
-    grey = scene.image.astype(float).mean(axis=0) / 255.0
-    grad = np.hypot(sobel(grey, axis=0), sobel(grey, axis=1))
-    samples = []
-    for g in scene.truth["roof_outlines"].geometries:
-        for ring in [g.exterior, *g.interiors]:
-            xyz = np.asarray(ring.coords)
-            for a, b in zip(xyz[:-1], xyz[1:]):
-                n = max(2, int(np.linalg.norm(b[:2] - a[:2]) / 0.05))
-                pts = a + np.linspace(0, 1, n)[:, None] * (b - a)
-                samples.append(camera.project(pts))
-    cr = np.vstack(samples)
-    on_edges = map_coordinates(grad, [cr[:, 1], cr[:, 0]], order=1).mean()
-    rng = np.random.default_rng(0)
-    h, w = grey.shape
-    rand = grad[rng.integers(0, h, 20000), rng.integers(0, w, 20000)].mean()
-    return on_edges / rand
+    return edge_gradient_ratio(scene.image, camera, scene.truth["roof_outlines"].geometries)
 
 
 def test_truth_edges_land_on_strong_image_gradients(small_scene):

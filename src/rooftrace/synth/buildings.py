@@ -119,6 +119,18 @@ def _flat_block(footprint: Polygon, eave: float, overhang: float) -> RoofBlock:
     return RoofBlock(roof, np.array([[0.0, 0.0, eave]]))
 
 
+def _union(geoms) -> Polygon:
+    """Union of touching polygons as one Polygon (snapped to 1e-6 m); parts that do not touch are an error."""
+    geom = shapely.union_all(list(geoms))
+    if geom.geom_type != "Polygon":
+        geom = shapely.set_precision(geom, 1e-6)
+    if geom.geom_type == "MultiPolygon" and len(geom.geoms) == 1:
+        geom = geom.geoms[0]
+    if geom.geom_type != "Polygon":
+        raise ValueError("the parts of a building must touch (their union is not one polygon)")
+    return geom
+
+
 def _circle(center, radius: float) -> Polygon:
     n = max(16, int(math.ceil(2 * math.pi * radius / CURVE_STEP)))
     t = np.linspace(0, 2 * math.pi, n, endpoint=False)
@@ -172,8 +184,7 @@ class Building:
     @property
     def roof_outline(self) -> Polygon:
         """Roof edge seen from above (union of the blocks, overhang included), 2D."""
-        geom = shapely.union_all([b.polygon for b in self.blocks])
-        return shapely.set_precision(geom, 1e-6) if geom.geom_type != "Polygon" else geom
+        return _union(b.polygon for b in self.blocks)
 
     def height(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Relative roof height (m) at map points: the maximum over blocks; NaN outside."""
@@ -234,7 +245,7 @@ class Building:
                                      (o, 0.0, o, o), hip_ends=(True, False))
             blocks.append(blk)
             polys.append(wwalls)
-        foot = shapely.set_precision(shapely.union_all(polys), 1e-6)
+        foot = _union(polys)
         ridge = eave_height if kind == "flat" else ridge_height
         return cls(building_id, shape, foot, eave_height, ridge, o, blocks, **extra)
 
@@ -332,7 +343,7 @@ class Building:
               "-u": (overhang, 0.0, overhang, overhang), "+u": (0.0, overhang, overhang, overhang)}[wall_side]
         block, walls = rect_block(center, length, width, angle_deg, "flat", eave_height, eave_height, ov)
         self.blocks.append(block)
-        self.footprint = shapely.set_precision(shapely.union_all([self.footprint, walls]), 1e-6)
+        self.footprint = _union([self.footprint, walls])
         self.kind += "+annex"
         return self
 

@@ -22,7 +22,7 @@ def _lines(geom):
 
 
 def save_preview(scene, path: str | os.PathLike, *, dpi: int = 80, cell: float | None = None) -> Path:
-    """Write a two-panel PNG: image + projected truth, and the point cloud's top height per ``cell``.
+    """Write a two-panel PNG: image + projected truth, and the cloud's top height above terrain per ``cell``.
 
     Parameters
     ----------
@@ -65,13 +65,15 @@ def save_preview(scene, path: str | os.PathLike, *, dpi: int = 80, cell: float |
     ix = np.clip(((xyz[keep, 0] - x0) / cell).astype(int), 0, nx - 1)
     iy = np.clip(((y1 - xyz[keep, 1]) / cell).astype(int), 0, ny - 1)
     top = np.full(ny * nx, np.nan)
-    order = np.argsort(xyz[keep, 2])
-    top[(iy * nx + ix)[order]] = xyz[keep, 2][order]  # the highest point wins
-    im = ax.imshow(top.reshape(ny, nx), extent=(x0, x1, y0, y1), cmap="viridis", interpolation="nearest")
+    hag = xyz[keep, 2] - scene.terrain.height(xyz[keep, 0], xyz[keep, 1]) if scene.terrain is not None else xyz[keep, 2]
+    order = np.argsort(hag)
+    top[(iy * nx + ix)[order]] = hag[order]  # the highest point wins
+    top = top.reshape(ny, nx)
+    im = ax.imshow(top, extent=(x0, x1, y0, y1), cmap="viridis", vmin=0.0, vmax=14.0, interpolation="nearest")
     for g in outlines:
         for c in _lines(g):
             ax.plot(c[:, 0], c[:, 1], color="w", lw=0.6)
-    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="height (m)")
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="height above terrain (m)")
     ax.set_title(f"ALS: {len(scene.cloud):,} points, {scene.options.density:g} pts/m², seed {scene.options.seed}",
                  fontsize=10)
     ax.set_xticks([])

@@ -163,7 +163,39 @@ def shade(scene, origins: np.ndarray, dirs: np.ndarray, rng: np.random.Generator
     light = shadow_rays(p + lift, sun, *model.args(), model.z_top, trees, 0.3)
     direct = np.clip(normal @ sun, 0.0, None) * light
     sky = 0.32 * (0.55 + 0.45 * normal[:, 2])
-    return albedo * (sky + 1.0 * direct)[:, None]
+    radiance = albedo * (sky + 1.0 * direct)[:, None]
+    if scene.power_line is not None:
+        near = _near_wire(origins, dirs, scene.power_line.as_array(), t, 0.5 * o.gsd)
+        radiance[near] *= 0.5
+    return radiance
+
+
+def _near_wire(origins, dirs, wires, t_max, radius):
+    """Rays passing within ``radius`` (m) of a conductor before their hit: a thin dark line in the image.
+
+    A conductor lies in the vertical plane through its pylons; a slanted ray
+    crosses that plane once, and its distance to the (locally horizontal)
+    wire is the height miss there times the ray's horizontal component
+    across the plane.  A vertical ray (orthophoto) uses the plan distance.
+    """
+    near = np.zeros(len(origins), bool)
+    for x0, y0, x1, y1, z0, z1, sag in wires:
+        a = np.array([x0, y0])
+        u = np.array([x1 - x0, y1 - y0])
+        length = np.hypot(*u)
+        u /= length
+        nrm = np.array([-u[1], u[0]])
+        den = dirs[:, :2] @ nrm
+        vertical = np.abs(den) < 1e-9
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tw = np.where(vertical, 0.0, ((a - origins[:, :2]) @ nrm) / np.where(vertical, 1.0, den))
+        p = origins + tw[:, None] * dirs
+        s = ((p[:, :2] - a) @ u) / length
+        zw = z0 + (z1 - z0) * s - 4 * sag * s * (1 - s)
+        miss = np.where(vertical, np.abs((origins[:, :2] - a) @ nrm), np.abs(p[:, 2] - zw) * np.abs(den))
+        before = vertical | ((tw > 0) & (tw < t_max))
+        near |= (miss < radius) & (s >= 0) & (s <= 1) & before
+    return near
 
 
 def _ridge_caps(scene, p, face, roof, albedo, half_width: float = 0.18):
