@@ -82,15 +82,16 @@ def simulate(
 
 
 def _summary(scene, paths) -> dict:
+    from rooftrace.synth.checks import roof_density
+
     cloud = scene.cloud
-    roof_area = float(sum(b.roof_outline.area for b in scene.buildings))
-    n_roof = int(np.count_nonzero(cloud.fields["truth_class"] == 6))
     classes, counts = np.unique(cloud.fields["truth_class"], return_counts=True)
     return {
         "points": len(cloud),
         "buildings": len(scene.buildings),
         "ridges": len(scene.ridges),
-        "roof_density": round(n_roof / roof_area, 2) if roof_area > 0 else None,
+        "roof_density": round(roof_density(scene), 2) if scene.buildings else None,
+        "roof_density_with_walls": round(roof_density(scene, walls=True), 2) if scene.buildings else None,
         "truth_classes": {int(c): int(n) for c, n in zip(classes, counts)},
         "image_size": list(scene.image.shape[2:0:-1]) if scene.image is not None else None,
         "seed": scene.options.seed,
