@@ -23,6 +23,7 @@ from rooftrace.errors import InputError
 
 # command modules register themselves on ``app`` when imported (one line each)
 from rooftrace.cli import cmd_info  # noqa: F401,E402
+from rooftrace.cli import cmd_detect  # noqa: F401,E402
 from rooftrace.cli import cmd_outline  # noqa: F401,E402
 from rooftrace.cli import cmd_evaluate  # noqa: F401,E402
 from rooftrace.cli import cmd_refine  # noqa: F401,E402

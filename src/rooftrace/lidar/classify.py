@@ -55,6 +55,11 @@ class ClassifyOptions:
         Clusters with a higher mean entropy are never buildings.
     max_linearity : float, default 0.7
         Clusters with a higher mean linearity are linear objects (power lines).
+    boundary : {'zscore', 'midpoint'}, default 'zscore'
+        Where the threshold sits between the two k-means centroids c0 < c1:
+        ``'midpoint'`` (c0 + c1)/2, the plain k-means rule (thesis); ``'zscore'``
+        (c0·s1 + c1·s0)/(s0 + s1) with s0, s1 the classes' standard
+        deviations, equally many deviations from both centroids.
     """
 
     section: ClassVar[str] = "classify"
@@ -65,8 +70,11 @@ class ClassifyOptions:
     entropy_floor: float = 0.6
     entropy_ceiling: float = 0.95
     max_linearity: float = 0.7
+    boundary: str = "zscore"
 
     def __post_init__(self) -> None:
+        if self.boundary not in ("zscore", "midpoint"):
+            raise ValueError(f"classify.boundary must be 'zscore' or 'midpoint', got {self.boundary!r}")
         if self.neighbours is not None and self.neighbours < 4:
             raise ValueError(f"classify.neighbours must be >= 4, got {self.neighbours}")
         if self.max_neighbours < 4:
@@ -137,7 +145,46 @@ def _features(xyz: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:  # pra
         out[i, 2] = l3 / l1
 
 
-def eigen_features(xyz: np.ndarray, neighbours: int, *, chunk: int = 100_000) -> np.ndarray:
+@numba.njit(cache=True)
+def _normals(xyz: np.ndarray, idx: np.ndarray, kn: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
+    n = idx.shape[0]
+    for i in range(n):
+        mx = my = mz = 0.0
+        for j in range(kn):
+            p = idx[i, j]
+            mx += xyz[p, 0]
+            my += xyz[p, 1]
+            mz += xyz[p, 2]
+        mx /= kn
+        my /= kn
+        mz /= kn
+        c = np.zeros((3, 3))
+        for j in range(kn):
+            p = idx[i, j]
+            v0 = xyz[p, 0] - mx
+            v1 = xyz[p, 1] - my
+            v2 = xyz[p, 2] - mz
+            c[0, 0] += v0 * v0
+            c[1, 1] += v1 * v1
+            c[2, 2] += v2 * v2
+            c[0, 1] += v0 * v1
+            c[0, 2] += v0 * v2
+            c[1, 2] += v1 * v2
+        c[1, 0] = c[0, 1]
+        c[2, 0] = c[0, 2]
+        c[2, 1] = c[1, 2]
+        w, v = np.linalg.eigh(c)
+        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+        if nz < 0:
+            nx, ny, nz = -nx, -ny, -nz
+        out[i, 0] = nx
+        out[i, 1] = ny
+        out[i, 2] = nz
+
+
+def eigen_features(
+    xyz: np.ndarray, neighbours: int, *, normal_neighbours: int | None = None, chunk: int = 100_000
+) -> np.ndarray:
     """Linearity, planarity, sphericity and entropy of each point's neighbourhood.
 
     Parameters
@@ -149,10 +196,16 @@ def eigen_features(xyz: np.ndarray, neighbours: int, *, chunk: int = 100_000) ->
     chunk : int, default 100000
         Points per KD-tree query, to bound memory.
 
+    normal_neighbours : int, optional
+        When given, the unit normal (upward) of the plane fitted to the
+        ``normal_neighbours`` nearest points is returned too (a smaller
+        neighbourhood than N keeps roof ridges sharp).
+
     Returns
     -------
-    ndarray of shape (N, 4), float64
-        Columns L, P, S (each in [0, 1], summing to 1) and E (in [0, ln 3]).
+    ndarray of shape (N, 4) or (N, 7), float64
+        Columns L, P, S (each in [0, 1], summing to 1), E (in [0, ln 3]),
+        then nx, ny, nz when ``normal_neighbours`` is given.
 
     Examples
     --------
@@ -163,7 +216,7 @@ def eigen_features(xyz: np.ndarray, neighbours: int, *, chunk: int = 100_000) ->
     """
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     n = len(xyz)
-    out = np.zeros((n, 4))
+    out = np.zeros((n, 4 if normal_neighbours is None else 7))
     if n == 0:
         return out
     k = int(min(neighbours, n))
@@ -175,6 +228,11 @@ def eigen_features(xyz: np.ndarray, neighbours: int, *, chunk: int = 100_000) ->
         _, idx = tree.query(local[start:stop], k=k, workers=-1)
         idx = np.asarray(idx, np.int64).reshape(stop - start, k)
         _features(local, idx, lps[start:stop])
+        if normal_neighbours is not None:
+            kn = int(min(max(normal_neighbours, 3), k))
+            normals = np.empty((stop - start, 3))
+            _normals(local, np.ascontiguousarray(idx[:, :kn]), kn, normals)
+            out[start:stop, 4:] = normals
     out[:, :3] = lps
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(lps > 0, -lps * np.log(lps), 0.0)
@@ -259,10 +317,18 @@ def separate_buildings(
     threshold = opt.fallback_entropy
     method = "fallback"
     if len(e) >= 2:
-        centres, _ = kmeans_1d(e, 2)
+        centres, lab = kmeans_1d(e, 2)
         params["centroids"] = centres.tolist()
         if centres[1] - centres[0] >= opt.min_gap:
-            threshold = float(np.clip(centres.mean(), opt.entropy_floor, opt.entropy_ceiling))
+            # the boundary where both classes are equally many standard
+            # deviations away; the midpoint assumes equal spreads, while
+            # roofs (walls, dormers, chimneys) spread far more than crowns
+            sd = np.array([e[lab == j].std() for j in (0, 1)])
+            if opt.boundary == "zscore" and np.all(sd > 0):
+                cut = (centres[0] * sd[1] + centres[1] * sd[0]) / sd.sum()
+            else:
+                cut = centres.mean()
+            threshold = float(np.clip(cut, opt.entropy_floor, opt.entropy_ceiling))
             method = "kmeans"
     params.update(method=method, entropy_threshold=threshold)
     is_building = (e <= threshold) & (lin <= opt.max_linearity)

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
@@ -136,6 +138,41 @@ def _check_cloud(cloud: PointCloud) -> None:
         raise InputError(f"{where}: all points lie on one line; detection needs an area")
 
 
+def _absorb(pts: np.ndarray, group: np.ndarray, eligible: np.ndarray, radius: float, rounds: int) -> np.ndarray:
+    """Let buildings take in eligible unassigned points within ``radius`` (3D) of them, ``rounds`` times.
+
+    Recovers roof edges, dormers and wall tops that the height test cut into
+    clusters too small to keep; only points whose own entropy is on the
+    building side are eligible, so tree crowns stay out.
+    """
+    group = group.copy()
+    for _ in range(rounds):
+        inb = np.flatnonzero(group >= 0)
+        todo = np.flatnonzero((group < 0) & eligible)
+        if len(inb) == 0 or len(todo) == 0:
+            break
+        dist, j = cKDTree(pts[inb]).query(pts[todo], distance_upper_bound=radius, workers=-1)
+        hit = np.isfinite(dist)
+        if not hit.any():
+            break
+        group[todo[hit]] = group[inb[j[hit]]]
+    return group
+
+
+def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float) -> np.ndarray:
+    """Unassigned points under a building's roof (plan distance < radius, lower) join it: walls, eaves' undersides."""
+    group = group.copy()
+    inb = np.flatnonzero(group >= 0)
+    todo = np.flatnonzero(group < 0)
+    if len(inb) == 0 or len(todo) == 0:
+        return group
+    dist, j = cKDTree(pts[inb, :2]).query(pts[todo, :2], distance_upper_bound=radius, workers=-1)
+    hit = np.isfinite(dist)
+    hit[hit] &= pts[todo[hit], 2] <= pts[inb[j[hit]], 2]
+    group[todo[hit]] = group[inb[j[hit]]]
+    return group
+
+
 def detect_buildings(
     cloud: PointCloud,
     options: DetectOptions | None = None,
@@ -170,6 +207,12 @@ def detect_buildings(
     """
     _check_cloud(cloud)
     opt = options or DetectOptions.from_config(config)
+    # small per-facet / per-point LAPACK calls (Qhull, eigh): one BLAS thread
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _detect(cloud, opt, reporter)
+
+
+def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) -> Detection:
     clock = _Clock(reporter or Reporter())
     xyz = cloud.xyz
     n = len(xyz)
@@ -201,31 +244,35 @@ def detect_buildings(
 
     so = opt.segment
     link_d = so.link_distance or 2.0 * s_avg
-    link_h = so.link_height or 2.0 * sigma_h
+    # along the normals the pair test must also absorb the normals' own
+    # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
+    link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
+    co = opt.classify
+    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
+    cand = np.flatnonzero(~noise & ~ground & (hag >= so.min_height))
+    pts = xyz[cand] - xyz[cand].min(axis=0) if len(cand) else np.empty((0, 3))
+    with clock("features"):
+        feats = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours)
     with clock("segment"):
-        cand = np.flatnonzero(~noise & ~ground & (hag >= so.min_height))
-        pts = xyz[cand] - xyz[cand].min(axis=0) if len(cand) else np.empty((0, 3))
         pairs = link_pairs(pts[:, :2], link_d)
-        levels = region_growing(pts, link_d, link_h, so.max_slope, pairs=pairs)
+        normals = feats[:, 4:] if so.height_test == "normal" else None
+        levels = region_growing(pts, link_d, link_h, so.max_slope, pairs=pairs, normals=normals)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
             **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }
 
-    co = opt.classify
-    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
     with clock("classify"):
         big = sizes >= min_pts
-        in_big = big[levels] if len(levels) else np.zeros(0, bool)
-        feats = eigen_features(pts[in_big], k_nb)
-        lab_big = levels[in_big]
-        ent = cluster_means(lab_big, feats[:, 3], len(sizes))
-        lin = cluster_means(lab_big, feats[:, 0], len(sizes))
-        is_bld, cparams = separate_buildings(ent[big], lin[big], co)
-        building_level = np.zeros(len(sizes), bool)
-        building_level[np.flatnonzero(big)[is_bld]] = True
+        ent = cluster_means(levels, feats[:, 3], len(sizes))
+        lin = cluster_means(levels, feats[:, 0], len(sizes))
+        _, cparams = separate_buildings(ent[big], lin[big], co)
+        # small clusters (ridges, dormers, roof edges cut off by the height
+        # test) take the threshold learnt on the big ones; the building size
+        # filter below drops those that do not touch a building
+        building_level = (ent <= cparams["entropy_threshold"]) & (lin <= co.max_linearity)
         linear = np.zeros(len(sizes), bool)
         linear[np.flatnonzero(big)] = lin[big] > co.max_linearity
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
@@ -236,13 +283,27 @@ def detect_buildings(
         group_pt = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
         gsize = np.bincount(group_pt[group_pt >= 0], minlength=int(group.max(initial=-1)) + 1)
         group_pt = np.where((group_pt >= 0) & (gsize[np.maximum(group_pt, 0)] >= min_pts), group_pt, -1)
-        bid_local = order_labels(pts, group_pt)
-        level_local = order_labels(pts, np.where(bid_local >= 0, levels, -1))
+        # walls and low annexes below min_height may join a building too
+        low = np.flatnonzero(~noise & ~ground & (hag < so.min_height)) if so.absorb_rounds else np.zeros(0, np.int64)
+        every = np.concatenate([cand, low])
+        pts_all = np.concatenate([pts, xyz[low] - xyz[cand].min(axis=0)]) if len(cand) else xyz[low] - xyz[low].min(axis=0, initial=0)
+        group_all = np.concatenate([group_pt, np.full(len(low), -1, np.int64)])
+        levels_all = np.concatenate([levels, np.full(len(low), -1, np.int64)])
+        if so.absorb_rounds and len(cand):
+            eligible = np.concatenate([feats[:, 3] <= cparams["entropy_threshold"], np.ones(len(low), bool)])
+            group_all = _absorb(pts_all, group_all, eligible, link_d, so.absorb_rounds)
+            if so.absorb_touching:
+                # points interleaved with a roof (noisy normals at ridges and
+                # eaves) are taken whatever their entropy
+                group_all = _absorb(pts_all, group_all, np.ones(len(group_all), bool), s_avg, 1)
+                group_all = _absorb_below(pts_all, group_all, s_avg)
+        bid_local = order_labels(pts_all, group_all)
+        level_local = order_labels(pts_all, np.where(bid_local >= 0, levels_all, -1))
         building_id = np.zeros(n, np.int32)
         roof_level_id = np.zeros(n, np.int32)
-        building_id[cand] = bid_local + 1
-        roof_level_id[cand] = level_local + 1
-        veg = big[levels] & ~linear[levels] & (bid_local < 0) if len(levels) else np.zeros(0, bool)
+        building_id[every] = bid_local + 1
+        roof_level_id[every] = level_local + 1
+        veg = big[levels] & ~linear[levels] & (bid_local[: len(cand)] < 0) if len(levels) else np.zeros(0, bool)
         cls[cand[veg]] = ASPRS.HIGH_VEGETATION
         cls[building_id > 0] = ASPRS.BUILDING
         cls[ground] = ASPRS.GROUND

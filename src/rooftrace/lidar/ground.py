@@ -25,6 +25,7 @@ from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
+from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
 
@@ -110,6 +111,20 @@ def _triangulate(xy: np.ndarray) -> Delaunay:
         raise GeometryError(f"ground TIN: cannot triangulate {len(xy)} points ({exc.__class__.__name__})") from None
 
 
+def _corner_heights(corners: np.ndarray, ground: np.ndarray, k: int = 12) -> np.ndarray:
+    """Height of each corner from a plane fitted to its ``k`` nearest ground points (within their height range)."""
+    k = min(k, len(ground))
+    d2 = ((corners[:, None, :] - ground[None, :, :2]) ** 2).sum(axis=-1)
+    near = np.argsort(d2, axis=1)[:, :k]
+    z = np.empty(len(corners))
+    for i, idx in enumerate(near):  # four corners
+        p = ground[idx]
+        a = np.column_stack([p[:, :2] - corners[i], np.ones(len(p))])
+        coef, *_ = np.linalg.lstsq(a, p[:, 2], rcond=None)
+        z[i] = np.clip(coef[2], p[:, 2].min() - 1.0, p[:, 2].max() + 1.0) if len(p) >= 3 else p[:, 2].min()
+    return z
+
+
 def tin_height(tin_xyz: np.ndarray, query_xy: np.ndarray, *, tri: Delaunay | None = None) -> np.ndarray:
     """Height of a TIN below query points (linear in each triangle).
 
@@ -131,7 +146,8 @@ def tin_height(tin_xyz: np.ndarray, query_xy: np.ndarray, *, tri: Delaunay | Non
         tri = _triangulate(tin_xyz[:, :2])
     order = _spatial_order(query_xy, 10.0)
     simplex = np.empty(len(query_xy), np.int64)
-    simplex[order] = tri.find_simplex(query_xy[order])
+    with threadpool_limits(limits=1, user_api="blas"):
+        simplex[order] = tri.find_simplex(query_xy[order])
     inside = simplex >= 0
     s = simplex[inside]
     t = tri.transform[s]
@@ -189,6 +205,14 @@ def progressive_tin(
     Axelsson, P. (2000). DEM generation from laser scanner data using
     adaptive TIN models. IAPRS 33(B4), 110-117.
     """
+    # Qhull's barycentric transforms make one small LAPACK call per facet;
+    # a multi-threaded BLAS turns each into a thread rendezvous, 100x slower
+    # on a busy machine
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude)
+
+
+def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude):
     opt = options or GroundOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
     n = len(xyz)
@@ -217,6 +241,7 @@ def progressive_tin(
     is_ground[seeds] = True
     tan_angle = np.tan(np.radians(opt.iteration_angle))
     rounds = 0
+    refit = True
     for rounds in range(1, opt.max_iterations + 1):
         tin = np.concatenate([corner_xyz, cxyz[is_ground]])
         tri = _triangulate(tin[:, :2])
@@ -247,7 +272,15 @@ def progressive_tin(
         added = len(accept)
         log.debug("ground round %d: %d TIN vertices, %d added", rounds, len(tin), added)
         if added == 0:
-            break
+            if not refit:
+                break
+            # the corners took the height of the nearest seed, up to a seed
+            # cell away: on a slope that tilts the border facets.  Once the
+            # ground is dense, extrapolate them from the nearby ground instead
+            # and go on densifying.
+            refit = False
+            corner_xyz[:, 2] = _corner_heights(corners, cxyz[is_ground])
+            continue
         is_ground[todo[accept]] = True
 
     tin = np.concatenate([corner_xyz, cxyz[is_ground]])

@@ -39,13 +39,16 @@ class SegmentOptions:
 
     Attributes
     ----------
-    min_height : float, default 2.0
+    min_height : float, default 2.5
         Points lower than this above the ground (m) are not segmented
         (cars, walls' feet, low vegetation).
     link_distance : float or None
         L_Dxy (m); ``None``: ``2·s_avg`` (thesis Table 6.1).
     link_height : float or None
-        L_Dh (m); ``None``: ``2·sigma_H`` (thesis Table 6.1).
+        L_Dh (m); ``None``: ``2·sigma_H`` (thesis Table 6.1) with the
+        ``'slope'`` test, ``max(2·sigma_H, 0.3·L_Dxy)`` with the ``'normal'``
+        test (the pair's distance along the normals also carries the
+        normals' error, about 17° over L_Dxy).
     max_slope : float, default 60.0
         Roof slope (deg) allowed in the height test, see the module notes;
         0 gives the thesis' test.
@@ -53,17 +56,39 @@ class SegmentOptions:
         Ar_min (m²), the smallest building kept (thesis Table 6.1).
     min_points : int or None
         T_Np, the smallest cluster kept; ``None``: ``Ar_min·d_avg`` (eq. 3.4).
+    height_test : {'normal', 'slope'}, default 'normal'
+        How the height difference of a pair is measured: along the local
+        surface normals (see :func:`region_growing`) or vertically with the
+        ``max_slope`` allowance.
+    normal_neighbours : int, default 12
+        Neighbours of the plane fit giving each point's normal.
+    absorb_rounds : int, default 3
+        Rounds in which a building takes in unassigned points within L_Dxy
+        (3D) whose own entropy is on the building side (roof edges, dormers
+        cut off by the height test); 0 disables it (the thesis' behaviour).
+    absorb_touching : bool, default True
+        After that, a building also takes in any unassigned point closer
+        than s_avg (3D) to it, whatever its entropy (points interleaved with
+        the roof whose normals are noisy: ridges, eaves).
     """
 
     section: ClassVar[str] = "segment"
-    min_height: float = 2.0
+    min_height: float = 2.5
     link_distance: float | None = None
     link_height: float | None = None
     max_slope: float = 60.0
     min_area: float = 4.0
     min_points: int | None = None
+    height_test: str = "normal"
+    normal_neighbours: int = 12
+    absorb_rounds: int = 3
+    absorb_touching: bool = True
 
     def __post_init__(self) -> None:
+        if self.height_test not in ("normal", "slope"):
+            raise ValueError(f"segment.height_test must be 'normal' or 'slope', got {self.height_test!r}")
+        if self.normal_neighbours < 3:
+            raise ValueError(f"segment.normal_neighbours must be >= 3, got {self.normal_neighbours}")
         for name in ("link_distance", "link_height", "min_area"):
             v = getattr(self, name)
             if v is not None and not v > 0:
@@ -106,6 +131,7 @@ def region_growing(
     max_slope: float = 60.0,
     *,
     pairs: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """Label the roof-level clusters of non-ground points.
 
@@ -121,6 +147,13 @@ def region_growing(
         Slope allowance (deg); 0 gives the thesis' test ``|dz| < L_Dh``.
     pairs : ndarray of shape (M, 2), optional
         Output of :func:`link_pairs` when already computed.
+    normals : ndarray of shape (N, 3), optional
+        Unit surface normals.  When given, the height difference is measured
+        along each point's normal, ``|n_i·(p_j − p_i)| < L_Dh`` and
+        ``|n_j·(p_i − p_j)| < L_Dh`` (on a flat roof exactly the thesis'
+        ``|dz|``), and ``max_slope`` is not used: pitched roof planes stay whole
+        while tree crowns, with no consistent normal, fall apart into small
+        clusters.
 
     Returns
     -------
@@ -138,8 +171,13 @@ def region_growing(
     if pairs is None:
         pairs = link_pairs(xyz[:, :2], link_distance)
     d = xyz[pairs[:, 0]] - xyz[pairs[:, 1]]
-    dxy = np.hypot(d[:, 0], d[:, 1])
-    keep = np.abs(d[:, 2]) < link_height + dxy * np.tan(np.radians(max_slope))
+    if normals is None:
+        dxy = np.hypot(d[:, 0], d[:, 1])
+        keep = np.abs(d[:, 2]) < link_height + dxy * np.tan(np.radians(max_slope))
+    else:
+        keep = (np.abs(np.einsum("ij,ij->i", normals[pairs[:, 0]], d)) < link_height) & (
+            np.abs(np.einsum("ij,ij->i", normals[pairs[:, 1]], d)) < link_height
+        )
     labels = _components(len(xyz), pairs[keep])
     return order_labels(xyz, labels)
 

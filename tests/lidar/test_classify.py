@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, eigen_features, kmeans_1d, separate_buildings
+
+
+def test_features_of_a_plane_a_line_and_a_volume(rng):
+    plane = np.column_stack([rng.uniform(0, 10, (2000, 2)), np.zeros(2000)]) + [0, 0, 0]
+    line = np.column_stack([np.linspace(0, 50, 500), np.zeros(500), np.zeros(500)]) + [100, 0, 0]
+    ball = rng.normal(0, 1, (2000, 3)) + [300, 0, 0]
+    f = eigen_features(np.vstack([plane, line, ball]), 30, normal_neighbours=10)
+    p, ln, b = f[:2000], f[2000:2500], f[2500:]
+    assert np.allclose(f[:, :3].sum(axis=1), 1.0)
+    assert np.median(p[:, 1]) > 0.5 and np.median(p[:, 2]) < 1e-9
+    assert np.median(ln[:, 0]) > 0.99
+    assert np.median(b[:, 3]) > 0.9 > 0.75 > np.median(p[:, 3])
+    assert np.allclose(np.abs(p[:, 6]), 1.0)  # normals of the horizontal plane are vertical
+
+
+def test_features_match_numpy_eigenvalues(rng):
+    pts = rng.normal(0, [3, 2, 0.5], (300, 3))
+    f = eigen_features(pts, 20)
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(pts).query(pts[:5], k=20)
+    for i in range(5):
+        w = np.linalg.eigvalsh(np.cov(pts[idx[i]].T, bias=True))[::-1]
+        assert f[i, :3] == pytest.approx([(w[0] - w[1]) / w[0], (w[1] - w[2]) / w[0], w[2] / w[0]], abs=1e-9)
+
+
+def test_cluster_means():
+    assert cluster_means(np.array([0, 0, 1, -1]), np.array([1.0, 3.0, 5.0, 100.0])).tolist() == [2.0, 5.0]
+
+
+def test_kmeans_is_deterministic_and_sorted(rng):
+    v = np.concatenate([rng.normal(0.5, 0.05, 30), rng.normal(1.0, 0.03, 20)])
+    c1, l1 = kmeans_1d(v)
+    c2, l2 = kmeans_1d(v[::-1])
+    assert c1 == pytest.approx(c2) and c1[0] < c1[1]
+    assert np.array_equal(l1, l2[::-1]) and l1[:30].sum() == 0 and l1[30:].all()
+
+
+def test_buildings_and_trees_are_split_by_kmeans():
+    e = np.array([0.45, 0.5, 0.55, 0.7, 0.98, 1.0, 1.02])
+    bld, params = separate_buildings(e, np.zeros(7))
+    assert bld.tolist() == [True] * 4 + [False] * 3
+    assert params["method"] == "kmeans" and 0.7 < params["entropy_threshold"] < 0.98
+
+
+@pytest.mark.parametrize("e, expected", [
+    (np.array([0.45, 0.5, 0.52, 0.6, 0.62]), True),  # only buildings: k-means would split them
+    (np.array([0.97, 1.0, 1.02, 1.05, 1.07]), False),  # only trees
+])
+def test_one_population_uses_the_fallback_threshold(e, expected):
+    bld, params = separate_buildings(e, np.zeros(len(e)))
+    assert params["method"] == "fallback"
+    assert bld.tolist() == [expected] * len(e)
+
+
+def test_linear_clusters_are_never_buildings():
+    bld, _ = separate_buildings(np.array([0.4, 0.45, 1.0, 1.05]), np.array([0.2, 0.9, 0.3, 0.3]))
+    assert bld.tolist() == [True, False, False, False]
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="entropy_floor"):
+        ClassifyOptions(entropy_floor=0.9, fallback_entropy=0.8)
+    with pytest.raises(ValueError, match="boundary"):
+        ClassifyOptions(boundary="median")

@@ -1,0 +1,59 @@
+import numpy as np
+import pytest
+
+from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching, order_labels, region_growing
+
+
+def _roof(x0, y0, w, d, z, step=0.4, slope=0.0):
+    g = np.stack(np.meshgrid(np.arange(x0, x0 + w, step), np.arange(y0, y0 + d, step)), -1).reshape(-1, 2)
+    return np.column_stack([g, z + slope * (g[:, 1] - y0)])
+
+
+def test_two_roof_levels_of_one_building_are_two_clusters_and_one_building():
+    low = _roof(0, 0, 10, 6, 5.0)
+    high = _roof(0, 6, 10, 6, 9.0)  # touches the low roof in plan, 4 m higher
+    far = _roof(30, 0, 5, 5, 5.0)
+    xyz = np.vstack([low, high, far])
+    pairs = link_pairs(xyz[:, :2], 0.8)
+    levels = region_growing(xyz, 0.8, 0.2, 0.0, pairs=pairs)
+    assert len(np.unique(levels)) == 3
+    for part in (slice(0, len(low)), slice(len(low), len(low) + len(high)), slice(len(low) + len(high), None)):
+        assert len(np.unique(levels[part])) == 1
+    group = merge_touching(levels, pairs, np.ones(3, bool))
+    assert group[levels[0]] == group[levels[len(low)]] != group[levels[-1]]
+
+
+def test_pitched_roof_stays_whole_with_normals_but_not_with_the_thesis_test():
+    roof = _roof(0, 0, 10, 8, 5.0, step=0.4, slope=1.0)  # 45 degrees
+    normals = np.tile([0.0, -1.0, 1.0], (len(roof), 1)) / np.sqrt(2)
+    assert len(np.unique(region_growing(roof, 0.8, 0.1, normals=normals))) == 1
+    assert len(np.unique(region_growing(roof, 0.8, 0.1, 0.0))) > 1  # |dz| < L_Dh alone shatters it
+    assert len(np.unique(region_growing(roof, 0.8, 0.1, 50.0))) == 1
+
+
+def test_merge_touching_ignores_non_members():
+    xyz = np.vstack([_roof(0, 0, 4, 4, 5.0), _roof(4.2, 0, 4, 4, 5.0), _roof(8.4, 0, 4, 4, 5.0)])
+    labels = np.repeat([0, 1, 2], len(xyz) // 3)
+    pairs = link_pairs(xyz[:, :2], 0.8)
+    # the middle cluster (vegetation) does not bridge the two buildings
+    group = merge_touching(labels, pairs, np.array([True, False, True]))
+    assert group.tolist() == [0, -1, 1]
+    assert merge_touching(labels, pairs, np.ones(3, bool)).tolist() == [0, 0, 0]
+
+
+def test_order_labels_does_not_depend_on_point_order(rng):
+    xyz = np.vstack([_roof(20, 0, 3, 3, 5.0), _roof(0, 10, 3, 3, 5.0), _roof(0, 0, 3, 3, 5.0)])
+    labels = np.repeat([7, 3, 5], len(xyz) // 3)
+    out = order_labels(xyz, labels)
+    assert out[: len(xyz) // 3].tolist() == [2] * (len(xyz) // 3)  # the x = 20 block is last
+    assert out[-1] == 0
+    perm = rng.permutation(len(xyz))
+    assert np.array_equal(order_labels(xyz[perm], labels[perm]), out[perm])
+    assert order_labels(xyz, np.full(len(xyz), -1)).max() == -1
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="height_test"):
+        SegmentOptions(height_test="vertical")
+    with pytest.raises(ValueError, match="max_slope"):
+        SegmentOptions(max_slope=90)
