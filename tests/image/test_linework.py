@@ -142,3 +142,14 @@ def test_merge_collinear_keeps_side_by_side_parallels_apart():
     inside = _seg(20, 12, 30, 12)  # contained entirely: overlap 100 %
     assert len(merge_collinear([roof_edge, inside])[0]) == 2
     assert len(merge_collinear([roof_edge, inside], duplicate_tol=2.5)[0]) == 1
+
+
+def test_selection_modes():
+    steger = _parallel(0.0)[None]
+    canny = np.array([_parallel(-1.8), _parallel(1.9), _parallel(15.0)])
+    segs, src = select_canny_steger(canny, steger, mode="both")
+    assert src == ["canny", "canny", "canny", "steger"]
+    segs, src = select_canny_steger(canny, steger, mode="canny")
+    assert src == ["canny"] * 3
+    with pytest.raises(ValueError, match="mode"):
+        select_canny_steger(canny, steger, mode="steger")

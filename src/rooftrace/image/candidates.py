@@ -71,6 +71,10 @@ class CandidateOptions:
         Largest deviation of a chain from its straight piece (px).
     min_segment : float, default 5.0
         Shortest detected segment (px).
+    selection : {'seed003', 'both', 'canny'}, default 'seed003'
+        Canny/Steger choice (see :func:`~rooftrace.image.linework.select_canny_steger`):
+        the seed's rule, the rule's Steger lines added to all Canny lines, or
+        Canny only.
     select_angle, select_separation, select_equidistance : float, default 3.0, 4.0, 1.0
         Canny/Steger selection tolerances (deg, px, px), seed 003 §3.
     merge_angle, merge_distance : float, default 9.0, 3.0
@@ -99,6 +103,7 @@ class CandidateOptions:
     min_contrast: float = 0.05
     split_tolerance: float = 1.0
     min_segment: float = 5.0
+    selection: str = "seed003"
     select_angle: float = 3.0
     select_separation: float = 4.0
     select_equidistance: float = 1.0
@@ -121,6 +126,8 @@ class CandidateOptions:
                 raise ValueError(f"candidates.{name} must be >= 0, got {getattr(self, name)}")
         if self.steger_sigma is not None and not self.steger_sigma > 0:
             raise ValueError(f"candidates.steger_sigma must be positive, got {self.steger_sigma}")
+        if self.selection not in ("seed003", "both", "canny"):
+            raise ValueError(f"candidates.selection must be 'seed003', 'both' or 'canny', got {self.selection!r}")
         if self.max_angle > 90:
             raise ValueError(f"candidates.max_angle must be at most 90 degrees, got {self.max_angle}")
 
@@ -272,7 +279,7 @@ def extract_candidates(
             if inside.any():
                 canny, steger = _detect(crop, inside, opt)
                 found, sources = select_canny_steger(canny, steger, opt.select_angle, opt.select_separation,
-                                                     opt.select_equidistance)
+                                                     opt.select_equidistance, mode=opt.selection)
                 found = found + [c0, r0]
                 if heights is not None and len(found):
                     drop = terrain_lines(found, heights, bld_cr, z_edge, opt.terrain_height_tolerance)

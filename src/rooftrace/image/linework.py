@@ -192,6 +192,7 @@ def select_canny_steger(
     equidistance_tol: float = 1.0,
     *,
     min_overlap: float = 0.5,
+    mode: str = "seed003",
 ) -> tuple[np.ndarray, list[str]]:
     """Seed 003's choice between step edges (Canny) and lines (Steger).
 
@@ -216,6 +217,12 @@ def select_canny_steger(
         Fraction of the shorter of a Canny and the Steger segment that must
         overlap along the Steger line (ours: the seed's "contain" made
         measurable).
+    mode : {'seed003', 'both', 'canny'}, default 'seed003'
+        ``'seed003'`` is the rule above.  ``'both'`` keeps the flanking Canny
+        lines too (the grouping then chooses: a visible wall strip is a
+        "line" whose flanks are the roof edge and the wall foot, and the
+        rule would replace the roof edge by the strip's centre).
+        ``'canny'`` keeps Canny lines only.
 
     Returns
     -------
@@ -228,10 +235,12 @@ def select_canny_steger(
     When a Steger line has several flanking pairs (fragmented Canny lines),
     every Canny segment taking part in a valid pair is removed.
     """
+    if mode not in ("seed003", "both", "canny"):
+        raise ValueError(f"mode must be 'seed003', 'both' or 'canny', got {mode!r}")
     canny, steger = _as_segments(canny), _as_segments(steger)
     keep_canny = np.ones(len(canny), bool)
     keep_steger = np.zeros(len(steger), bool)
-    if len(canny) >= 2 and len(steger):
+    if len(canny) >= 2 and len(steger) and mode != "canny":
         tol = np.radians(angle_tol)
         ang_c = segment_angles(canny)
         ang_s = segment_angles(steger)
@@ -261,6 +270,8 @@ def select_canny_steger(
                 li, ri = np.nonzero(ok)
                 keep_canny[left[np.unique(li)]] = False
                 keep_canny[right[np.unique(ri)]] = False
+    if mode == "both":
+        keep_canny[:] = True
     segs = np.concatenate([canny[keep_canny], steger[keep_steger]]).reshape(-1, 2, 2)
     sources = ["canny"] * int(keep_canny.sum()) + ["steger"] * int(keep_steger.sum())
     return segs, sources
