@@ -149,3 +149,26 @@ def test_buildings_outside_the_scene_or_duplicated_are_refused():
     with pytest.raises(InputError, match="unique"):
         simulate_scene(SceneOptions(size=40.0, image=False),
                        buildings=[Building.rectangle(1, o + [10, 20], 6.0, 6.0), Building.rectangle(1, o + [28, 20], 6.0, 6.0)])
+
+
+def test_power_line_shows_in_the_image_and_the_cloud(small_scene):
+    f = small_scene.cloud.fields
+    wire = small_scene.cloud.xyz[f["truth_class"] == 14]
+    terrain = small_scene.terrain.height(wire[:, 0], wire[:, 1])
+    assert len(wire) > 50 and np.all(wire[:, 2] - terrain > 10)
+    x0, y0, x1, y1, z0, z1, sag = small_scene.power_line.as_array()[1]
+    s = np.linspace(0.3, 0.7, 200)
+    xyz = np.column_stack([x0 + s * (x1 - x0), y0 + s * (y1 - y0), z0 + s * (z1 - z0) - 4 * sag * s * (1 - s)])
+    cr = small_scene.camera.project(xyz)
+    grey = small_scene.image.astype(float).mean(axis=0)
+    r, c = np.round(cr[:, 1]).astype(int), np.round(cr[:, 0]).astype(int)
+    on, beside = grey[r, c], (grey[r + 4, c] + grey[r - 4, c]) / 2
+    assert np.median(on - beside) < -4.0  # a faint dark line (1 px, blurred)
+
+
+def test_tiny_and_empty_scenes():
+    s = simulate_scene(SceneOptions(size=20.0, density=2.0, gsd=0.4))
+    assert len(s.buildings) == 1 and s.buildings[0].kind == "gable"
+    e = simulate_scene(SceneOptions(size=30.0, density=2.0, gsd=0.4), buildings=[])
+    assert len(e.truth["roof_outlines"]) == 0 and np.all(e.cloud.fields["truth_building_id"] == 0)
+    assert e.image.shape == (3, 84, 84)

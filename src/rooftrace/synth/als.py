@@ -145,6 +145,8 @@ def _wire_hits(origins, dirs, wires, t_max, rng):
         p = origins + t[:, None] * dirs
         s = ((p[:, :2] - a) @ u) / length
         zw = z0 + (z1 - z0) * s - 4 * sag * s * (1 - s)
+        # the ray passes the (locally horizontal) wire at the wire's height, missing it by |dz| x |den|
+        t = (zw - origins[:, 2]) / dirs[:, 2]
         hit = (np.abs(den) > 1e-9) & (s >= 0) & (s <= 1) & (np.abs(p[:, 2] - zw) * np.abs(den) < 0.15) & (t > 0) & (t < t_max)
         hit &= rng.random(len(t)) < 0.7
         t_hit = np.where(hit & (t < t_hit), t, t_hit)

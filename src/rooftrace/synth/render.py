@@ -193,7 +193,8 @@ def _near_wire(origins, dirs, wires, t_max, radius):
         s = ((p[:, :2] - a) @ u) / length
         zw = z0 + (z1 - z0) * s - 4 * sag * s * (1 - s)
         miss = np.where(vertical, np.abs((origins[:, :2] - a) @ nrm), np.abs(p[:, 2] - zw) * np.abs(den))
-        before = vertical | ((tw > 0) & (tw < t_max))
+        t_wire = (zw - origins[:, 2]) / dirs[:, 2]  # where the ray passes the wire's height
+        before = vertical | ((t_wire > 0) & (t_wire < t_max))
         near |= (miss < radius) & (s >= 0) & (s <= 1) & before
     return near
 

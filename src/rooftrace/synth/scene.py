@@ -319,7 +319,9 @@ def default_buildings(seed: int = 1, size: float = 160.0, origin: tuple[float, f
     for i, (r, col) in enumerate(order):
         if i >= 16 and (i - 16) % 3 == 2:
             continue
-        box = (x0 + col * slot + 3.0, y0 + r * slot + 3.0, x0 + (col + 1) * slot - 3.0, y0 + (r + 1) * slot - 3.0)
+        box = (max(x0 + col * slot + 3.0, origin[0] + 1.0), max(y0 + r * slot + 3.0, origin[1] + 1.0),
+               min(x0 + (col + 1) * slot - 3.0, origin[0] + size - 1.0),
+               min(y0 + (r + 1) * slot - 3.0, origin[1] + size - 1.0))
         c = np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2]) + rng.uniform(-1.0, 1.0, 2)
         ang = float(rng.choice([0.0, 0.0, rng.uniform(-25, 25), 90.0 + rng.uniform(-10, 10)]))
         state = rng.bit_generator.state
@@ -327,6 +329,10 @@ def default_buildings(seed: int = 1, size: float = 160.0, origin: tuple[float, f
         if not all(_fits(b, box) for b in made):
             rng.bit_generator.state = state
             made = _template(i, bid, c, rng, 0.0)
+        if not all(_fits(b, box) for b in made):  # a small scene: a small house
+            c = np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2])
+            made = [Building.rectangle(bid, c, min(10.0, 0.6 * (box[2] - box[0])), min(7.0, 0.45 * (box[3] - box[1])),
+                                       kind="gable", eave_height=5.0, ridge_height=8.0, overhang=0.4, ridge_cap=True)]
         if not all(_fits(b, box) for b in made):
             continue
         for b in made:
