@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pyproj
+import shapely
 import pytest
 from shapely.affinity import translate
 
@@ -86,3 +87,33 @@ def test_user_errors_exit_2(files, capsys, case, message):
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error:") and message in err, err
     assert not out.exists()
+
+
+def test_refine_with_points_uses_lidar_roof_planes(files, capsys):
+    from rooftrace.cloud import PointCloud
+    from rooftrace.io.las import write_las
+
+    tmp, truth, lidar = files
+    # 4 pts/m² on the gable's two faces and on the flat roof, plus ground around them
+    rng = np.random.default_rng(5)
+    pts = []
+    for poly, z_of in ((truth[0], lambda x, y: np.full_like(x, 7.0)),
+                       (truth[1], lambda x, y: np.where(y < -24.0, 6.0 + 0.5 * (y + 30.0), 6.0 + 0.5 * (-18.0 - y)))):
+        x0, y0, x1, y1 = poly.bounds
+        n = int(4 * (x1 - x0) * (y1 - y0))
+        x, y = rng.uniform(x0, x1, n), rng.uniform(y0, y1, n)
+        inside = shapely.contains_xy(shapely.force_2d(poly), x, y)
+        pts.append(np.column_stack([x[inside], y[inside], z_of(x[inside], y[inside]) + rng.normal(0, 0.03, inside.sum())]))
+    g = rng.uniform(-60, 60, (6000, 2))
+    pts.append(np.column_stack([g, np.zeros(len(g))]))
+    write_las(tmp / "points.laz", PointCloud(np.concatenate(pts), crs=RD))
+    out = tmp / "with_points.gpkg"
+    assert _run(tmp, "-o", out, "--points", tmp / "points.laz", "--json", "-q") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["status"] == {"refined": 2}
+    roofs = read_layer(out, "roof_outlines")
+    for before, after, true in zip(lidar, roofs.geometries, truth):
+        assert polis(after, true) < 0.5 * polis(before, true)
+    # the gable's eave corners land on its roof planes, at the eave height
+    z = shapely.get_coordinates(roofs.geometries[1], include_z=True)[:, 2]
+    np.testing.assert_allclose(z, 6.0, atol=0.25)
