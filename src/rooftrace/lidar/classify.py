@@ -311,7 +311,7 @@ def separate_buildings(
     opt = options or ClassifyOptions()
     e = np.asarray(entropy, dtype=np.float64)
     lin = np.asarray(linearity, dtype=np.float64)
-    params: dict = {"method": "none", "entropy_threshold": None, "centroids": None}
+    params: dict = {"method": "none", "entropy_threshold": opt.fallback_entropy, "centroids": None}
     if len(e) == 0:
         return np.zeros(0, bool), params
     threshold = opt.fallback_entropy

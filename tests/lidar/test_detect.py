@@ -1,0 +1,124 @@
+import numpy as np
+import pyproj
+import pytest
+
+from rooftrace.cloud import ASPRS, PointCloud
+from rooftrace.config import make_options
+from rooftrace.errors import InputError
+from rooftrace.lidar.detect import DetectOptions, Detection, detect_buildings
+from rooftrace.lidar.segment import SegmentOptions
+from tests.lidar.scenes import BUILDING, GROUND, TREE, f1, scene
+
+RD = pyproj.CRS("EPSG:28992")
+OFFSET = np.array([85_000.0, 447_000.0, 0.0])
+
+
+@pytest.fixture(scope="module")
+def town():
+    rng = np.random.default_rng(7)
+    xyz, truth = scene(
+        rng, size=90, density=10, slope=0.03,
+        boxes=((10.0, 10.0, 14.0, 10.0, 6.0), (10.0, 20.0, 14.0, 8.0, 9.0)),  # two roof levels, one building
+        courtyards=((45.0, 45.0, 30.0, 12.0, 7.0),),
+        gables=((55.0, 8.0, 16.0, 10.0, 4.0, 8.0),),
+        trees=((35.0, 35.0, 3.5, 2.5, 9.0), (30.0, 75.0, 4.0, 3.0, 11.0), (8.0, 50.0, 3.0, 2.5, 8.0)),
+        wire=True,
+    )
+    cloud = PointCloud(xyz + OFFSET, {"classification": np.full(len(xyz), 6, np.uint8)}, crs=RD, sources=["town"])
+    return cloud, truth, detect_buildings(cloud)
+
+
+def test_town_classes(town):
+    cloud, truth, det = town
+    assert isinstance(det, Detection)
+    assert det.classification.dtype == np.uint8 and det.building_id.dtype == np.int32
+    assert f1(det.classification == ASPRS.BUILDING, truth == BUILDING) > 0.97
+    assert f1(det.classification == ASPRS.GROUND, truth == GROUND) > 0.99
+    assert np.mean(det.classification[truth == TREE] == ASPRS.BUILDING) < 0.02
+    wire = truth == 1
+    assert not np.any(det.classification[wire] == ASPRS.BUILDING)
+    # the courtyard's ground stays ground
+    court = np.abs(cloud.xyz[:, :2] - OFFSET[:2] - 60).max(axis=1) < 5
+    assert np.all(det.classification[court & (truth == GROUND)] == ASPRS.GROUND)
+
+
+def test_town_buildings_and_roof_levels(town):
+    cloud, truth, det = town
+    assert det.n_buildings == 3
+    ids = det.building_id
+    assert np.array_equal(np.unique(ids[ids > 0]), [1, 2, 3])
+    # numbered by the lowest (x, y) point: the two-level block at x = 10 first
+    first = cloud.xyz[ids == 1, 0].min() - OFFSET[0]
+    assert first == pytest.approx(10.0, abs=0.5)
+    lv = det.roof_level_id[ids == 1]
+    levels, counts = np.unique(lv[lv > 0], return_counts=True)
+    assert len(levels) >= 2 and np.sort(counts)[-2] > 500  # 6 m and 9 m roofs kept apart
+    assert np.all(det.roof_level_id[ids == 0] == 0)
+    hag = det.hag[truth == BUILDING]
+    assert np.median(hag) == pytest.approx(7.0, abs=1.5)
+
+
+def test_town_metadata(town):
+    _, _, det = town
+    assert det.mean_spacing == pytest.approx(0.36, rel=0.1)
+    assert det.density == pytest.approx(10, rel=0.15)
+    assert det.sigma_h == pytest.approx(0.03, rel=0.35)
+    for stage in ("outliers", "spacing", "ground", "features", "segment", "classify", "buildings"):
+        assert det.timings[stage] >= 0
+    p = det.params
+    assert p["segment"]["link_distance"] == pytest.approx(2 * det.mean_spacing)
+    assert p["segment"]["min_points"] == round(4 * det.density)
+    assert p["classify"]["method"] in ("kmeans", "fallback")
+
+
+def test_independent_of_point_order_and_deterministic(town):
+    cloud, _, det = town
+    perm = np.random.default_rng(3).permutation(len(cloud))
+    again = detect_buildings(cloud.subset(perm))
+    assert np.array_equal(again.classification, det.classification[perm])
+    assert np.array_equal(again.building_id, det.building_id[perm])
+
+
+def test_only_trees_gives_no_building():
+    rng = np.random.default_rng(11)
+    trees = tuple((x, y, 3.0, 2.0, 9.0) for x in (10.0, 25.0, 40.0) for y in (10.0, 25.0, 40.0))
+    xyz, truth = scene(rng, size=50, density=10, boxes=(), trees=trees)
+    det = detect_buildings(PointCloud(xyz, crs=RD))
+    assert det.n_buildings == 0
+    assert np.mean(det.classification[truth == TREE] == ASPRS.HIGH_VEGETATION) > 0.5
+
+
+def test_only_buildings_are_all_kept():
+    rng = np.random.default_rng(12)
+    boxes = tuple((x, y, 8.0, 8.0, h) for (x, y), h in zip([(5, 5), (25, 5), (5, 25), (25, 25)], (4.0, 6.0, 8.0, 10.0)))
+    xyz, truth = scene(rng, size=45, density=10, boxes=boxes)
+    det = detect_buildings(PointCloud(xyz, crs=RD))
+    assert det.n_buildings == 4
+    assert f1(det.classification == ASPRS.BUILDING, truth == BUILDING) > 0.97
+
+
+def test_options_from_config_and_overrides():
+    cfg = {"segment": {"min_area": 10.0}, "ground": {"seed_cell": 40.0}}
+    opt = DetectOptions.from_config(cfg, segment={"min_height": 3.0, "min_points": None})
+    assert opt.segment == SegmentOptions(min_area=10.0, min_height=3.0)
+    assert opt.ground.seed_cell == 40.0
+    with pytest.raises(InputError, match="unknown key"):
+        DetectOptions.from_config({"segment": {"min_aera": 1}})
+    assert make_options(SegmentOptions, cfg).min_area == 10.0
+
+
+def test_large_min_area_drops_the_buildings(town):
+    cloud, _, _ = town
+    det = detect_buildings(cloud, config={"segment": {"min_area": 5000.0}})
+    assert det.n_buildings == 0 and not np.any(det.classification == ASPRS.BUILDING)
+
+
+@pytest.mark.parametrize("xyz, crs, match", [
+    (np.zeros((2, 3)), RD, "at least 3"),
+    (np.array([[0, 0, 0], [1, 1, np.nan], [2, 0, 1.0]]), RD, "NaN"),
+    (np.array([[5.0, 52.0, 0], [5.001, 52.0, 0], [5.0, 52.001, 1.0]]), pyproj.CRS("EPSG:4326"), "geographic"),
+    (np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)]), RD, "one line"),
+])
+def test_bad_clouds(xyz, crs, match):
+    with pytest.raises(InputError, match=match):
+        detect_buildings(PointCloud(xyz, crs=crs, sources=["bad.laz"]))
