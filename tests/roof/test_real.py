@@ -27,8 +27,10 @@ def test_delft_hip_roof(delft_hip_roof):
     assert roof.status == "ok"
     kinds = sorted(roof.ridge_kind)
     assert kinds.count("ridge") == 1 and kinds.count("hip") == 4
-    # Four planes of 40-50°, about 6-12 cm RMSE (tiles).
-    assert len(roof.planes) == 4 and np.all((roof.slope_deg > 40) & (roof.slope_deg < 50))
+    # Four pitched planes of 40-50°, about 6-12 cm RMSE (tiles); a low lean-to
+    # in the south corner may come as a fifth, flat plane.
+    pitched = roof.slope_deg > 20
+    assert pitched.sum() == 4 and np.all((roof.slope_deg[pitched] > 40) & (roof.slope_deg[pitched] < 50))
     assert np.all(roof.plane_sigma < 0.15)
     # The ridge is horizontal and above every eave.
     (ridge,) = [g for g, k in zip(roof.ridges, roof.ridge_kind) if k == "ridge"]

@@ -192,6 +192,99 @@ def _compact(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return mapping[labels]  # labels == -1 reads mapping[-1] == -1
 
 
+def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: int) -> np.ndarray:
+    """Labels whose plan hull covers ``min_area`` (m²).
+
+    The area comes from the convex hull of the region's points rather than
+    from its point count, which depends on the local density (scan-line
+    gaps, occlusion).  Regions with at least ``2 min_pts`` points are large
+    anyway; regions under ``0.4 min_pts`` (or 6) points are too small anyway.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    K = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
+    n = np.bincount(labels[labels >= 0], minlength=K)
+    ok = n >= 2 * min_pts
+    for k in np.flatnonzero(~ok & (n >= max(6, 0.4 * min_pts))):
+        try:
+            ok[k] = ConvexHull(xy[labels == k]).volume >= min_area
+        except QhullError:
+            pass
+    return ok
+
+
+def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64):
+    """Planes among the unassigned points: seeded RANSAC per 3D cluster.
+
+    Clusters are connected within ``link`` m; in each, up to three planes are
+    taken, best inlier count first: the largest plan-connected set of inliers
+    (height residual under ``distance``) with a plan hull of ``min_area``, at
+    least half the mean density, an RMS under ``distance / 2`` and a slope
+    under ``max_slope``.  Deterministic (fixed seed).
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    rng = np.random.default_rng(0)
+    labels = labels.copy()
+    floor = max(6, int(0.4 * min_pts))
+    un = np.flatnonzero(labels < 0)
+    if len(un) < floor:
+        return labels, False
+    ij = cKDTree(xyz[un]).query_pairs(link, output_type="ndarray")
+    g = sparse.coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(len(un), len(un)))
+    _, comp = csgraph.connected_components(g, directed=False)
+    nxt, added = labels.max() + 1, False
+    cos_max = np.cos(np.radians(max_slope))
+    for c in np.flatnonzero(np.bincount(comp) >= floor):
+        idx = un[comp == c]
+        for _ in range(3):
+            if len(idx) < floor:
+                break
+            P = xyz[idx]
+            tri = rng.integers(0, len(P), (trials, 3))
+            v1, v2 = P[tri[:, 1]] - P[tri[:, 0]], P[tri[:, 2]] - P[tri[:, 0]]
+            n = np.cross(v1, v2)
+            nz = np.abs(n[:, 2])
+            ok = nz > 1e-9
+            if not ok.any():
+                break
+            # Height residuals of every point to every sampled plane.
+            zs = P[tri[ok, 0], 2][None, :] - (
+                (P[:, :1] - P[tri[ok, 0], 0][None, :]) * n[ok, 0] + (P[:, 1:2] - P[tri[ok, 0], 1][None, :]) * n[ok, 1]
+            ) / n[ok, 2]
+            count = (np.abs(zs - P[:, 2:3]) <= distance).sum(axis=0)
+            best = int(np.argmax(count))
+            inl = np.abs(zs[:, best] - P[:, 2]) <= distance
+            for _ in range(3):  # LS refinement of the consensus set
+                f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+                if not np.isfinite(f.planes[0]).all():
+                    break
+                inl = np.abs(plane_height(f.planes[0], P[:, :2]) - P[:, 2]) <= distance
+            if inl.sum() < floor or not np.isfinite(f.planes[0]).all() or f.planes[0, 2] < cos_max:
+                break
+            # Keep the largest plan-connected part of the consensus set, and
+            # only a dense, well-fitting one (not scattered clutter).
+            sub = np.flatnonzero(inl)
+            pq = cKDTree(P[sub, :2]).query_pairs(link, output_type="ndarray")
+            _, cc = csgraph.connected_components(
+                sparse.coo_matrix((np.ones(len(pq)), (pq[:, 0], pq[:, 1])), shape=(len(sub),) * 2), directed=False)
+            inl = np.zeros(len(P), dtype=bool)
+            inl[sub[cc == np.argmax(np.bincount(cc))]] = True
+            if inl.sum() < floor:
+                break
+            try:
+                area = ConvexHull(P[inl, :2]).volume
+            except QhullError:
+                break
+            f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+            if area < min_area or inl.sum() < 0.5 * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
+                break
+            labels[idx[inl]] = nxt
+            nxt, added = nxt + 1, True
+            idx = idx[~inl]
+    return labels, added
+
+
 def _best_candidate(xyz, nn, labels, planes, tol, include_self=True):
     """For every point the label among its neighbours' (and its own) labels
     whose plane is closest in height; -1 when none is within ``tol``."""
@@ -220,7 +313,8 @@ def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
     m = a != b
     if not m.any():
         return labels, False
-    pairs = np.unique(np.sort(np.stack([a[m], b[m]], axis=1), axis=1), axis=0)
+    key = np.unique(np.minimum(a[m], b[m]) * K + np.maximum(a[m], b[m]))
+    pairs = np.stack([key // K, key % K], axis=1)
     cosang = np.abs(np.einsum("ij,ij->i", fit.planes[pairs[:, 0], :3], fit.planes[pairs[:, 1], :3]))
     close = cosang >= np.cos(np.radians(angle_deg))
     ok = np.zeros(len(pairs), dtype=bool)
@@ -277,7 +371,7 @@ def segment_planes(
         ``max(3 * sigma_n, 0.05)`` with ``sigma_n = median(rms) * sqrt(k / (k - 3))``
         the height noise estimated from the planar neighbourhoods.
     min_area : float
-        Smallest plane kept (m²); fewer than ``min_area / s²`` points are dropped.
+        Smallest plane kept (m², convex hull of its points in plan).
     merge_angle : float
         Adjacent regions whose normals differ by less (deg) are merged when
         one plane fits both with an RMS under ``min(1.3 max(sigma_i, sigma_j),
@@ -340,7 +434,9 @@ def segment_planes(
         size = np.bincount(np.maximum(comp, 0), weights=w)
         # Walls: the mean normal of the region is close to horizontal.
         nz = np.bincount(np.maximum(comp, 0), weights=w * normals[:, 2]) / np.maximum(size, 1)
-        labels = _compact(comp, (size >= min_pts) & (nz >= np.cos(np.radians(max_slope))))
+        steep = nz < np.cos(np.radians(max_slope))
+        comp = _compact(comp, ~steep & (size >= max(6, 0.4 * min_pts)))
+        labels = _compact(comp, _big_enough(xyz[:, :2], comp, min_area, min_pts))
         if labels.max() < 0 or level == 3:
             break
         fit = fit_planes(xyz, labels)
@@ -360,25 +456,35 @@ def segment_planes(
     # neighbourhood (2k): on scan-line patterns the k nearest points of a
     # point can all lie on its own line, which may be wholly unassigned.
     _, nn_c = tree.query(xyz, k=min(2 * kk, N))
-    for it in range(iterations):
-        fit = fit_planes(xyz, labels)
-        # Grow into unassigned points first (ridge zones), then let every
-        # point choose among its neighbours' planes.
-        for _ in range(3):
-            grow = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
-            new = np.where(labels < 0, grow, labels)
-            if np.array_equal(new, labels):
+    link = link or 2.5 * spacing
+
+    def refine(labels, rounds):
+        for it in range(rounds):
+            fit = fit_planes(xyz, labels)
+            # Grow into unassigned points first (ridge zones), then let every
+            # point choose among its neighbours' planes.
+            for _ in range(3):
+                grow = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
+                new = np.where(labels < 0, grow, labels)
+                if np.array_equal(new, labels):
+                    break
+                labels = new
+            labels = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
+            labels = _compact(labels, _big_enough(xyz[:, :2], labels, min_area, min_pts))
+            if labels.max() < 0:
+                raise GeometryError("no roof plane kept after refinement")
+            fit = fit_planes(xyz, labels)
+            labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, link)
+            if not merged and it >= 1:
                 break
-            labels = new
-        labels = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
-        n = np.bincount(np.maximum(labels, 0), weights=(labels >= 0).astype(float), minlength=len(fit.planes))
-        labels = _compact(labels, n >= min_pts)
-        if labels.max() < 0:
-            raise GeometryError("no roof plane kept after refinement")
-        fit = fit_planes(xyz, labels)
-        labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, link or 2.5 * spacing)
-        if not merged and it >= 1:
-            break
+        return labels
+
+    labels = refine(labels, iterations)
+    # Small planes at low density (dormers) may have no planar neighbourhood
+    # at all; look for them among the points left over.
+    labels, added = _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope)
+    if added:
+        labels = refine(labels, 2)
     fit = fit_planes(xyz, labels)
     bad = ~np.isfinite(fit.planes).all(axis=1) | (fit.planes[:, 2] < np.cos(np.radians(max_slope)))
     if bad.any():
