@@ -45,3 +45,19 @@ def test_sample_segments_every_pixel():
     pts, owner = sample_segments(np.array([[[0, 0], [10, 0]], [[0, 0], [0, 0.2]]], float))
     assert (owner == 0).sum() == 11 and (owner == 1).sum() == 2
     np.testing.assert_allclose(pts[owner == 0][:, 0], np.arange(11.0))
+
+
+def test_roof_edge_far_from_a_displaced_outline_is_kept():
+    # the LiDAR outline (the "building" here) is 1.2 m = 12 px off: more than the
+    # registration error, so the distance test alone would call the true edge terrain
+    cam, pts, _ = _setup()
+    ph = PixelHeights(cam, pts)
+    shifted_outline = cam.project(np.array([[-5, 6.2, 8], [5, 6.2, 8], [5, -3.8, 8], [-5, -3.8, 8]], float))
+    from rooftrace.image.terrain import sample_segments as ss
+    bld, _ = ss(np.stack([shifted_outline, np.roll(shifted_outline, -1, axis=0)], axis=1))
+    edge = cam.project(np.array([[-4, -5, 8], [4, -5, 8]], float))[None]  # the true south edge
+    road = cam.project(np.array([[-4, -12, 0], [4, -12, 0]], float))[None]
+    drop = terrain_lines(np.concatenate([edge, road]), ph, bld, building_z=8.0)
+    np.testing.assert_array_equal(drop, [False, True])
+    # sampling on the line itself (the seed's way) would remove the edge
+    assert terrain_lines(edge, ph, bld, building_z=8.0, side_offset=0.0)[0]

@@ -8,13 +8,21 @@ its mean height is compared with the building's, and its mean distance to
 the building with the mean registration error where it lies.  A line is a
 terrain line, and is removed, when
 
-* its mean height is below the building's lowest roof edge by more than
+* its height is below the building's lowest roof edge by more than
   ``height_tolerance`` (the seed compares with the building's mean height;
   the lowest outline vertex keeps the eaves of steep roofs from being taken
   for ground), and
 * its mean distance to the projected building exceeds its mean registration
   error (lines near the roof may be its displaced edge and are kept -- the
   seed's stated limitation).
+
+A line's height is the larger of the mean heights sampled on its two
+sides, ``side_offset`` px off the line (ours).  The seed samples the line
+itself; but a roof edge *is* the height discontinuity, so half of its
+nearest points are ground, its mean height looks terrain-like, and the
+distance test alone decides -- and removes true edges whenever the LiDAR
+outline is off by more than one registration error.  A terrain line has
+ground on both sides; a roof edge has the roof on one.
 
 Pixel coordinates are ``(col, row)``, centres at integers.
 """
@@ -62,6 +70,8 @@ class PixelHeights:
             else np.zeros(0)
         )
         self.tree = cKDTree(self.cr) if len(self.cr) else None
+        #: median distance (px) between neighbouring projected points
+        self.spacing = float(np.median(self.tree.query(self.cr, k=2)[0][:, 1])) if len(self.cr) > 1 else 0.0
 
     def __len__(self) -> int:
         return len(self.cr)
@@ -98,6 +108,7 @@ def terrain_lines(
     height_tolerance: float = 1.0,
     *,
     step: float = 1.0,
+    side_offset: float | None = None,
 ) -> np.ndarray:
     """Mask (K,) of terrain lines among segments (K, 2, 2).
 
@@ -116,6 +127,10 @@ def terrain_lines(
         Metres below ``building_z`` a line must lie to be terrain-compatible.
     step : float, default 1.0
         Sampling step along the lines (px).
+    side_offset : float or None
+        Distance (px) of the height samples on each side of a line; ``None``:
+        ``max(2, s)`` with ``s`` the median spacing of the projected points,
+        so the two sides see different points.
 
     Returns
     -------
@@ -127,12 +142,18 @@ def terrain_lines(
     bld = np.atleast_2d(np.asarray(building_cr, float))
     if not len(seg) or not len(heights) or not len(bld):
         return out
+    if side_offset is None:
+        side_offset = max(2.0, heights.spacing)
     pts, owner = sample_segments(seg, step)
-    z, e = heights.sample(pts)
+    d = seg[:, 1] - seg[:, 0]
+    n = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
+    side = side_offset * n[owner]
+    z_a, e = heights.sample(pts + side)
+    z_b, _ = heights.sample(pts - side)
     dist, _ = cKDTree(bld).query(pts)
     count = np.bincount(owner, minlength=len(seg))
     mean = lambda v: np.bincount(owner, weights=v, minlength=len(seg)) / count  # noqa: E731
-    low = mean(z) < building_z - height_tolerance
+    low = np.maximum(mean(z_a), mean(z_b)) < building_z - height_tolerance
     far = mean(dist) > mean(e)
     out = low & far
     if out.any():
