@@ -25,7 +25,10 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+import warnings
+
+from scipy import sparse, stats
+from scipy.sparse import linalg as sparse_linalg
 
 from rooftrace.errors import GeometryError
 
@@ -230,12 +233,15 @@ class CDSpline:
         return self.evaluate(np.asarray(params)), np.asarray(corner_index, dtype=np.int64)
 
 
-def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None) -> np.ndarray:
-    """cd_basis for sorted ``t`` (closed), with each span's block cached by (span, degree)."""
+_DENSE_UP_TO = 80  # control points; beyond, sparse normal equations are faster
+
+
+def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
+    """cd_basis for sorted ``t`` (closed), dense or (many control points) sparse; span blocks cached."""
     offsets = np.concatenate([[0], np.cumsum(degrees)])
-    bounds = np.searchsorted(t, breaks[:-1], side="left")
-    bounds = np.append(bounds, len(t))
-    a = np.zeros((len(t), offsets[-1] + 1))
+    n_ctrl = int(offsets[-1])
+    bounds = np.append(np.searchsorted(t, breaks[:-1], side="left"), len(t))
+    rows, cols, vals = [], [], []
     for k, d in enumerate(degrees):
         lo, hi = bounds[k], bounds[k + 1]
         key = (k, d, breaks[k], breaks[k + 1])
@@ -245,9 +251,15 @@ def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None) -> n
             block = _cox_de_boor(t[lo:hi], knots, d)
             if cache is not None:
                 cache[key] = block
-        a[lo:hi, offsets[k]:offsets[k] + d + 1] = block
-    a[:, 0] += a[:, -1]
-    return a[:, :-1]
+        rows.append(np.repeat(np.arange(lo, hi), d + 1))
+        cols.append(np.tile((np.arange(d + 1) + offsets[k]) % n_ctrl, hi - lo))  # last control point = first
+        vals.append(block.ravel())
+    if n_ctrl <= _DENSE_UP_TO:
+        a = np.zeros((len(t), n_ctrl))
+        np.add.at(a, (np.concatenate(rows), np.concatenate(cols)), np.concatenate(vals))
+        return a
+    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(len(t), n_ctrl))
 
 
 def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None,
@@ -270,7 +282,7 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
     -------
     CDSpline
         x, y and z are fitted together with one design matrix; the normal
-        equations P = (AᵀA)⁻¹AᵀQ are solved directly (AᵀA is small and banded).
+        equations P = (AᵀA)⁻¹AᵀQ are solved as a sparse (banded) system.
     """
     points = np.asarray(points, dtype=np.float64)
     corners = np.asarray(corners, dtype=np.int64)
@@ -286,10 +298,26 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
     a = _design(t, breaks, degrees, _cache)
     if a.shape[1] > q:
         raise GeometryError("too_few_points")
-    try:
-        ctrl = np.linalg.solve(a.T @ a, a.T @ rolled)
-    except np.linalg.LinAlgError:
-        ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
+    if not sparse.issparse(a):
+        try:
+            ctrl = np.linalg.solve(a.T @ a, a.T @ rolled)
+        except np.linalg.LinAlgError:
+            ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
+        return _finish(a, ctrl, rolled, breaks, degrees, t, corners, start)
+    # AᵀA is banded (cyclic): a sparse solve keeps big terraced blocks linear in size
+    ata = (a.T @ a).tocsc()
+    atq = a.T @ rolled
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sparse_linalg.MatrixRankWarning)
+        try:
+            ctrl = sparse_linalg.spsolve(ata, atq)
+        except (sparse_linalg.MatrixRankWarning, RuntimeError):
+            ctrl, *_ = np.linalg.lstsq(a.toarray(), rolled, rcond=None)
+    return _finish(a, np.asarray(ctrl).reshape(-1, 3), rolled, breaks, degrees, t, corners, start)
+
+
+def _finish(a, ctrl, rolled, breaks, degrees, t, corners, start) -> CDSpline:
+    q = len(rolled)
     res = np.linalg.norm(a @ ctrl - rolled, axis=1)
     seg = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(corners) - 1)
     back = (np.arange(q) - start) % q  # original order

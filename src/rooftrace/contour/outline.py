@@ -93,7 +93,8 @@ class RoofOutline:
     n_points : int
     status : str
         'ok', 'alpha_enlarged' (closed only with a larger alpha), 'repaired'
-        (invalid rings fixed by make_valid), or why there is no outline
+        (invalid rings fixed by make_valid), 'unregularised' (the CD-spline
+        collapsed the outer ring; the alpha-shape ring is kept), or why there is no outline
         ('too_few_points', 'collinear', 'no_ring', ...).
     z_min, z_mean, z_max : float
         Heights of the building's points, metres.
@@ -198,7 +199,16 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     sigma = float("nan")
     for i, ring in enumerate(shape.rings):
         spacing = float(np.median(shape.spacing[ring]))
-        vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
+        try:
+            vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
+        except GeometryError:
+            vertices = None
+        if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:
+            # regularisation collapsed the ring: keep the alpha-shape ring as it is
+            if i > 0:
+                continue
+            vertices, corner_index, deg, s = pts[ring], np.arange(len(ring)), [1] * len(ring), 0.0
+            status = "unregularised"
         if i == 0:
             sigma = s
         rings.append(vertices + origin)
@@ -214,6 +224,11 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     z = xyz[:, 2]
     return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(xyz), status,
                        float(z.min()), float(z.mean()), float(z.max()), sigma)
+
+
+def _area(xy: np.ndarray) -> float:
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def _make_valid(polygon, rings: list[np.ndarray], corners: list[np.ndarray]):
@@ -266,7 +281,10 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
             try:
                 outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
                 outline.building_id = int(bid)
-            except GeometryError as exc:
+            except (GeometryError, ValueError, np.linalg.LinAlgError) as exc:
+                if not isinstance(exc, GeometryError):  # a bug, but one building must not stop a city
+                    log.warning("building %d: outline failed (%s: %s)", bid, type(exc).__name__, exc)
+                    exc = GeometryError(f"failed: {type(exc).__name__}")
                 z = xyz[idx, 2]
                 outline = RoofOutline(int(bid), None, alpha_strategy=options.alpha.strategy, n_points=len(idx),
                                       status=str(exc) or "failed", z_min=float(z.min()), z_mean=float(z.mean()),
