@@ -14,9 +14,9 @@ scene's LiDAR points (terrain-line filter).  Scores, per line kind:
 * projected-only: lines left with their projection as the only candidate;
 * candidates per line, and milliseconds per building and per line.
 
-Variants: the grey image with the seed 003 rule (default); Canny only
+Variants: the grey image with the seed 003 rule; Canny only
 (``selection='canny'``); the rule's Steger lines added to every Canny line
-(``selection='both'``); and the colour image (Canny on Di Zenzo's colour
+(``selection='both'``, the default); and the colour image (Canny on Di Zenzo's colour
 gradient), which finds roof edges whose two sides differ in colour but not
 in brightness.  Times are CPU times of one process.
 
@@ -235,8 +235,10 @@ def main(argv=None) -> None:
     if args.ign_figure:
         print(json.dumps(ign_figure(args.ign_figure)))
         return
-    variants = {"grey": (CandidateOptions(), False), "grey_canny": (CandidateOptions(selection="canny"), False),
-                "grey_both": (CandidateOptions(selection="both"), False), "colour": (CandidateOptions(), True),
+    variants = {"grey_seed003": (CandidateOptions(selection="seed003"), False),
+                "grey_canny": (CandidateOptions(selection="canny"), False),
+                "grey_both": (CandidateOptions(selection="both"), False),
+                "colour_seed003": (CandidateOptions(selection="seed003"), True),
                 "colour_both": (CandidateOptions(selection="both"), True)}
     # warm the numba caches so timings measure the steady state
     extract_candidates(np.zeros((50, 50)), *_warm())

@@ -23,9 +23,22 @@ def test_candidates_recover_every_side_and_the_ridge(scene):
         # the input lines are 0.3 m (3 px) off; a candidate is within 1 px and 1 deg of the truth
         assert not close_to(c.reference[None], truth)
         assert close_to(c.candidates, truth, px=1.0, deg=1.0)
-    # a ridge with a bright cap is a line: Steger's answer replaces Canny's double response
+    # a ridge with a bright cap is a line: Steger's answer joins Canny's double response
     assert "steger" in out[4].source
     assert all(set(c.source) <= {"canny", "merged"} for c in out[:4])
+
+
+def test_seed003_rule_replaces_the_ridge_double_response(scene):
+    both = extract_candidates(scene.image, scene.camera, scene.lines3d, scene.kinds)[4]
+    paper = extract_candidates(scene.image, scene.camera, scene.lines3d, scene.kinds,
+                               options=CandidateOptions(selection="seed003"))[4]
+    near = lambda c: [src for seg, src in zip(c.candidates, c.source)  # noqa: E731
+                      if close_to(seg[None], scene.truth[4], px=3.0, deg=3.0)]
+    assert sorted(near(both)) == ["canny", "canny", "steger"]  # the cap's two edges and its centre
+    assert near(paper) == ["steger"]
+    canny = extract_candidates(scene.image, scene.camera, scene.lines3d, scene.kinds,
+                               options=CandidateOptions(selection="canny"))[4]
+    assert "steger" not in canny.source
 
 
 def test_ridge_without_cap_is_a_step_edge_kept_from_canny():

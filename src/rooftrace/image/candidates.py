@@ -7,7 +7,8 @@ For each 3D line:
 2. open a window around it (:func:`~rooftrace.image.projection.line_windows`);
 3. detect Canny step edges and Steger lines in the window, link them into
    chains and split the chains into straight, sub-pixel segments;
-4. choose between Canny and Steger (seed 003: 3 deg, 4 px, 1 px);
+4. choose between Canny and Steger (seed 003: 3 deg, 4 px, 1 px; by
+   default the rule's Steger lines are added and the Canny lines kept);
 5. remove terrain lines when LiDAR points are given (seed 000);
 6. merge collinear fragments (9 deg, 3 px);
 7. keep candidates of at least 15 % of the projected length within 20 deg
@@ -71,10 +72,14 @@ class CandidateOptions:
         Largest deviation of a chain from its straight piece (px).
     min_segment : float, default 5.0
         Shortest detected segment (px).
-    selection : {'seed003', 'both', 'canny'}, default 'seed003'
+    selection : {'both', 'seed003', 'canny'}, default 'both'
         Canny/Steger choice (see :func:`~rooftrace.image.linework.select_canny_steger`):
-        the seed's rule, the rule's Steger lines added to all Canny lines, or
-        Canny only.
+        the rule's Steger lines added to all Canny lines, the seed's rule
+        (flanking Canny pairs replaced), or Canny only.  ``'both'`` is the
+        default because it measured better (benchmarks/RESULTS.md, "Image
+        line candidates"): more true sides and ridges among the candidates,
+        and refined outlines with PoLiS 0.116 m against 0.130 m for the
+        seed's rule in ``bench_refine.py``.
     select_angle, select_separation, select_equidistance : float, default 3.0, 4.0, 1.0
         Canny/Steger selection tolerances (deg, px, px), seed 003 §3.
     merge_angle, merge_distance : float, default 9.0, 3.0
@@ -103,7 +108,7 @@ class CandidateOptions:
     min_contrast: float = 0.05
     split_tolerance: float = 1.0
     min_segment: float = 5.0
-    selection: str = "seed003"
+    selection: str = "both"
     select_angle: float = 3.0
     select_separation: float = 4.0
     select_equidistance: float = 1.0
@@ -216,9 +221,11 @@ def extract_candidates(
 
     Notes
     -----
-    The seed 003 rule runs in every window: outline sides are usually step
-    edges (Canny keeps them), ridges usually lines (a Steger line replaces
-    Canny's double response); each kind can show either profile.
+    The seed 003 test runs in every window: outline sides are usually step
+    edges (Canny keeps them), ridges usually lines (a Steger line flanked by
+    Canny's double response); each kind can show either profile.  With
+    ``selection='seed003'`` the Steger line replaces the flanking pair, as in
+    the paper; the default keeps both and leaves the choice to the grouping.
 
     Examples
     --------
