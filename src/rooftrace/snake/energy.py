@@ -12,6 +12,12 @@ functions here return:
   side, sampled at object-space points (X, Y, Z(X, Y)) projected into the
   image.  Mean, not sum, so a long side is not worth more than a short one
   (a sum would push the polygon outward along any strong edge).
+* ``height_energy`` (external, pairs; beyond the paper): minus the mean
+  LiDAR height step across a side, inside minus outside, saturating at
+  ``step`` m.  Shadows, road markings and the hip and ridge lines of the
+  roof itself are strong image edges with no height step; the paper's
+  image-only energy locks onto them when the roof contrasts weakly with the
+  ground (see docs/snake.md).  Weight 0 gives the paper's energy.
 * ``spacing_energy`` (internal, pairs): Williams & Shah's evenness term
   ((|s| - L) / L)^2 with L the current mean side length; scale-free, and
   unlike Amini's |v_i - v_{i-1}|^2 it does not shrink the polygon.
@@ -30,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["EdgeField", "edge_field", "side_energy", "spacing_energy", "angle_energy"]
+__all__ = ["EdgeField", "edge_field", "side_energy", "height_energy", "spacing_energy", "angle_energy"]
 
 
 @dataclass(frozen=True)
@@ -136,6 +142,44 @@ def side_energy(field: EdgeField, project, height, a: np.ndarray, b: np.ndarray,
     g = field.sample(cr)
     across = np.abs(np.einsum("abkc,abc->abk", g, normal))
     return -np.minimum(across, 1.0).mean(axis=-1)
+
+
+def height_energy(height, a: np.ndarray, b: np.ndarray, offset: float, step: float = 2.0,
+                  n_samples: int = 16, interior: int = 1) -> np.ndarray:
+    """Height-step energy of every side from a candidate in ``a`` to one in ``b``.
+
+    Parameters
+    ----------
+    height : callable
+        (X, Y) (..., 2) -> Z (...,) in m: the plain (undilated) TIN.
+    a, b : ndarray of shape (Ka, 2) and (Kb, 2)
+        Candidate positions (X, Y) (m).
+    offset : float
+        Distance (m) on either side of the side where heights are compared;
+        about 1.5 point spacings, past the TIN's blended band.
+    step : float, default 2.0
+        Height difference (m) that counts fully; larger ones count 1.
+    n_samples : int, default 16
+    interior : {1, -1}
+        1 when the polygon runs counter-clockwise (interior on the left of
+        each side), -1 when clockwise.
+
+    Returns
+    -------
+    ndarray of shape (Ka, Kb)
+        ``-mean_k clip((z_in - z_out) / step, 0, 1)``, in [-1, 0].
+    """
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
+    t = (np.arange(n_samples) + 0.5) / n_samples
+    pts = a[:, None, None, :] * (1 - t)[None, None, :, None] + b[None, :, None, :] * t[None, None, :, None]
+    d = b[None, :, :] - a[:, None, :]
+    length = np.hypot(d[..., 0], d[..., 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        left = interior * np.stack([-d[..., 1], d[..., 0]], axis=-1) / length[..., None]
+    left = np.where(length[..., None] > 1e-9, left, 0.0)[:, :, None, :]
+    dz = height(pts + offset * left) - height(pts - offset * left)
+    return -np.clip(dz / step, 0.0, 1.0).mean(axis=-1)
 
 
 def spacing_energy(a: np.ndarray, b: np.ndarray, mean_length: float) -> np.ndarray:

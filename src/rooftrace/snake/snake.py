@@ -29,7 +29,8 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.snake.dp import cycle_dp
-from rooftrace.snake.energy import EdgeField, angle_energy, edge_field, side_energy, spacing_energy
+from rooftrace.snake.energy import (EdgeField, angle_energy, edge_field, height_energy, side_energy,
+                                   spacing_energy)
 from rooftrace.snake.tin import RasterSurface, Tin, roof_surface, vertex_heights
 
 __all__ = ["SnakeOptions", "SnakeResult", "snake_outline", "polygon_energy", "pixel_seeds_to_object"]
@@ -51,6 +52,14 @@ class SnakeOptions:
         Weight of the right-angle term cos^2 (the paper's modification).
     w_spacing : float, default 0.05
         Weight of the evenness term ((|s| - L)/L)^2 (Williams & Shah).
+    w_height : float, default 1.0
+        Weight of the LiDAR height step across the sides (beyond the paper;
+        0 gives the paper's image-only external energy).
+    height_step : float, default 2.0
+        Height step (m) across a side that counts fully in the height term.
+    height_offset : float or None
+        Distance (m) either side of a side where the height term compares
+        the TIN; None: 1.5 x the local point spacing.
     window : float, default 1.5
         Initial half-width (m) of the candidate lattice around each seed;
         cover the seeds' distance to the true corners.
@@ -85,6 +94,9 @@ class SnakeOptions:
     w_image: float = 1.0
     w_angle: float = 0.5
     w_spacing: float = 0.05
+    w_height: float = 1.0
+    height_step: float = 2.0
+    height_offset: float | None = None
     window: float = 1.5
     grid: int = 5
     shrink: float = 0.5
@@ -97,7 +109,7 @@ class SnakeOptions:
     margin: float = 5.0
 
     def __post_init__(self) -> None:
-        for name in ("w_image", "w_angle", "w_spacing"):
+        for name in ("w_image", "w_angle", "w_spacing", "w_height"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.window > 0:
@@ -110,7 +122,9 @@ class SnakeOptions:
             raise ValueError(f"max_iterations must be an integer >= 1, got {self.max_iterations}")
         if not self.sigma_px > 0:
             raise ValueError(f"sigma_px must be > 0, got {self.sigma_px}")
-        for name in ("min_step", "sample_step", "z_radius", "z_offset"):
+        if not self.height_step > 0:
+            raise ValueError(f"height_step must be > 0 m, got {self.height_step}")
+        for name in ("min_step", "sample_step", "z_radius", "z_offset", "height_offset"):
             v = getattr(self, name)
             if v is not None and not v > 0:
                 raise ValueError(f"{name} must be > 0 m or unset, got {v}")
@@ -144,6 +158,9 @@ class _Context:
     camera: object
     image: np.ndarray
     surface: RasterSurface
+    plain: RasterSurface
+    height_offset: float
+    interior: int
     window: tuple[int, int, int, int]
     gsd: float
     sample_step: float
@@ -171,14 +188,18 @@ def _tables(ring: np.ndarray, cands: np.ndarray, ctx: _Context, sigma: float, op
     lengths = np.linalg.norm(np.roll(ring, -1, axis=0) - ring, axis=1)
     mean_len = float(lengths.mean())
     pair = np.zeros((n, k, k))
-    parts = {"image": np.zeros((n, k, k)), "spacing": np.zeros((n, k, k)), "angle": np.zeros((n, k, k, k))}
+    parts = {"image": np.zeros((n, k, k)), "height": np.zeros((n, k, k)), "spacing": np.zeros((n, k, k)),
+             "angle": np.zeros((n, k, k, k))}
     for i in range(n):
         j = (i + 1) % n
         ns = int(np.clip(np.ceil(lengths[i] / ctx.sample_step), 8, 64))
         parts["image"][i] = side_energy(fld, ctx.camera.project, ctx.surface, cands[i], cands[j], ns)
+        if opt.w_height > 0:
+            parts["height"][i] = height_energy(ctx.plain, cands[i], cands[j], ctx.height_offset, opt.height_step,
+                                               ns, ctx.interior)
         parts["spacing"][i] = spacing_energy(cands[i], cands[j], mean_len)
         parts["angle"][i] = angle_energy(cands[i - 1], cands[i], cands[j])
-    pair = opt.w_image * parts["image"] + opt.w_spacing * parts["spacing"]
+    pair = opt.w_image * parts["image"] + opt.w_height * parts["height"] + opt.w_spacing * parts["spacing"]
     triple = opt.w_angle * parts["angle"]
     return np.zeros((n, k)), pair, triple, parts
 
@@ -238,13 +259,17 @@ def _context(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray, opt:
     gsd = _gsd_at(camera, np.array([*seeds.mean(axis=0), zc]))
     cell = float(np.clip(gsd, 0.05, 0.5))
     surface = roof_surface(tin, (*lo, *hi), cell=cell, radius=zr)
+    plain = roof_surface(tin, (*lo, *hi), cell=cell, radius=0.0)
+    h_off = opt.height_offset if opt.height_offset is not None else 1.5 * spacing
+    x, y = seeds[:, 0], seeds[:, 1]
+    interior = 1 if np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0 else -1
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                         for z in (surface.grid.min(), surface.grid.max())])
     cr = camera.project(corners)
     w = (int(np.floor(cr[:, 0].min())) - 1, int(np.floor(cr[:, 1].min())) - 1,
          int(np.ceil(cr[:, 0].max())) + 2, int(np.ceil(cr[:, 1].max())) + 2)
-    ctx = _Context(camera, image, surface, w, gsd, opt.sample_step or gsd)
-    return tin, ctx, {"spacing": spacing, "z_radius": zr, "gsd": gsd}
+    ctx = _Context(camera, image, surface, plain, h_off, interior, w, gsd, opt.sample_step or gsd)
+    return tin, ctx, {"spacing": spacing, "z_radius": zr, "gsd": gsd, "height_offset": h_off}
 
 
 def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
