@@ -92,3 +92,65 @@ def test_bad_gcps(rng):
     # image coordinates that no orientation explains
     with pytest.raises(GeometryError, match="did not converge"):
         space_resection(cam, xyz, rng.uniform(0, 4000, cr.shape), options=ResectionOptions(max_iterations=5))
+
+
+def _building_lines(rng, n_buildings=4):
+    """Outline sides and ridges of a few gable houses at different places and heights (M, 2, 3)."""
+    lines = []
+    for _ in range(n_buildings):
+        c = rng.uniform([850, 1850], [1150, 2150])
+        a = rng.uniform(0, np.pi)
+        u, v = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+        h = rng.uniform(5, 20)
+        corners = [c - 8 * u - 5 * v, c + 8 * u - 5 * v, c + 8 * u + 5 * v, c - 8 * u + 5 * v]
+        ring = [np.array([*p, h]) for p in corners]
+        lines += [[ring[i], ring[(i + 1) % 4]] for i in range(4)]
+        lines.append([np.array([*(c - 8 * u), h + 3]), np.array([*(c + 8 * u), h + 3])])
+    return np.array(lines)
+
+
+def test_line_resection_recovers_the_orientation_from_partial_lines(rng):
+    from rooftrace.image.resection import line_resection
+
+    truth = _camera()
+    lines = _building_lines(rng)
+    px = truth.project(lines.reshape(-1, 3)).reshape(-1, 2, 2)
+    # image lines cover other parts of the same infinite lines: shorter, shifted along
+    t = rng.uniform(-0.3, 0.3, (len(px), 2)) + [0.0, 1.0]
+    image = px[:, :1] + t[..., None] * (px[:, 1:] - px[:, :1])
+    start = truth.with_exterior(TRUE_EO + [4, -3, 5, 0.003, -0.002, 0.004])
+    res = line_resection(start, lines, image, use_prior=False)
+    np.testing.assert_allclose(res.exterior, TRUE_EO, atol=1e-5)
+    assert res.rms < 1e-6 and res.residuals.shape == (len(lines), 2)
+
+
+def test_line_resection_with_noise_and_prior_improves_a_perturbed_camera(rng):
+    from rooftrace.image.resection import line_resection
+
+    truth = _camera()
+    lines = _building_lines(rng, 6)
+    image = truth.project(lines.reshape(-1, 3)).reshape(-1, 2, 2) + rng.normal(0, 0.3, (len(lines), 2, 2))
+    prior = np.diag([2.0, 2.0, 2.0, 2e-3, 2e-3, 2e-3]) ** 2
+    start = truth.with_exterior(TRUE_EO + [2, -2, 2, 0.002, -0.002, 0.002], prior)
+    before = np.abs(start.project(lines.reshape(-1, 3)) - truth.project(lines.reshape(-1, 3))).max()
+    res = line_resection(start, lines, image)
+    after = np.abs(res.camera.project(lines.reshape(-1, 3)) - truth.project(lines.reshape(-1, 3))).max()
+    assert before > 5 and after < 1.0
+    assert res.redundancy == 2 * len(lines)
+    assert np.all(np.abs(res.exterior - TRUE_EO) < 4 * res.std)
+
+
+def test_line_resection_bad_input(rng):
+    from rooftrace.image.resection import line_resection
+
+    cam = _camera()
+    lines = _building_lines(rng, 1)
+    px = cam.project(lines.reshape(-1, 3)).reshape(-1, 2, 2)
+    with pytest.raises(InputError, match="at least 3 lines"):
+        line_resection(cam, lines[:2], px[:2])
+    with pytest.raises(InputError, match="distinct"):
+        line_resection(cam, lines, np.repeat(px[:, :1], 2, axis=1))
+    with pytest.raises(InputError, match=r"\(M, 2, 3\)"):
+        line_resection(cam, lines, px[:3])
+    with pytest.raises(InputError, match="frame camera"):
+        line_resection(OrthoCamera((10, 10), (1, 0, 0, 0, -1, 0)), lines, px)
