@@ -29,7 +29,12 @@ class SurfaceModel:
     x0, y1, cell : float
         West edge, north edge and cell size (m).
     planes : ndarray of shape (F, 3)
-        Absolute planes z = a x + b y + c per face.
+        Absolute planes z = a x + b y + c per face (for normals).
+    support : ndarray of shape (F, K, 3), optional
+        Per face, the planes whose minimum is the roof there (the face's
+        block; rows (0, 0, +inf) pad); default each face's own plane.  The
+        kernels use it so heights stay exact where a ridge or hip crosses a
+        raster cell.
     terrain : ndarray
         :meth:`rooftrace.synth.scene.Terrain.coefficients`.
     z_top, z_bot : float
@@ -42,17 +47,19 @@ class SurfaceModel:
         West edge, north edge and cell of the coarse grid (m).
     """
 
-    def __init__(self, labels, x0, y1, cell, planes, terrain, z_top, z_bot, coarse, cx0, cy1, ccell):
+    def __init__(self, labels, x0, y1, cell, planes, terrain, z_top, z_bot, coarse, cx0, cy1, ccell, support=None):
         self.labels = np.ascontiguousarray(labels, np.int32)
         self.x0, self.y1, self.cell = float(x0), float(y1), float(cell)
         self.planes = np.ascontiguousarray(planes, np.float64).reshape(-1, 3)
+        support = self.planes[:, None, :] if support is None else support
+        self.support = np.ascontiguousarray(support, np.float64).reshape(len(self.planes), -1, 3)
         self.terrain = np.ascontiguousarray(terrain, np.float64)
         self.z_top, self.z_bot = float(z_top), float(z_bot)
         self.coarse = np.ascontiguousarray(coarse, np.float64)
         self.cx0, self.cy1, self.ccell = float(cx0), float(cy1), float(ccell)
 
     def args(self):
-        return (self.labels, self.x0, self.y1, self.cell, self.planes, self.terrain, self.coarse, self.cx0,
+        return (self.labels, self.x0, self.y1, self.cell, self.support, self.terrain, self.coarse, self.cx0,
                 self.cy1, self.ccell)
 
 
@@ -85,7 +92,10 @@ def _surface(x, y, labels, x0, y1, cell, planes, tc):
     if 0 <= ix < labels.shape[1] and 0 <= iy < labels.shape[0]:
         f = labels[iy, ix]
     if f >= 0:
-        return planes[f, 0] * x + planes[f, 1] * y + planes[f, 2], f
+        z = np.inf
+        for k in range(planes.shape[1]):
+            z = min(z, planes[f, k, 0] * x + planes[f, k, 1] * y + planes[f, k, 2])
+        return z, f
     return terrain_z(tc, x, y), -1
 
 
@@ -94,12 +104,20 @@ def _refine(ox, oy, oz, dx, dy, dz, lo, hi, f_hi, labels, x0, y1, cell, planes, 
     """Crossing inside [lo, hi]: exact on one plane, secant on terrain, bisection across a label change."""
     h, f_lo = _surface(ox + lo * dx, oy + lo * dy, labels, x0, y1, cell, planes, tc)
     if f_lo == f_hi and f_hi >= 0:
-        a, b, c = planes[f_hi, 0], planes[f_hi, 1], planes[f_hi, 2]
-        den = dz - a * dx - b * dy
-        if den != 0.0:
-            t = (a * ox + b * oy + c - oz) / den
-            if lo - 1e-9 <= t <= hi + 1e-9:
-                return t, f_hi, False
+        # below the minimum of the planes <=> past every plane the ray descends through
+        t = -np.inf
+        ok = True
+        for k in range(planes.shape[1]):
+            a, b, c = planes[f_hi, k, 0], planes[f_hi, k, 1], planes[f_hi, k, 2]
+            if c == np.inf:
+                continue
+            den = dz - a * dx - b * dy
+            if den < 0.0:
+                t = max(t, (a * ox + b * oy + c - oz) / den)
+            elif a * (ox + lo * dx) + b * (oy + lo * dy) + c < oz + lo * dz:
+                ok = False  # the ray rises against a plane it is above of: not a simple crossing
+        if ok and lo - 1e-9 <= t <= hi + 1e-9:
+            return t, f_hi, False
     elif f_lo == f_hi:
         g_lo = oz + lo * dz - h
         h_hi, _ = _surface(ox + hi * dx, oy + hi * dy, labels, x0, y1, cell, planes, tc)

@@ -13,11 +13,14 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import InputError
 from rooftrace.synth.buildings import Building
 
 __all__ = ["SceneOptions", "Terrain", "Trees", "PowerLine", "default_buildings", "make_terrain", "place_trees",
            "make_power_line", "ROOF_PALETTE"]
+
+KNOWN_SECTIONS.add("simulate")  # the [simulate] table of a config file
 
 #: roof albedos (RGB): dark tiles, slate, red tiles, light gravel, white membrane, brown, copper green
 ROOF_PALETTE = (

@@ -152,7 +152,16 @@ def surface_model(options: SceneOptions, faces: list[RoofFace], terrain: Terrain
     coarse = maximum_filter(coarse, size=3, mode="nearest") + 1e-3
     z_top = float(coarse.max()) + 0.5
     z_bot = float(corner.min()) - 3.0
-    return SurfaceModel(labels, gx0, gy1, cell, planes, terrain.coefficients(), z_top, z_bot, coarse, cx0, cy1, ccell)
+    k_max = max([len(f.support) for f in faces if f.support is not None] + [1])
+    support = np.zeros((len(planes), k_max, 3))
+    support[:, :, 2] = np.inf
+    for i, f in enumerate(faces):
+        rows = f.support if f.support is not None else f.plane[None]
+        support[i, :len(rows)] = rows
+    if not faces:
+        support[0, 0] = planes[0]
+    return SurfaceModel(labels, gx0, gy1, cell, planes, terrain.coefficients(), z_top, z_bot, coarse, cx0, cy1, ccell,
+                        support)
 
 
 def _z_polygon(poly: Polygon, plane: np.ndarray) -> Polygon:

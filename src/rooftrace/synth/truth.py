@@ -30,11 +30,18 @@ _MIN_AREA = 1e-3  # m^2, slivers below this are dropped
 
 @dataclass
 class RoofFace:
-    """A visible planar roof face: 2D polygon, absolute plane z = a x + b y + c."""
+    """A visible planar roof face: 2D polygon, absolute plane z = a x + b y + c.
+
+    ``support`` holds the absolute planes of the block the face belongs to
+    (K, 3): the roof there is their minimum, which the ray caster uses to
+    stay exact across ridges and hips; None for faces merged from several
+    blocks.
+    """
 
     building_id: int
     polygon: Polygon
     plane: np.ndarray
+    support: np.ndarray | None = None
 
     @property
     def slope_deg(self) -> float:
@@ -120,7 +127,7 @@ def roof_faces(building: Building, base_height: float | None = None) -> list[Roo
     blocks = building.blocks
     xmin, ymin, xmax, ymax = building.roof_outline.bounds
     box = (xmin - 1.0, ymin - 1.0, xmax + 1.0, ymax + 1.0)
-    pieces: list[tuple[Polygon, np.ndarray]] = []
+    pieces: list[tuple[Polygon, np.ndarray, int]] = []
     for bi, blk in enumerate(blocks):
         for k, pk in enumerate(blk.planes):
             cell = blk.polygon
@@ -142,26 +149,27 @@ def roof_faces(building: Building, base_height: float | None = None) -> list[Roo
                 if cell.is_empty:
                     break
             if not cell.is_empty and cell.area > _MIN_AREA:
-                pieces.append((cell, pk))
+                pieces.append((cell, pk, bi))
     # merge coplanar pieces (wings with the same roof plane)
-    merged: list[tuple[list[Polygon], np.ndarray]] = []
+    merged: list[tuple[list[Polygon], np.ndarray, set[int]]] = []
     cx, cy = box[0], box[1]
-    for cell, p in pieces:
+    for cell, p, bi in pieces:
         for group in merged:
             q = group[1]
             if abs(p[0] - q[0]) < _EPS and abs(p[1] - q[1]) < _EPS and abs(plane_z(p - q, cx, cy)) < 1e-6:
                 group[0].append(cell)
+                group[2].add(bi)
                 break
         else:
-            merged.append(([cell], p))
+            merged.append(([cell], p, {bi}))
     faces = []
-    for cells, p in merged:
+    shift = np.array([0.0, 0.0, base])
+    for cells, p, bis in merged:
         geom = shapely.set_precision(shapely.union_all(cells), 1e-6)
+        support = blocks[next(iter(bis))].planes + shift if len(bis) == 1 else None
         for part in shapely.get_parts(geom):
             if part.geom_type == "Polygon" and part.area > _MIN_AREA:
-                plane = p.copy()
-                plane[2] += base
-                faces.append(RoofFace(building.building_id, part, plane))
+                faces.append(RoofFace(building.building_id, part, p + shift, support))
     return faces
 
 
