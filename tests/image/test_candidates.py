@@ -98,6 +98,9 @@ def test_deterministic_and_outside_lines(scene):
     far = scene.lines3d[:1] + [500.0, 0, 0]
     out = extract_candidates(scene.image, scene.camera, far, ["outline"])
     assert out[0].projected_only
+    point = scene.lines3d[:1].copy()
+    point[0, 1] = point[0, 0]  # a vertical edge seen from above: one pixel
+    assert extract_candidates(scene.image, scene.camera, point, ["outline"])[0].projected_only
 
 
 def test_options_change_the_outcome(scene):

@@ -26,6 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
+from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.edges import canny_edges, link_chains
 from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
 from rooftrace.image.projection import in_window, line_windows, project_lines, window_slices
@@ -35,6 +36,7 @@ from rooftrace.image.terrain import PixelHeights, sample_segments, terrain_lines
 __all__ = ["CandidateOptions", "LineCandidates", "extract_candidates", "KINDS"]
 
 log = logging.getLogger(__name__)
+KNOWN_SECTIONS.add("candidates")  # the [candidates] table of a config file
 
 #: the kinds of 3D lines
 KINDS = ("outline", "ridge")
@@ -277,7 +279,9 @@ def extract_candidates(
         ref, win = reference[i], windows[i]
         found = np.zeros((0, 2, 2))
         sources: list[str] = []
-        sl = window_slices(win, img.shape[:2], pad) if np.isfinite(ref).all() else None
+        # a line seen end-on (shorter than a pixel) has no direction to search along
+        usable = np.isfinite(ref).all() and np.hypot(*(ref[1] - ref[0])) >= 1.0
+        sl = window_slices(win, img.shape[:2], pad) if usable else None
         if sl is not None:
             crop = img[sl]
             r0, c0 = sl[0].start, sl[1].start
