@@ -26,7 +26,7 @@ from rooftrace.grouping.mrf import MRFOptions, build_problem
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
 from rooftrace.grouping.topology import roof_topology
 
-__all__ = ["RefineOptions", "BuildingRefinement", "refine_building", "keep_input"]
+__all__ = ["RefineOptions", "BuildingRefinement", "refine_building", "fuse_positions", "keep_input"]
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +51,21 @@ class RefineOptions:
     ridges_on_planes : bool, default True
         Move ridge points only along the intersection of their two LiDAR
         roof planes (ours; see :func:`rooftrace.grouping.ridge_lines`).
+    fuse : bool, default True
+        Fuse each refined vertex with its projected LiDAR vertex by least
+        squares (:func:`fuse_positions`; ours).  False: the image alone, as
+        in seed 000.
+    derive_sigma : bool, default True
+        With LiDAR points, take each roof's planimetric precision as half
+        its mean point spacing (for the candidate windows, registration
+        errors and the fusion) instead of a fixed ``candidates.sigma_xy``.
+    image_sigma_px : float, default 0.7
+        Precision of a vertex from image lines (px), measured on the
+        simulated scenes of benchmarks/bench_refine.py.
+    lidar_sigma : float, default 0.48
+        Planimetric precision (m) of LiDAR outline vertices when it cannot
+        be derived (seed 000 §3); :func:`rooftrace.refine.refine_buildings`
+        derives half the mean point spacing of each roof from its points.
     plane_tolerance : float, default 0.5
         Largest vertical distance (m) of a LiDAR vertex to the roof plane it
         is re-projected onto; beyond it, a horizontal plane (ours).
@@ -85,6 +100,10 @@ class RefineOptions:
     simplify_tolerance: float | None = None
     min_side_px: float = 6.0
     ridges_on_planes: bool = True
+    fuse: bool = True
+    derive_sigma: bool = True
+    image_sigma_px: float = 0.7
+    lidar_sigma: float = 0.48
     plane_tolerance: float = 0.5
     max_shift_k: float = 3.0
     max_shift_margin_px: float = 3.0
@@ -108,6 +127,8 @@ class RefineOptions:
         for name in ("junction_tolerance", "plane_tolerance", "max_move", "context"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"refine.{name} must be > 0, got {getattr(self, name)!r}")
+        if not (self.image_sigma_px > 0 and self.lidar_sigma > 0):
+            raise ValueError("refine.image_sigma_px and refine.lidar_sigma must be > 0")
         if self.simplify_tolerance is not None and self.simplify_tolerance < 0:
             raise ValueError(f"refine.simplify_tolerance must be >= 0, got {self.simplify_tolerance!r}")
         if self.max_shift_k < 0 or self.max_shift_margin_px < 0 or self.exact_max_table < 0:
@@ -173,6 +194,34 @@ def _acceptable(refined: Polygon, outline) -> bool:
     return bool(flat.is_valid and 0.5 <= flat.area / max(shapely.force_2d(outline).area, 1e-12) <= 2.0)
 
 
+def fuse_positions(image_points: np.ndarray, lidar_points: np.ndarray, use: np.ndarray, image_sigma: float,
+                   lidar_sigma: float) -> np.ndarray:
+    """Least-squares fusion of refined image vertices with the projected LiDAR ones (pixels).
+
+    The registration error is mostly common to a roof (camera orientation,
+    LiDAR offset), so the LiDAR vertices are first moved by the median shift
+    ``t`` of the image vertices; each used vertex then becomes
+    ``(p_img / σ_i² + (p_lidar + t) / σ_l²) / (1 / σ_i² + 1 / σ_l²)``.
+    With a sparse cloud (σ_l of pixels) the image dominates; with a dense
+    one whose outline is as good as an image edge both count.
+
+    Parameters
+    ----------
+    image_points, lidar_points : ndarray of shape (J, 2)
+    use : ndarray of shape (J,) bool
+        Vertices the image supports; the others are returned unchanged.
+    image_sigma, lidar_sigma : float
+        Precision (px) of an image vertex and of a LiDAR vertex.
+    """
+    out = np.asarray(image_points, float).copy()
+    if not use.any():
+        return out
+    t = np.median(image_points[use] - lidar_points[use], axis=0)
+    wi, wl = 1.0 / image_sigma**2, 1.0 / max(lidar_sigma, 1e-9) ** 2
+    out[use] = (wi * image_points[use] + wl * (lidar_points[use] + t)) / (wi + wl)
+    return out
+
+
 def keep_input(outline, ridges, status: str) -> BuildingRefinement:
     """The refinement of a building left as it was, with the reason in ``status``."""
     return BuildingRefinement(outline, list(ridges), [False] * len(ridges), status)
@@ -181,7 +230,7 @@ def keep_input(outline, ridges, status: str) -> BuildingRefinement:
 def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: np.ndarray | None = None,
                     building_xyz: np.ndarray | None = None, planes: np.ndarray | None = None,
                     options: RefineOptions | None = None, seed: int = 0, candidates: list | None = None,
-                    corners: np.ndarray | None = None) -> BuildingRefinement:
+                    corners: np.ndarray | None = None, lidar_sigma: float | None = None) -> BuildingRefinement:
     """Refine one roof with the image.
 
     Parameters
@@ -205,6 +254,9 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         Precomputed candidates, one per topology line (skips the extraction).
     corners : ndarray of shape (C, 2), optional
         Precomputed Harris corners (col, row).
+    lidar_sigma : float, optional
+        Planimetric precision (m) of the LiDAR outline vertices, for
+        :func:`fuse_positions`; default ``options.lidar_sigma``.
 
     Returns
     -------
@@ -256,10 +308,15 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     jplanes = junction_planes(topo, planes, opt.plane_tolerance)
     jlines = ridge_lines(topo, planes, opt.plane_tolerance) if opt.ridges_on_planes else None
     original = np.array([j.point for j in topo.junctions])
-    xyz, ok = to_object_space(camera, rec.points, jplanes, original, opt.max_move, jlines)
     # a junction of projected lines only is the LiDAR point itself: keep it exactly
     chosen_image = np.array([image_line[s_][k] for s_, k in enumerate(choice)])
     supported = np.array([any(chosen_image[line] for line, _ in j.members) for j in topo.junctions])
+    pixels = rec.points
+    if opt.fuse and (rec.moved & supported).any():
+        pixels = fuse_positions(rec.points, ref_points, rec.moved & supported, opt.image_sigma_px,
+                                (lidar_sigma if lidar_sigma is not None else opt.lidar_sigma)
+                                / camera.ground_sample_distance)
+    xyz, ok = to_object_space(camera, pixels, jplanes, original, opt.max_move, jlines)
     moved = rec.moved & ok & supported
     xyz = np.where(moved[:, None], xyz, original)
 
