@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
-from shapely.geometry import Point, Polygon
+from shapely.geometry import Polygon
 
 __all__ = ["Building", "RoofBlock", "CURVE_STEP"]
 

@@ -83,7 +83,8 @@ class SceneOptions:
         Add a three-conductor power line across the scene (ASPRS class 14).
     cell : float
         Cell of the roof-face raster used by the ray caster (m); faces are
-        exact planes, only their boundaries are rasterised.
+        exact planes, only their boundaries are rasterised.  Raised to
+        size / 6000 for large scenes (memory).
     """
 
     section = "simulate"
@@ -128,8 +129,12 @@ class SceneOptions:
             raise InputError(f"simulate: density must be at most 200 pts/m², got {self.density!r}")
         if not 0.02 <= self.gsd <= 2.0:
             raise InputError(f"simulate: gsd must be between 0.02 and 2 m, got {self.gsd!r}")
-        if self.size / self.gsd > 6000:
-            raise InputError(f"simulate: size / gsd gives an image over 6000 pixels wide; raise gsd (now {self.gsd})")
+        if (self.image or self.orthophoto) and self.size * 1.1 / self.gsd > 4000:
+            raise InputError(f"simulate: a {self.size:g} m scene at gsd {self.gsd:g} m needs an image over 4000 pixels "
+                             "wide; raise --gsd or lower --size")
+        if self.size**2 * self.density > 1.2e7:
+            raise InputError(f"simulate: {self.size:g} m at {self.density:g} pts/m² is over 12 million pulses; lower "
+                             "--size or --density")
         if not 1.0 <= self.scan_angle_deg <= 40.0:
             raise InputError(f"simulate: scan_angle_deg must be between 1 and 40, got {self.scan_angle_deg!r}")
         if not 0.0 <= self.strip_overlap <= 0.9:

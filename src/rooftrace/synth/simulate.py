@@ -111,7 +111,7 @@ def surface_model(options: SceneOptions, faces: list[RoofFace], terrain: Terrain
     from scipy.ndimage import maximum_filter
 
     x0, y0, x1, y1 = options.bounds
-    cell = options.cell
+    cell = max(options.cell, (options.size + 2.0) / 6000.0)  # at most 6000 x 6000 cells
     k = max(1, int(round(0.5 / cell)))
     ccell = k * cell
     nx = int(np.ceil((x1 - x0 + 2) / ccell)) * k
