@@ -92,3 +92,14 @@ def test_vertex_heights_on_reflex_corner(rng):
     inside = shapely.contains_xy(shapely.Polygon(l_ring), xy[:, 0], xy[:, 1])
     tin = Tin(np.column_stack([xy, np.where(inside, 6.0, 0.0)]))
     np.testing.assert_allclose(vertex_heights(tin, l_ring, tin.spacing()), 6.0, atol=1e-6)
+
+
+def test_vertex_heights_from_a_vertex_just_outside_the_roof(rng):
+    # regression (issue 8 benchmark): a corner 0.5 m outside the eave starts on
+    # clean ground triangles; mixing them with roof samples gave Z metres low
+    xyz, ring = _box_roof(rng, slope=0.2, n=12000)
+    tin = Tin(xyz)
+    outside = ring + np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    z = vertex_heights(tin, outside, offset=tin.spacing())
+    truth = 8.0 + 0.2 * (outside[:, 0] - 15)  # the roof plane continued
+    np.testing.assert_allclose(z, truth, atol=1e-6)

@@ -349,7 +349,8 @@ def vertex_heights(tin: Tin, ring: np.ndarray, offset: float, fallback: RasterSu
         Used where fewer than one clean sample remains.
     max_relief : float, default 1.0
         Samples whose TIN triangle spans more than this height range (m)
-        straddle the eave (roof and ground vertices) and are left out.
+        straddle the eave (roof and ground vertices) and are left out, with
+        every sample before them (ground when the vertex lies outside).
 
     Returns
     -------
@@ -375,6 +376,11 @@ def vertex_heights(tin: Tin, ring: np.ndarray, offset: float, fallback: RasterSu
     z = tin(pts.reshape(-1, 2)).reshape(len(ring), len(t))
     relief = tin.relief(pts.reshape(-1, 2)).reshape(z.shape)
     clean = np.isfinite(z) & (relief <= max_relief)
+    # a vertex a little outside the roof starts on clean *ground* triangles:
+    # keep only the clean samples beyond the last blended one (the roof side)
+    blended = np.isfinite(z) & ~clean
+    last = np.where(blended.any(axis=1), len(t) - 1 - np.argmax(blended[:, ::-1], axis=1), -1)
+    clean &= np.arange(len(t))[None, :] > last[:, None]
     out = np.full(len(ring), np.nan)
     for i in range(len(ring)):
         k = clean[i]
