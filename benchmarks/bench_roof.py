@@ -14,6 +14,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_roof.py --density 12 --noise 0.04 --repeats 10
     .venv/bin/python benchmarks/bench_roof.py --no-outline   # outline from the points
+    .venv/bin/python benchmarks/bench_roof.py --synth 1 2 3 4 5   # rooftrace.synth scenes (ray-cast ALS)
     .venv/bin/python benchmarks/bench_roof.py --real         # Delft AHN3 + IGN LiDAR HD
     .venv/bin/python benchmarks/bench_roof.py --figure docs/images/roof_delft.png --building 7
 
@@ -88,13 +89,17 @@ def summarise(rows: list[dict]) -> dict:
     corr = np.array([r["correctness"] for r in rows])
     has_ref, has_ext = ref > 0, ext > 0
     pos = np.array([r["position_error"] for r in rows])
+    se_max = np.array([r["slope_error_max"] for r in rows], dtype=float)
+    se_mean = np.array([r["slope_error_mean"] for r in rows], dtype=float)
+    fin = np.isfinite(pos)
     return {
         "scenes": len(rows),
-        "completeness": float(np.sum(np.nan_to_num(comp[has_ref]) * ref[has_ref]) / max(ref[has_ref].sum(), 1e-9)),
-        "correctness": float(np.sum(np.nan_to_num(corr[has_ext]) * ext[has_ext]) / max(ext[has_ext].sum(), 1e-9)),
-        "position_error": float(np.nansum(pos * ext) / max(ext[np.isfinite(pos)].sum(), 1e-9)),
-        "slope_error_max": float(np.nanmax([r["slope_error_max"] for r in rows])),
-        "slope_error_mean": float(np.nanmean([r["slope_error_mean"] for r in rows])),
+        # NaN when there is nothing to score (no true / no extracted lines).
+        "completeness": float(np.sum(np.nan_to_num(comp[has_ref]) * ref[has_ref]) / ref[has_ref].sum()) if has_ref.any() else np.nan,
+        "correctness": float(np.sum(np.nan_to_num(corr[has_ext]) * ext[has_ext]) / ext[has_ext].sum()) if has_ext.any() else np.nan,
+        "position_error": float(np.sum(pos[fin] * ext[fin]) / ext[fin].sum()) if fin.any() and ext[fin].sum() > 0 else np.nan,
+        "slope_error_max": float(np.nanmax(se_max)) if np.isfinite(se_max).any() else np.nan,
+        "slope_error_mean": float(np.nanmean(se_mean)) if np.isfinite(se_mean).any() else np.nan,
         "planes_ok": int(sum(r["n_planes"] == r["n_true_planes"] for r in rows)),
         "kind_agreement": sum(r["kind_ok"] for r in rows) / max(sum(r["kind_n"] for r in rows), 1),
         "time_s_mean": float(np.mean([r["time_s"] for r in rows])),
@@ -213,6 +218,68 @@ def render(path: str, building: int, options: RoofOptions) -> None:
     print(f"wrote {path}")
 
 
+def run_synth(seeds: list[int], density: float, use_outline: bool, options: RoofOptions) -> dict:
+    """Simulated scenes (``rooftrace.synth``): every building's class-6 truth
+    points, its true roof outline (or none), scored against the truth ridges."""
+    from rooftrace.synth.scene import SceneOptions
+    from rooftrace.synth.simulate import simulate_scene
+
+    rows = []
+    for seed in seeds:
+        sc = simulate_scene(SceneOptions(seed=seed, density=density, image=False))
+        cl, truth = sc.cloud, sc.truth
+        tb, tc = cl.fields["truth_building_id"], cl.fields["truth_class"]
+        R, O, F = truth["ridges"], truth["roof_outlines"], truth["roof_faces"]
+        rb, fb = np.asarray(R.attributes["building_id"]), np.asarray(F.attributes["building_id"])
+        for g, bid, kind in zip(O.geometries, O.attributes["building_id"], O.attributes["kind"]):
+            xyz = cl.xyz[(tb == bid) & (tc == 6)]
+            t = time.perf_counter()
+            roof = roof_structure(xyz, g if use_outline else None, options, building_id=int(bid))
+            dt = time.perf_counter() - t
+            ref = [R.geometries[i] for i in np.flatnonzero(rb == bid)]
+            sc_ = ridge_scores(roof.ridges, ref, 0.5) if (ref or roof.ridges) else {}
+            fi = np.flatnonzero(fb == bid)
+            faces = [(F.geometries[i], F.attributes["slope_deg"][i]) for i in fi]
+            # Truth faces split coplanar roof parts: count distinct planes.
+            keys = set()
+            for i in fi:  # truth planes are z = a x + b y + c
+                a, b, c = (float(F.attributes[f"plane_{k}"][i]) for k in "abc")
+                keys.add((round(a, 3), round(b, 3), round(c / 0.05)))
+            err = []
+            for k, c in enumerate(roof.plane_centre):
+                hit = [sl for f, sl in faces if shapely.contains_xy(shapely.force_2d(f), c[0], c[1])]
+                if hit:
+                    err.append(abs(roof.slope_deg[k] - hit[0]))
+            rows.append({
+                "scene": kind, "seed": seed, "n_points": len(xyz), "time_s": dt, "status": roof.status,
+                "n_planes": len(roof.planes), "n_true_planes": len(keys),
+                "ref_len": sum(shapely.force_2d(r).length for r in ref),
+                "ext_len": sum(shapely.force_2d(r).length for r in roof.ridges),
+                "completeness": sc_.get("ridge_completeness", np.nan), "correctness": sc_.get("ridge_correctness", np.nan),
+                "position_error": sc_.get("ridge_position_error", np.nan),
+                "slope_error_max": max(err) if err else np.nan, "slope_error_mean": float(np.mean(err)) if err else np.nan,
+                "kind_ok": 0, "kind_n": 0,
+            })
+    return rows
+
+
+def _pct(v: float) -> str:
+    return "–" if not np.isfinite(v) else f"{100 * v:.1f} %"
+
+
+def _num(v: float, fmt: str = ".3f") -> str:
+    return "–" if not np.isfinite(v) else format(v, fmt)
+
+
+def _print_table(per_scene: dict, total: dict) -> None:
+    print("| scene | completeness | correctness | position error (m) | slope error mean / max (°) | planes right | time (s) |")
+    print("|" + "---|" * 7)
+    for name, s in list(per_scene.items()) + [("**all**", total)]:
+        print(f"| {name} | {_pct(s['completeness'])} | {_pct(s['correctness'])} | {_num(s['position_error'])} | "
+              f"{_num(s['slope_error_mean'], '.2f')} / {_num(s['slope_error_max'], '.2f')} | {s['planes_ok']}/{s['scenes']} | "
+              f"{s['time_s_mean']:.3f} |")
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--density", type=float, default=12.0, help="points per m²")
@@ -221,6 +288,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-outline", action="store_true", help="outline from the points instead of the true one")
     ap.add_argument("--json", action="store_true", help="print the summary as JSON")
     ap.add_argument("--real", action="store_true", help="run on the real clouds in ../shared/data")
+    ap.add_argument("--synth", type=int, nargs="+", metavar="SEED", help="run on rooftrace.synth scenes of these seeds")
     ap.add_argument("--figure", help="render one Delft building to this PNG")
     ap.add_argument("--building", type=int, default=7, help="BGT feature index for --figure")
     args = ap.parse_args(argv)
@@ -228,6 +296,15 @@ def main(argv=None) -> dict:
     if args.figure:
         render(args.figure, args.building, options)
         return {}
+    if args.synth:
+        rows = run_synth(args.synth, args.density, not args.no_outline, options)
+        kinds = sorted({r["scene"] for r in rows})
+        per_scene = {k: summarise([r for r in rows if r["scene"] == k]) for k in kinds}
+        total = summarise(rows)
+        print(f"rooftrace.synth seeds {args.synth}, {args.density} pts/m², {len(rows)} buildings, "
+              f"outline: {'points' if args.no_outline else 'true'}")
+        _print_table(per_scene, total)
+        return total
     if args.real:
         print("| data | buildings | pitched | pitched with lines | planes | median plane RMSE (m) | lines | time total / max (s) |")
         print("|" + "---|" * 8)

@@ -285,21 +285,28 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
     return labels, added
 
 
-def _best_candidate(xyz, nn, labels, planes, tol, include_self=True):
-    """For every point the label among its neighbours' (and its own) labels
-    whose plane is closest in height; -1 when none is within ``tol``."""
-    cand = labels[nn]
-    if include_self:
-        cand = np.concatenate([labels[:, None], cand], axis=1)
+def _best_candidate(xyz, nn, labels, planes, tol, margin=0.0):
+    """For every point the label among its own and its neighbours' labels
+    whose plane is closest in height; -1 when none is within ``tol``.
+
+    A labelled point changes plane only when another is closer by more than
+    ``margin`` (m): without this hysteresis a plane creeps along the line
+    where its extension crosses another plane (two coplanar dormers would
+    join along their common valley line).
+    """
+    cand = np.concatenate([labels[:, None], labels[nn]], axis=1)
     valid = cand >= 0
     c = np.where(valid, cand, 0)
     pl = planes[c]  # (N, k, 4)
     z = plane_height(pl, np.broadcast_to(xyz[:, None, :2], c.shape + (2,)))
     r = np.abs(z - xyz[:, None, 2])
     r = np.where(valid & np.isfinite(r), r, np.inf)
+    r[:, 0] -= margin
     j = np.argmin(r, axis=1)
-    best = cand[np.arange(len(cand)), j]
-    return np.where(r[np.arange(len(cand)), j] <= tol, best, -1)
+    rows = np.arange(len(cand))
+    best = cand[rows, j]
+    rb = r[rows, j] + np.where(j == 0, margin, 0.0)
+    return np.where(rb <= tol, best, -1)
 
 
 def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
@@ -469,7 +476,7 @@ def segment_planes(
                 if np.array_equal(new, labels):
                     break
                 labels = new
-            labels = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
+            labels = _best_candidate(xyz, nn_c, labels, fit.planes, distance, margin=distance / 3)
             labels = _compact(labels, _big_enough(xyz[:, :2], labels, min_area, min_pts))
             if labels.max() < 0:
                 raise GeometryError("no roof plane kept after refinement")
