@@ -63,7 +63,7 @@ class SurfaceModel:
                 self.cy1, self.ccell)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bound(x, y, coarse, cx0, cy1, ccell, z_top):
     ix = int(math.floor((x - cx0) / ccell))
     iy = int(math.floor((cy1 - y) / ccell))
@@ -72,7 +72,7 @@ def _bound(x, y, coarse, cx0, cy1, ccell, z_top):
     return z_top
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def terrain_z(tc, x, y):
     dx = x - tc[0]
     dy = y - tc[1]
@@ -84,7 +84,7 @@ def terrain_z(tc, x, y):
     return z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _surface(x, y, labels, x0, y1, cell, planes, tc):
     ix = int(math.floor((x - x0) / cell))
     iy = int(math.floor((y1 - y) / cell))
@@ -203,7 +203,7 @@ def cast_rays(orig, dirs, labels, x0, y1, cell, planes, tc, coarse, cx0, cy1, cc
     return out_t, out_f, out_w
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _ellipsoid(ox, oy, oz, dx, dy, dz, cx, cy, cz, rh, rv):
     s = rh / rv
     px, py, pz = ox - cx, oy - cy, (oz - cz) * s
@@ -218,7 +218,7 @@ def _ellipsoid(ox, oy, oz, dx, dy, dz, cx, cy, cz, rh, rv):
     return (-b - q) / (2 * a), (-b + q) / (2 * a)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def crown_chords(orig, dirs, trees, t_max, k_max):
     """Up to ``k_max`` crown chords (t_in, t_out, tree) per ray before ``t_max``, nearest first."""
     n = orig.shape[0]
@@ -292,7 +292,7 @@ def shadow_rays(points, sun, labels, x0, y1, cell, planes, tc, coarse, cx0, cy1,
     return light
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def pulse_returns(t_surf, tin, tout, tid, t_wire, u, max_returns):
     """Returns of each pulse along its ray: wire, crown interactions, then the surface.
 
