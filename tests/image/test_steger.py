@@ -88,3 +88,18 @@ def test_sigma_rule_and_bad_arguments():
     with pytest.raises(ValueError, match="asymmetry"):
         line_position_bias(1.0, 1.0, 1.0)
     assert line_position_bias(1.0, 2.0, 0.0) == 0.0
+
+
+@pytest.mark.parametrize("w, sigma", [(2.0, 1.5), (1.5, 1.0)])
+@pytest.mark.parametrize("a", [0.0, 0.3, 0.6])
+def test_bias_correction_recovers_the_bar_centre(w, sigma, a):
+    centre = 30.2
+    img = _profile_image(lambda x: np.where(np.abs(x - centre) <= w, 1.0, np.where(x > centre, a, 0.0)))
+    lines, pts = steger_lines(img, sigma, line_width=2 * w, correct_bias=True)
+    shift = _mean_centre(lines, pts).mean() - centre
+    assert abs(shift) < 0.08
+    if a:
+        assert line_position_bias(sigma, w, a) > 0.1  # what it was without the correction
+    # a dark bar on a bright background is corrected the same way
+    dark_lines, dark_pts = steger_lines(1.0 - img, sigma, line_width=2 * w, correct_bias=True)
+    assert abs(_mean_centre(dark_lines, dark_pts).mean() - centre) < 0.08

@@ -68,6 +68,9 @@ class CandidateOptions:
         :func:`~rooftrace.image.steger.steger_lines`).
     line_width : float, default 4.0
         Expected full width of ridge lines (px).
+    steger_bias_correction : bool, default False
+        Remove the asymmetric-contrast bias of Steger's line centres (seed 003
+        eq. 11) with the bar model fitted to each point's two edges.
     min_contrast : float, default 0.05
         Weakest step or bar (grey levels in [0, 1]) that may seed a detection.
     split_tolerance : float, default 1.0
@@ -107,6 +110,7 @@ class CandidateOptions:
     steger_low: float | None = None
     steger_high: float | None = None
     line_width: float = 4.0
+    steger_bias_correction: bool = False
     min_contrast: float = 0.05
     split_tolerance: float = 1.0
     min_segment: float = 5.0
@@ -179,7 +183,7 @@ def _detect(crop: np.ndarray, mask: np.ndarray, opt: CandidateOptions):
     edges, epts = canny_edges(crop, opt.canny_sigma, opt.canny_low, opt.canny_high,
                               min_contrast=opt.min_contrast, mask=mask)
     lines, lpts = steger_lines(grey, opt.steger_sigma, opt.steger_low, opt.steger_high, line_width=opt.line_width,
-                               min_contrast=opt.min_contrast, mask=mask)
+                               min_contrast=opt.min_contrast, mask=mask, correct_bias=opt.steger_bias_correction)
     canny = fit_segments(link_chains(edges, epts), opt.split_tolerance, opt.min_segment)
     steger = fit_segments(link_chains(lines, lpts), opt.split_tolerance, opt.min_segment)
     return canny, steger

@@ -199,6 +199,85 @@ def _two_sided(img, sigma, strength, points, normals, line_width, min_contrast):
     return out
 
 
+_BIAS_TABLE = None
+
+
+def _bias_table():
+    """Model of seed 003 eq. 7-11 in units of sigma: for a bar 0 | 1 (|x| <= w) | a,
+    the detected centre's offset, the half distance between the two edge
+    maxima seen from it, and the ratio of the edge gradients, over a grid of
+    (w, a).  Returns a KD-tree on (half distance, 4 x ratio) and the offsets."""
+    global _BIAS_TABLE
+    if _BIAS_TABLE is None:
+        from scipy.spatial import cKDTree
+
+        x = np.arange(-9.0, 9.0, 0.005)
+        ws = np.linspace(0.3, 4.0, 75)[:, None]
+        g_plus = np.exp(-0.5 * (x + ws) ** 2)  # (W, X); the 1/sqrt(2 pi) cancels in the ratio
+        g_minus = np.exp(-0.5 * (x - ws) ** 2)
+        feats, offs = [], []
+        for a in np.linspace(0.0, 0.9, 46):
+            d1 = np.abs(g_plus - (1 - a) * g_minus)
+            x0 = -np.log1p(-a) / (2 * ws[:, 0])  # (W,)
+            is_max = np.zeros_like(d1, bool)
+            is_max[:, 1:-1] = (d1[:, 1:-1] > d1[:, :-2]) & (d1[:, 1:-1] >= d1[:, 2:])
+            right_side = x[None, :] > x0[:, None]
+            r_idx = np.argmax(is_max & right_side, axis=1)
+            l_idx = len(x) - 1 - np.argmax((is_max & ~right_side)[:, ::-1], axis=1)
+            ok = (is_max & right_side).any(1) & (is_max & ~right_side).any(1)
+            rows = np.flatnonzero(ok)
+            gl, gr = d1[rows, l_idx[rows]], d1[rows, r_idx[rows]]
+            feats.append(np.column_stack([0.5 * (x[r_idx[rows]] - x[l_idx[rows]]), gr / gl]))
+            offs.append(x0[rows])
+        feats = np.concatenate(feats)
+        _BIAS_TABLE = (cKDTree(feats * [1.0, 4.0]), np.concatenate(offs))
+    return _BIAS_TABLE
+
+
+def _correct_bias(img, sigma, points, normals, lines, line_width):
+    """Move line points back by the asymmetric-contrast bias (seed 003 eq. 11).
+
+    Along each point's normal the gradient magnitude of the smoothed image
+    has a maximum at each edge of the bar; their half distance and the ratio
+    of their heights identify (w, a) in the bar model, hence the bias
+    ``-sigma^2/(2w) ln(1-a)`` towards the weaker edge (Steger 1998, §4).
+    """
+    r, c = np.nonzero(lines)
+    if not len(r):
+        return points
+    gx = ndi.gaussian_filter(img, sigma, order=(0, 1), mode="nearest")
+    gy = ndi.gaussian_filter(img, sigma, order=(1, 0), mode="nearest")
+    mag = np.hypot(gx, gy)
+    p, n = points[r, c], normals[r, c]
+    reach = 0.5 * line_width + 3 * sigma
+    t = np.arange(-reach, reach + 1e-9, 0.1)
+    cols = p[:, 0, None] + t[None, :] * n[:, 0, None]
+    rows = p[:, 1, None] + t[None, :] * n[:, 1, None]
+    prof = ndi.map_coordinates(mag, [rows.ravel(), cols.ravel()], order=1, mode="nearest").reshape(len(p), -1)
+    mid = len(t) // 2
+    is_max = np.zeros_like(prof, bool)
+    is_max[:, 1:-1] = (prof[:, 1:-1] > prof[:, :-2]) & (prof[:, 1:-1] >= prof[:, 2:])
+    right = np.where(is_max[:, mid:].any(1), mid + np.argmax(is_max[:, mid:], axis=1), -1)
+    left_rev = is_max[:, :mid][:, ::-1]
+    left = np.where(left_rev.any(1), mid - 1 - np.argmax(left_rev, axis=1), -1)
+    ok = (left >= 0) & (right >= 0)
+    if not ok.any():
+        return points
+    idx = np.flatnonzero(ok)
+    tl, tr = t[left[idx]], t[right[idx]]
+    gl, gr = prof[idx, left[idx]], prof[idx, right[idx]]
+    weak_right = gr <= gl
+    ratio = np.where(weak_right, gr / np.maximum(gl, 1e-12), gl / np.maximum(gr, 1e-12))
+    half = 0.5 * (tr - tl) / sigma
+    tree, offs = _bias_table()
+    _, k = tree.query(np.column_stack([half, 4.0 * ratio]))
+    bias = offs[k] * sigma  # towards the weaker edge
+    shift = np.where(weak_right, -bias, bias)  # move back towards the stronger one
+    out = points.copy()
+    out[r[idx], c[idx]] = p[idx] + shift[:, None] * n[idx]
+    return out
+
+
 def steger_lines(
     image: np.ndarray,
     sigma: float | None = None,
@@ -210,6 +289,7 @@ def steger_lines(
     polarity: str = "both",
     mask: np.ndarray | None = None,
     noise: float | None = None,
+    correct_bias: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Steger line pixels and their sub-pixel centres.
 
@@ -233,6 +313,10 @@ def steger_lines(
         Only pixels inside are reported.
     noise : float, optional
         Noise std (grey); ``None`` estimates it with :func:`~rooftrace.image.edges.noise_sigma`.
+    correct_bias : bool, default False
+        Remove the asymmetric-contrast bias of eq. 11 (see :func:`line_position_bias`)
+        by identifying each point's bar width and asymmetry from the two edge
+        gradients along its normal.
 
     Returns
     -------
@@ -263,5 +347,7 @@ def steger_lines(
     lines = _hysteresis(strength > 0, strength, low, high)
     if mask is not None:
         lines &= np.asarray(mask, bool)
+    if correct_bias:
+        points = _correct_bias(np.asarray(image, float), s, points, normals, lines, line_width)
     points[~lines] = np.nan
     return lines, points

@@ -16,7 +16,7 @@ terrain line, and is removed, when
   error (lines near the roof may be its displaced edge and are kept -- the
   seed's stated limitation).
 
-A line's height is the larger of the mean heights sampled on its two
+A line's height is the larger of the median heights sampled on its two
 sides, ``side_offset`` px off the line (ours).  The seed samples the line
 itself; but a roof edge *is* the height discontinuity, so half of its
 nearest points are ground, its mean height looks terrain-like, and the
@@ -153,7 +153,12 @@ def terrain_lines(
     dist, _ = cKDTree(bld).query(pts)
     count = np.bincount(owner, minlength=len(seg))
     mean = lambda v: np.bincount(owner, weights=v, minlength=len(seg)) / count  # noqa: E731
-    low = np.maximum(mean(z_a), mean(z_b)) < building_z - height_tolerance
+    # medians: near a roof edge some nearest points of the roof side are ground
+    # points across the edge (sparse clouds), which pull a mean below the eaves
+    order = np.argsort(owner, kind="stable")
+    bounds = np.concatenate([[0], np.cumsum(count)])
+    med = lambda v: np.array([np.median(v[order[a:b]]) for a, b in zip(bounds[:-1], bounds[1:])])  # noqa: E731
+    low = np.maximum(med(z_a), med(z_b)) < building_z - height_tolerance
     far = mean(dist) > mean(e)
     out = low & far
     if out.any():
