@@ -178,20 +178,30 @@ def shed(length=10.0, width=6.0, eave=4.0, slope=10.0, *, angle=0.0, offset=(0.0
                   [(0, 0, length, width, [0])], [], [], (), angle, offset)
 
 
-def gable_dormer(*, angle=0.0, offset=(0.0, 0.0)):
-    """Gable roof (16 m x 10 m, 40°) with a 4 m wide shed dormer (10°) on its south slope.
+def gable_dormer(positions=(8.0,), *, width=4.0, angle=0.0, offset=(0.0, 0.0)):
+    """Gable roof (16 m x 10 m, 40°) with shed dormers (10°) on its south slope.
 
-    The dormer's truth lines are not listed: its cheeks are vertical walls and
-    the tests only use this model for plane robustness."""
+    ``positions`` are the dormer centres along the ridge (m); all dormers lie
+    in one plane (coplanar but separate roof faces).  The dormer top meets the
+    main slope in a horizontal valley (listed); its cheeks and front are
+    walls, whose step edges are not listed."""
     m = gable(16.0, 10.0, 5.0, 40.0)
     t, td = np.tan(np.radians(40.0)), np.tan(np.radians(10.0))
     lp = list(map(tuple, m._local_planes))
-    # Dormer plane: 0.4 m below the ridge at y = 4.5, falling 10° to the south.
+    # Dormer plane: 0.4 m below the ridge at y = 4.5, falling 10° to the south;
+    # it meets the main slope where both are equal.
     ztop = 5.0 + t * 4.5 - 0.4
     lp.append((ztop - td * 4.5, 0, td))
-    parts = m._parts + [(6.0, 2.0, 10.0, 4.5, [2])]
+    z0 = ztop - td * 4.5
+    yv = (z0 - 5.0) / (t - td)
+    parts = list(m._parts)
     ridges = [[(c[0], c[1], c[2]) for c in np.asarray(r.coords)] for r in m.ridges]
-    return _build("gable_dormer", [(0, 0), (16, 0), (16, 10), (0, 10)], lp, parts, ridges, ["ridge"], (), angle, offset)
+    kinds = ["ridge"]
+    for x in positions:
+        parts.append((x - width / 2, 2.0, x + width / 2, 4.5, [2]))
+        ridges.append([(x - width / 2, yv, 5.0 + t * yv), (x + width / 2, yv, 5.0 + t * yv)])
+        kinds.append("valley")
+    return _build("gable_dormer", [(0, 0), (16, 0), (16, 10), (0, 10)], lp, parts, ridges, kinds, (), angle, offset)
 
 
 def sample_roof(model: RoofModel, density: float = 12.0, noise: float = 0.04, seed: int = 0):
