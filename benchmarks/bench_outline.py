@@ -35,10 +35,11 @@ THESIS = dict(scale=1.0, t_dist=0.6, offset_factor=0.0, snap=False, test="global
 
 
 def _variants():
+    """(name, options): the thesis's settings and ours, per alpha strategy."""
     for strategy in ("global", "building", "point"):
         yield (f"thesis    {strategy:8s} (alpha x1, T_dist 0.6, F-test global)",
                OutlineOptions.from_config({}, strategy=strategy, **THESIS))
-        for offset in (0.0, 0.3):
+        for offset in (0.0, 0.1, 0.2, 0.3):
             for snap in (False, True):
                 yield (f"rooftrace {strategy:8s} offset={offset:.1f} snap={int(snap)}",
                        OutlineOptions.from_config({}, strategy=strategy, offset_factor=offset, snap=snap))
@@ -108,6 +109,58 @@ def city3d() -> None:
     print(f"{'rooftrace default + buildingregulariser':45s} {p:8.3f} {f:8.4f} {bad:6d}")
 
 
+def delft() -> None:
+    from rooftrace.contour.outline import connected_buildings
+    from rooftrace.io.points import read_points
+    from rooftrace.io.vector import read_layer
+
+    cloud = read_points(sorted(DELFT.glob("ahn3_cropped_*.laz")), "EPSG:28992")
+    sel = cloud.fields["classification"] == 6
+    xyz = cloud.xyz[sel]
+    aoi = shapely.union_all([g for p in sorted(DELFT.glob("bgt_*.sqlite")) for g in read_layer(p).geometries])
+    ref = shapely.union_all(read_layer(DELFT / "bgt_pand.sqlite").geometries)
+    t0 = time.perf_counter()
+    spacing = cloud_spacing(xyz[:, :2])
+    ids = connected_buildings(xyz[:, :2], 2.0 * spacing, min_points=10)
+    t_ids = time.perf_counter() - t0
+    print(f"Delft AHN3 class 6: {len(xyz)} points, s_avg {spacing:.3f} m, {ids.max()} components "
+          f"({t_ids:.1f} s); BGT area {aoi.area:.0f} m², bgt_pand {ref.area:.0f} m² inside")
+    print(f"{'method':45s} {'compl':>7s} {'corr':>7s} {'F-score':>8s} {'time s':>7s}")
+
+    def report(name, polys, dt=float("nan")):
+        ext = shapely.intersection(shapely.union_all([shapely.force_2d(p) for p in polys if p is not None]), aoi)
+        s = area_scores(ext, shapely.intersection(ref, aoi))
+        print(f"{name:45s} {s['completeness']:7.4f} {s['correctness']:7.4f} {s['f_score']:8.4f} {dt:7.2f}")
+
+    variants = dict(_variants())
+    which = sys.argv[2:] or [n for n in variants if "snap=0" not in n]
+    for name in which:
+        t0 = time.perf_counter()
+        outs = outline_buildings(xyz, ids, variants[name], mean_spacing=spacing)
+        report(name, [o.polygon for o in outs], time.perf_counter() - t0)
+    groups = [xyz[ids == i, :2] for i in range(1, ids.max() + 1)]
+    for ratio in (0.02, 0.05, 0.1, 0.2):
+        report(f"shapely.concave_hull ratio={ratio}", [_peer_concave(g, ratio) for g in groups if len(g) >= 3])
+
+
+def synthetic() -> None:
+    sys.path.insert(0, str(ROOT))
+    from tests.contour.shapes import CIRCLE, COURTYARD, L_SHAPE, RECT, STADIUM, sample
+
+    shapes = {"rectangle": RECT, "L": L_SHAPE, "courtyard": COURTYARD, "round (r 8 m)": CIRCLE,
+              "semicircular end": STADIUM}
+    print(f"{'shape':18s} {'density':>7s} {'PoLiS m':>8s} {'F-score':>8s}  degrees (outer ring, 5 seeds)")
+    for density in (5.0, 10.0):
+        for name, truth in shapes.items():
+            p, f, degs = [], [], []
+            for seed in range(5):
+                out = trace_outline(sample(truth, density, seed=seed))
+                p.append(polis(out.polygon, truth))
+                f.append(area_scores(out.polygon, truth)["f_score"])
+                degs.append("".join(map(str, out.degrees[0])))
+            print(f"{name:18s} {density:7.1f} {np.mean(p):8.3f} {np.mean(f):8.4f}  {' '.join(degs)}")
+
+
 def speed() -> None:
     rng = np.random.default_rng(0)
     poly = shapely.Polygon([(0, 0), (14, 0), (14, 5), (8, 5), (8, 9), (0, 9)])
@@ -118,14 +171,16 @@ def speed() -> None:
     for strategy in ("global", "building", "point"):
         options = OutlineOptions.from_config({}, strategy=strategy)
         trace_outline(xyz, options, mean_spacing=s)  # warm-up (numba cache, imports)
-        times = []
+        times, cpu = [], []
         for _ in range(20):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             trace_outline(xyz, options, mean_spacing=s)
             times.append(time.perf_counter() - t0)
-        print(f"{len(xyz)} points, strategy {strategy:8s}: median {np.median(times) * 1000:.1f} ms, max {max(times) * 1000:.1f} ms")
+            cpu.append(time.process_time() - c0)
+        print(f"{len(xyz)} points, strategy {strategy:8s}: wall median {np.median(times) * 1000:.1f} ms "
+              f"(max {max(times) * 1000:.1f}), CPU median {np.median(cpu) * 1000:.1f} ms")
 
 
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "city3d"
-    {"city3d": city3d, "speed": speed}[what]()
+    {"city3d": city3d, "delft": delft, "synthetic": synthetic, "speed": speed}[what]()

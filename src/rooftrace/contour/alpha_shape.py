@@ -105,12 +105,15 @@ class AlphaShape:
     strategy : str
     spacing : ndarray of shape (N,) float64
         Local mean spacing per point (ps_avg for S3, else the unscaled alpha everywhere).
+    dropped_area : float
+        Area (m²) of the other outer rings, left out (parts that fell apart).
     """
 
     rings: list[np.ndarray]
     alpha: float
     strategy: str
     spacing: np.ndarray
+    dropped_area: float = 0.0
 
 
 def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -404,5 +407,6 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     holes = [r for r, a in zip(rings, areas) if a < 0 and -a >= options.min_hole_area
              and shell.contains(shapely.Point(xy[r].mean(axis=0)))]
     log.debug("alpha shape: %d rings traced, outer of %.1f m², %d holes kept", len(rings), outer_areas.max(), len(holes))
-    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing)
+    dropped = float(outer_areas.sum() - outer_areas.max())
+    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped)
 

@@ -32,8 +32,7 @@ from scipy.sparse import linalg as sparse_linalg
 
 from rooftrace.errors import GeometryError
 
-__all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline",
-           "refine_corners", "spline_outline"]
+__all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline"]
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +71,9 @@ class CDSplineOptions:
     split : bool
         Beyond the thesis: a segment that needs degree >= 4 is split at the
         Douglas-Peucker vertex inside it that gives the best fit, when the
-        split fit is no worse and needs no more control points (a straight
-        wall running tangentially into an arc becomes a line and a curve).
+        split fit is no worse (sigma within 2 %) and needs at most one more
+        control point, repeatedly (a straight wall running tangentially into
+        an arc becomes a line and a curve).
     densify : float
         Spacing in metres of the output vertices along curved (degree >= 2)
         segments; straight segments are output as their two corners.
@@ -422,71 +422,3 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
     log.debug("cd-spline: degrees %s after %d fits", degrees.tolist(), len(history))
     return fit
 
-
-def refine_corners(points: np.ndarray, corners: np.ndarray, rounds: int = 2) -> np.ndarray:
-    """Move each corner to the ring point nearest its corner in an all-straight least-squares fit.
-
-    Returns sorted unique ring indices (corners that collapse are merged).
-    """
-    corners = np.unique(np.asarray(corners, dtype=np.int64))
-    if len(corners) < 3:
-        return corners
-    for _ in range(rounds):
-        fit = fit_cdspline(points, corners, [1] * len(corners))
-        # the all-straight fit's control points are the fitted corners, in corner order
-        d = np.linalg.norm(points[None, :, :2] - fit.control_points[:, None, :2], axis=2)
-        moved = np.unique(np.argmin(d, axis=1))
-        if len(moved) < 3 or np.array_equal(moved, corners):
-            break
-        corners = moved
-    return corners
-
-
-def spline_outline(points: np.ndarray, corners: np.ndarray, candidates: np.ndarray | None = None,
-                   options: CDSplineOptions | None = None) -> CDSpline:
-    """Refined corners, iterative CD-spline, and splitting of segments that need degree >= 4.
-
-    Parameters
-    ----------
-    points : ndarray of shape (Q, 3) float64
-        Closed ring.
-    corners : ndarray of int
-        Knots (thesis corners).
-    candidates : ndarray of int, optional
-        Extra ring indices where a segment may be split (the Douglas-Peucker
-        vertices the angle filter dropped).
-    options : CDSplineOptions, optional
-    """
-    options = options or CDSplineOptions()
-    corners = np.unique(np.asarray(corners, dtype=np.int64))
-    if options.refine and len(corners) >= 3:
-        try:
-            corners = refine_corners(points, corners, options.refine)
-        except GeometryError:
-            pass
-    fit = iterative_cdspline(points, corners, options)
-    if not options.split or candidates is None or len(candidates) == 0:
-        return fit
-    q = len(points)
-    changed = True
-    while changed:
-        changed = False
-        for k in np.flatnonzero(np.asarray(fit.degrees) >= 4):
-            lo = corners[k]
-            hi = corners[k + 1] if k + 1 < len(corners) else corners[0] + q
-            inside = [int(c) for c in candidates if lo < c < hi or lo < c + q < hi]
-            best = None
-            for c in inside:
-                trial = np.unique(np.append(corners, c % q))
-                try:
-                    new = iterative_cdspline(points, trial, options)
-                except GeometryError:
-                    continue
-                if sum(new.degrees) <= sum(fit.degrees) and new.sigma <= 1.02 * fit.sigma:
-                    if best is None or new.sigma < best[1].sigma:
-                        best = (trial, new)
-            if best is not None:
-                corners, fit = best
-                changed = True
-                break
-    return fit

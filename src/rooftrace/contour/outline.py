@@ -17,7 +17,8 @@ import shapely
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
-from rooftrace.contour.cdspline import CDSplineOptions, spline_outline
+from rooftrace.contour.cdspline import CDSplineOptions
+from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.errors import GeometryError, InputError
@@ -31,7 +32,7 @@ log = logging.getLogger(__name__)
 _STAGES = {"alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions, "regularize": RegularizeOptions}
 KNOWN_SECTIONS.update(_STAGES)
 
-#: alpha is enlarged by these factors when the shape does not close (status "alpha_enlarged")
+#: alpha is enlarged by these factors when the shape does not close or falls apart (status "alpha_enlarged")
 _RETRY_SCALES = (1.0, 1.5, 2.0, 3.0)
 
 
@@ -93,7 +94,9 @@ class RoofOutline:
     n_points : int
     status : str
         'ok', 'alpha_enlarged' (closed only with a larger alpha), 'repaired'
-        (invalid rings fixed by make_valid), 'unregularised' (the CD-spline
+        (invalid rings fixed by make_valid), 'multipart' (the points fall
+        apart into several parts even with alpha tripled; the largest is
+        kept), 'unregularised' (the CD-spline
         collapsed the outer ring; the alpha-shape ring is kept), or why there is no outline
         ('too_few_points', 'collinear', 'no_ring', ...).
     z_min, z_mean, z_max : float
@@ -187,14 +190,23 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     shape = None
     for scale in _RETRY_SCALES:
         try:
-            shape = alpha_shape(pts[:, :2], options.alpha, mean_spacing=mean_spacing, alpha_scale=scale)
-            break
+            trial = alpha_shape(pts[:, :2], options.alpha, mean_spacing=mean_spacing, alpha_scale=scale)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
             status = "alpha_enlarged"
+            continue
+        shape = shape or trial
+        main_area = abs(_area(pts[trial.rings[0], :2]))
+        if trial.dropped_area <= max(options.alpha.min_hole_area, 0.05 * main_area):
+            shape = trial
+            break
+        # the building fell apart into several rings: a larger alpha joins them
+        status = "alpha_enlarged"
     if shape is None:
         raise GeometryError("no_ring")
+    if shape.dropped_area > max(options.alpha.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
+        status = "multipart"
     rings, degrees, corners = [], [], []
     sigma = float("nan")
     for i, ring in enumerate(shape.rings):
