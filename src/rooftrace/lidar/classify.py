@@ -60,6 +60,15 @@ class ClassifyOptions:
         ``'midpoint'`` (c0 + c1)/2, the plain k-means rule (thesis); ``'zscore'``
         (c0·s1 + c1·s0)/(s0 + s1) with s0, s1 the classes' standard
         deviations, equally many deviations from both centroids.
+    max_penetration : float or None, default 0.5
+        Beyond the thesis: clusters where more than this fraction of points
+        are not the last return of their pulse are not buildings (the laser
+        went through them: hedges, crowns trimmed flat).  Used only when the
+        file has return numbers; ``None`` disables it.
+    building_penetration : float, default 0.6
+        A whole building (its roof levels merged) is dropped when its
+        fraction of non-last returns exceeds
+        ``max_penetration · building_penetration``.
     """
 
     section: ClassVar[str] = "classify"
@@ -71,6 +80,8 @@ class ClassifyOptions:
     entropy_ceiling: float = 0.95
     max_linearity: float = 0.7
     boundary: str = "zscore"
+    max_penetration: float | None = 0.5
+    building_penetration: float = 0.6
 
     def __post_init__(self) -> None:
         if self.boundary not in ("zscore", "midpoint"):

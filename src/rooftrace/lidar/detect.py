@@ -159,11 +159,34 @@ def _absorb(pts: np.ndarray, group: np.ndarray, eligible: np.ndarray, radius: fl
     return group
 
 
-def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float) -> np.ndarray:
-    """Unassigned points under a building's roof (plan distance < radius, lower) join it: walls, eaves' undersides."""
+def _group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
+    """Width of each group in plan: sqrt(12 · smallest variance), exact for a filled rectangle (m)."""
+    ok = group >= 0
+    g = group[ok]
+    cnt = np.maximum(np.bincount(g, minlength=k), 1)
+    c = xy[ok] - xy[ok].mean(axis=0)
+    mx, my = np.bincount(g, c[:, 0], k) / cnt, np.bincount(g, c[:, 1], k) / cnt
+    sxx = np.bincount(g, c[:, 0] ** 2, k) / cnt - mx**2
+    syy = np.bincount(g, c[:, 1] ** 2, k) / cnt - my**2
+    sxy = np.bincount(g, c[:, 0] * c[:, 1], k) / cnt - mx * my
+    small = (sxx + syy) / 2 - np.sqrt(((sxx - syy) / 2) ** 2 + sxy**2)
+    return np.sqrt(12 * np.maximum(small, 0))
+
+
+def _penetration(cloud: PointCloud, index: np.ndarray) -> np.ndarray | None:
+    """1.0 where a point is not the last return of its pulse, from the LAS return numbers; None without them."""
+    rn = cloud.fields.get("return_number")
+    nr = cloud.fields.get("number_of_returns")
+    if rn is None or nr is None or not np.any(nr[index] > 1):
+        return None
+    return (rn[index] < nr[index]).astype(np.float64)
+
+
+def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float, eligible: np.ndarray) -> np.ndarray:
+    """Eligible unassigned points under a building's roof (plan distance < radius, lower) join it: walls, eaves."""
     group = group.copy()
     inb = np.flatnonzero(group >= 0)
-    todo = np.flatnonzero(group < 0)
+    todo = np.flatnonzero((group < 0) & eligible)
     if len(inb) == 0 or len(todo) == 0:
         return group
     dist, j = cKDTree(pts[inb, :2]).query(pts[todo, :2], distance_upper_bound=radius, workers=-1)
@@ -250,14 +273,17 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
     co = opt.classify
     k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
-    cand = np.flatnonzero(~noise & ~ground & (hag >= so.min_height))
-    pts = xyz[cand] - xyz[cand].min(axis=0) if len(cand) else np.empty((0, 3))
+    # every non-ground point gets eigen-features (walls and low annexes may
+    # join a building later); only those above min_height are segmented
+    above = np.flatnonzero(~noise & ~ground)
+    pts = xyz[above] - xyz[above].min(axis=0) if len(above) else np.empty((0, 3))
+    high = np.flatnonzero(hag[above] >= so.min_height)
     with clock("features"):
         feats = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours)
     with clock("segment"):
-        pairs = link_pairs(pts[:, :2], link_d)
-        normals = feats[:, 4:] if so.height_test == "normal" else None
-        levels = region_growing(pts, link_d, link_h, so.max_slope, pairs=pairs, normals=normals)
+        pairs = link_pairs(pts[high, :2], link_d)
+        normals = feats[high, 4:] if so.height_test == "normal" else None
+        levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
             **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
@@ -266,45 +292,61 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
 
     with clock("classify"):
         big = sizes >= min_pts
-        ent = cluster_means(levels, feats[:, 3], len(sizes))
-        lin = cluster_means(levels, feats[:, 0], len(sizes))
+        ent = cluster_means(levels, feats[high, 3], len(sizes))
+        lin = cluster_means(levels, feats[high, 0], len(sizes))
         _, cparams = separate_buildings(ent[big], lin[big], co)
+        threshold = cparams["entropy_threshold"]
         # small clusters (ridges, dormers, roof edges cut off by the height
         # test) take the threshold learnt on the big ones; the building size
         # filter below drops those that do not touch a building
-        building_level = (ent <= cparams["entropy_threshold"]) & (lin <= co.max_linearity)
-        linear = np.zeros(len(sizes), bool)
-        linear[np.flatnonzero(big)] = lin[big] > co.max_linearity
+        building_level = (ent <= threshold) & (lin <= co.max_linearity)
+        linear = big & (lin > co.max_linearity)
+        returns = _penetration(cloud, above[high])
+        if co.max_penetration is not None and returns is not None:
+            penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
+            building_level &= ~penetrated
+            cparams["n_penetrated"] = int((big & penetrated).sum())
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
         group = merge_touching(levels, pairs, building_level)
-        group_pt = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
-        gsize = np.bincount(group_pt[group_pt >= 0], minlength=int(group.max(initial=-1)) + 1)
-        group_pt = np.where((group_pt >= 0) & (gsize[np.maximum(group_pt, 0)] >= min_pts), group_pt, -1)
-        # walls and low annexes below min_height may join a building too
-        low = np.flatnonzero(~noise & ~ground & (hag < so.min_height)) if so.absorb_rounds else np.zeros(0, np.int64)
-        every = np.concatenate([cand, low])
-        pts_all = np.concatenate([pts, xyz[low] - xyz[cand].min(axis=0)]) if len(cand) else xyz[low] - xyz[low].min(axis=0, initial=0)
-        group_all = np.concatenate([group_pt, np.full(len(low), -1, np.int64)])
-        levels_all = np.concatenate([levels, np.full(len(low), -1, np.int64)])
-        if so.absorb_rounds and len(cand):
-            eligible = np.concatenate([feats[:, 3] <= cparams["entropy_threshold"], np.ones(len(low), bool)])
-            group_all = _absorb(pts_all, group_all, eligible, link_d, so.absorb_rounds)
+        group_high = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
+        gsize = np.bincount(group_high[group_high >= 0], minlength=int(group.max(initial=-1)) + 1)
+        # a building needs one roof level of T_Np points itself; small
+        # clusters only join one (a heap of small ones is a crown cut up)
+        keep = gsize >= min_pts
+        anchored = np.zeros(len(gsize), bool)
+        anchored[group[building_level & big]] = True
+        keep &= anchored
+        if co.max_penetration is not None and returns is not None:
+            # the same test on the whole building, at a stricter level: a
+            # roof lets few pulses through, a heap of crowns many
+            pen = cluster_means(group_high, returns, len(gsize))
+            keep &= ~(pen > co.max_penetration * co.building_penetration)
+        if so.min_width:
+            keep &= _group_widths(pts[high, :2], group_high, len(gsize)) >= so.min_width
+        group_high = np.where((group_high >= 0) & keep[np.maximum(group_high, 0)], group_high, -1)
+        group_all = np.full(len(above), -1, np.int64)
+        group_all[high] = group_high
+        levels_all = np.full(len(above), -1, np.int64)
+        levels_all[high] = levels
+        if so.absorb_rounds and len(above):
+            # only points whose own neighbourhood is on the building side
+            # (roof edges, dormers, walls) join; hedges and crowns do not
+            eligible = feats[:, 3] <= threshold
+            group_all = _absorb(pts, group_all, eligible, link_d, so.absorb_rounds)
             if so.absorb_touching:
-                # points interleaved with a roof (noisy normals at ridges and
-                # eaves) are taken whatever their entropy
-                group_all = _absorb(pts_all, group_all, np.ones(len(group_all), bool), s_avg, 1)
-                group_all = _absorb_below(pts_all, group_all, s_avg)
-        bid_local = order_labels(pts_all, group_all)
-        level_local = order_labels(pts_all, np.where(bid_local >= 0, levels_all, -1))
+                group_all = _absorb(pts, group_all, np.ones(len(above), bool), s_avg, 1)
+                group_all = _absorb_below(pts, group_all, s_avg, eligible)
+        bid_local = order_labels(pts, group_all)
+        level_local = order_labels(pts, np.where(bid_local >= 0, levels_all, -1))
         building_id = np.zeros(n, np.int32)
         roof_level_id = np.zeros(n, np.int32)
-        building_id[every] = bid_local + 1
-        roof_level_id[every] = level_local + 1
-        veg = big[levels] & ~linear[levels] & (bid_local[: len(cand)] < 0) if len(levels) else np.zeros(0, bool)
-        cls[cand[veg]] = ASPRS.HIGH_VEGETATION
+        building_id[above] = bid_local + 1
+        roof_level_id[above] = level_local + 1
+        veg = big[levels] & ~linear[levels] & (bid_local[high] < 0) if len(levels) else np.zeros(0, bool)
+        cls[above[high[veg]]] = ASPRS.HIGH_VEGETATION
         cls[building_id > 0] = ASPRS.BUILDING
         cls[ground] = ASPRS.GROUND
         cls[noise] = ASPRS.NOISE

@@ -39,7 +39,7 @@ class SegmentOptions:
 
     Attributes
     ----------
-    min_height : float, default 2.5
+    min_height : float, default 2.0
         Points lower than this above the ground (m) are not segmented
         (cars, walls' feet, low vegetation).
     link_distance : float or None
@@ -66,6 +66,11 @@ class SegmentOptions:
         Rounds in which a building takes in unassigned points within L_Dxy
         (3D) whose own entropy is on the building side (roof edges, dormers
         cut off by the height test); 0 disables it (the thesis' behaviour).
+    min_width : float or None, default 2.5
+        Beyond the thesis: buildings narrower than this in plan (m,
+        ``sqrt(12·smallest variance)`` of their roof points, exact for a
+        rectangle) are dropped: hedges and walls trimmed flat look like
+        roofs to the entropy test.  ``None`` disables it.
     absorb_touching : bool, default True
         After that, a building also takes in any unassigned point closer
         than s_avg (3D) to it, whatever its entropy (points interleaved with
@@ -73,7 +78,7 @@ class SegmentOptions:
     """
 
     section: ClassVar[str] = "segment"
-    min_height: float = 2.5
+    min_height: float = 2.0
     link_distance: float | None = None
     link_height: float | None = None
     max_slope: float = 60.0
@@ -83,6 +88,7 @@ class SegmentOptions:
     normal_neighbours: int = 12
     absorb_rounds: int = 3
     absorb_touching: bool = True
+    min_width: float | None = 2.5
 
     def __post_init__(self) -> None:
         if self.height_test not in ("normal", "slope"):
