@@ -57,6 +57,10 @@ class GroundOptions:
         ``max(0.2, 5·sigma_H)``.
     max_iterations : int, default 40
         Upper bound on densification rounds.
+    converged_fraction : float, default 0.001
+        The densification stops when a round adds at most this fraction of
+        the TIN's vertices (0 gives Axelsson's "until nothing is added";
+        the last rounds add a handful of points at a full re-triangulation each).
     facet_rounds : int, default 0
         During the first ``facet_rounds`` rounds only the best candidate of
         each facet is added (Axelsson's rule); afterwards every accepted
@@ -71,6 +75,7 @@ class GroundOptions:
     ground_tolerance: float | None = None
     max_iterations: int = 40
     facet_rounds: int = 0
+    converged_fraction: float = 0.001
 
     def __post_init__(self) -> None:
         for name in ("seed_cell", "iteration_distance", "iteration_angle", "candidate_cell", "ground_tolerance"):
@@ -271,7 +276,9 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude):
             accept = accept[first]
         added = len(accept)
         log.debug("ground round %d: %d TIN vertices, %d added", rounds, len(tin), added)
-        if added == 0:
+        if added <= opt.converged_fraction * len(tin):
+            if added:
+                is_ground[todo[accept]] = True
             if not refit:
                 break
             # the corners took the height of the nearest seed, up to a seed
