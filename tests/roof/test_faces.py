@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 from shapely.geometry import Polygon
 
 from rooftrace.roof import models, roof_structure
@@ -72,3 +73,34 @@ def test_flat_annex_step_edge():
 def test_lift_to_plane():
     g = lift_to_plane(Polygon([(0, 0), (1, 0), (1, 1)]), np.array([-0.6, 0, 0.8, -1.6]))
     assert np.allclose(np.asarray(g.exterior.coords)[:, 2], [2, 2.75, 2.75, 2])
+
+
+def test_outline_with_z_and_courtyard(rng):
+    """A 3D outline with a hole (courtyard), as the outline stage gives it."""
+    ring = [(0, 0, 6.0), (20, 0, 6.0), (20, 16, 6.0), (0, 16, 6.0)]
+    hole = [(7, 5, 6.0), (13, 5, 6.0), (13, 11, 6.0), (7, 11, 6.0)]
+    outline = Polygon(ring, [hole])
+    g = 1 / np.sqrt(12)
+    xy = np.mgrid[g / 2:20:g, g / 2:16:g].reshape(2, -1).T + rng.uniform(-g / 2, g / 2, (1, 2))
+    xy = xy[shapely.contains_xy(shapely.force_2d(outline), xy[:, 0], xy[:, 1])]
+    # Two shed halves falling away from a ridge at x = 10.
+    z = 9.0 - 0.4 * np.abs(xy[:, 0] - 10) + rng.normal(0, 0.03, len(xy))
+    roof = roof_structure(np.column_stack([xy, z]), outline)
+    assert roof.status == "ok" and len(roof.planes) == 2
+    faces2d = [shapely.force_2d(f) for f in roof.faces]
+    assert sum(f.area for f in faces2d) == pytest.approx(outline.area, rel=1e-6)
+    assert all(f.intersection(Polygon(hole)).area < 1e-6 for f in faces2d)
+    # The ridge crosses the courtyard: two pieces, each ending on the outline.
+    assert roof.ridge_kind.count("ridge") == 2
+    for r in roof.ridges:
+        for c in (r.coords[0], r.coords[-1]):
+            assert shapely.distance(shapely.force_2d(outline).boundary, shapely.Point(c[:2])) < 1e-6
+
+
+def test_outline_away_from_points_gives_no_faces():
+    m = models.gable()
+    xyz, _ = models.sample_roof(m, 12, 0.03, seed=1)
+    far = shapely.affinity.translate(m.outline, 500, 0)
+    roof = roof_structure(xyz, far)
+    assert roof.status in ("no_faces", "ok") and len(roof.planes) == 2
+    assert all(shapely.force_2d(f).within(far.buffer(1e-6)) for f in roof.faces)

@@ -145,10 +145,20 @@ def partition_outline(
     if lines is not None and len(lines.lines) and len(rows):
         K = len(planes)
         segidx = np.full((K, K), -1)
-        for s, (a, b) in enumerate(lines.pairs):
-            segidx[a, b] = segidx[b, a] = s
-        seg = np.array([np.asarray(g.coords)[[0, -1], :2] for g in lines.lines])
-        sign = np.asarray(lines.convex)
+        # One segment per plane pair, spanning all its pieces (a ridge cut
+        # by a courtyard is collinear pieces).
+        spans: dict = {}
+        for g, pair, cv in zip(lines.lines, lines.pairs, lines.convex):
+            spans.setdefault(tuple(pair), ([], cv))[0].extend(np.asarray(g.coords)[:, :2])
+        seg, sign = [], []
+        for (a, b), (pts, cv) in spans.items():
+            pts = np.asarray(pts)
+            d = pts - pts[0]
+            t = d @ (d[np.argmax(np.hypot(d[:, 0], d[:, 1]))] if len(pts) > 1 else np.zeros(2))
+            segidx[a, b] = segidx[b, a] = len(seg)
+            seg.append(pts[[np.argmin(t), np.argmax(t)]])
+            sign.append(cv)
+        seg, sign = np.asarray(seg), np.asarray(sign)
         # Only candidate pairs joined by a line matter: gather those.
         S = segidx[cm[:, :, None], cm[:, None, :]]
         m, i, j = np.nonzero(S >= 0)

@@ -239,26 +239,20 @@ def intersection_lines(
             t0 = lo_c[np.argmin(np.abs(lo_c - t0))]
         if len(hi_c) and np.abs(hi_c - t1).min() <= snap:
             t1 = hi_c[np.argmin(np.abs(hi_c - t1))]
-        # Clip to the outline: keep the longest inside piece.
-        best = None
-        for lo, hi in intervals:
-            s0, s1 = max(lo, t0), min(hi, t1)
-            if s1 > s0 and (best is None or s1 - s0 > best[1] - best[0]):
-                best = (s0, s1)
-        if best is None or best[1] - best[0] < min_length:
-            continue
-        t0, t1 = best
-        ends_out = (any(abs(t0 - v) < 1e-9 for iv in intervals for v in iv),
-                    any(abs(t1 - v) < 1e-9 for iv in intervals for v in iv))
-        p0, p1 = x0 + t0 * u, x0 + t1 * u
+        # Clip to the outline: one line per inside piece (a ridge crossing a
+        # courtyard is two lines).
         cv = 1 if conv[(int(a), int(b))] > 0 else -1
         incline = np.degrees(np.arctan(abs(u[2])))  # |u_xy| = 1
         kind = "valley" if cv < 0 else ("ridge" if incline <= ridge_max_slope else "hip")
-        out.lines.append(LineString([p0, p1]))
-        out.kinds.append(kind)
-        out.pairs.append((int(a), int(b)))
-        out.convex.append(cv)
-        on_outline.append(ends_out)
+        for lo, hi in intervals:
+            s0, s1 = max(lo, t0), min(hi, t1)
+            if s1 - s0 < min_length:
+                continue
+            out.lines.append(LineString([x0 + s0 * u, x0 + s1 * u]))
+            out.kinds.append(kind)
+            out.pairs.append((int(a), int(b)))
+            out.convex.append(cv)
+            on_outline.append((abs(s0 - lo) < 1e-9, abs(s1 - hi) < 1e-9))
     _merge_junctions(out, planes, on_outline, line_tolerance / 2)
     log.debug("%d intersection lines from %d adjacent pairs", len(out.lines), len(adj))
     return out
