@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rooftrace.image.camera import FrameCamera, OrthoCamera
-from rooftrace.image.projection import in_window, line_windows, project_lines, window_slices
+from rooftrace.image.projection import clip_to_window, in_window, line_windows, project_lines, window_slices
 
 
 def _nadir(cov=None):
@@ -63,3 +63,18 @@ def test_window_slices_clip_and_miss():
     rows, cols = window_slices(win, (50, 15), pad=2)
     assert (rows.start, rows.stop, cols.start, cols.stop) == (0, 13, 0, 15)
     assert window_slices(win + 100, (50, 50)) is None
+
+
+def test_clip_to_window():
+    win = np.array([[0.0, 0.0], [10, 0], [10, 4], [0, 4]])
+    segs = np.array([[[-5, 2], [15, 2]], [[2, 1], [3, 3]], [[-5, 10], [15, 10]], [[5, -3], [5, 8]], [[12, 0], [20, 4]]], float)
+    out, keep = clip_to_window(segs, win)
+    np.testing.assert_array_equal(keep, [True, True, False, True, False])
+    np.testing.assert_allclose(out[0], [[0, 2], [10, 2]])
+    np.testing.assert_allclose(out[1], segs[1])
+    np.testing.assert_allclose(out[2], [[5, 0], [5, 4]])
+    # a rotated window
+    rot = line_windows(np.array([[[0.0, 0.0], [10.0, 10.0]]]), [1.0], k=1.0, margin=0.0)[0]
+    out, keep = clip_to_window(np.array([[[-10.0, -10.0], [20.0, 20.0]]]), rot)
+    assert keep[0] and in_window(out[0], rot + 1e-9 * (rot - rot.mean(0))).all()
+    np.testing.assert_allclose(np.hypot(*(out[0, 1] - out[0, 0])), np.hypot(10, 10) + 2.0)

@@ -29,7 +29,7 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.edges import canny_edges, link_chains
 from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
-from rooftrace.image.projection import in_window, line_windows, project_lines, window_slices
+from rooftrace.image.projection import clip_to_window, in_window, line_windows, project_lines, window_slices
 from rooftrace.image.steger import steger_lines, steger_sigma
 from rooftrace.image.terrain import PixelHeights, sample_segments, terrain_lines
 
@@ -301,6 +301,9 @@ def extract_candidates(
                     found = found[~drop]
                     sources = [s for s, d in zip(sources, drop) if not d]
                 found, sources = merge_collinear(found, sources, opt.merge_angle, opt.merge_distance)
+                # a merged line's ends may stick out of the window by a fraction of a pixel
+                found, inside_win = clip_to_window(found, win)
+                sources = [s for s, k in zip(sources, inside_win) if k]
                 keep = filter_candidates(found, ref, opt.min_length_fraction, opt.max_angle)
                 found = found[keep]
                 sources = [s for s, k in zip(sources, keep) if k]

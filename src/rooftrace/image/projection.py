@@ -22,7 +22,7 @@ import logging
 
 import numpy as np
 
-__all__ = ["project_lines", "line_windows", "window_frame", "in_window", "window_slices"]
+__all__ = ["project_lines", "line_windows", "window_frame", "in_window", "window_slices", "clip_to_window"]
 
 log = logging.getLogger(__name__)
 
@@ -132,3 +132,28 @@ def window_slices(window, shape: tuple[int, int], pad: int = 0) -> tuple[slice, 
     if c0 >= c1 or r0 >= r1:
         return None
     return slice(r0, r1), slice(c0, c1)
+
+
+def clip_to_window(segments, window) -> tuple[np.ndarray, np.ndarray]:
+    """Clip segments (K, 2, 2) to a window rectangle (4, 2) (Liang-Barsky in the window's frame).
+
+    Returns the clipped segments (K', 2, 2) and the mask (K,) of those that
+    keep a part inside.
+    """
+    seg = np.asarray(segments, float).reshape(-1, 2, 2)
+    w = np.asarray(window, float)
+    e1, e2 = w[1] - w[0], w[3] - w[0]
+    m = np.linalg.inv(np.column_stack([e1, e2]))  # pixel offset -> unit square coordinates
+    a = (seg[:, 0] - w[0]) @ m.T
+    d = (seg[:, 1] - seg[:, 0]) @ m.T
+    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(2):
+            for p, q in ((-d[:, k], a[:, k]), (d[:, k], 1.0 - a[:, k])):
+                r = q / p
+                t0 = np.where(p < 0, np.maximum(t0, r), t0)
+                t1 = np.where(p > 0, np.minimum(t1, r), t1)
+                t1 = np.where((p == 0) & (q < 0), -1.0, t1)  # parallel and outside
+    keep = t1 > t0
+    out = seg[:, :1] + np.stack([t0, t1], axis=1)[..., None] * (seg[:, 1:] - seg[:, :1])
+    return out[keep], keep
