@@ -166,8 +166,8 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             near = tree.query_ball_point([(x0 + x1) / 2, (y0 + y1) / 2], np.hypot(x1 - x0, y1 - y0) / 2 + opt.context)
             local = pts[np.sort(np.asarray(near, int))]
             n_in = int(shapely.contains_xy(shapely.force_2d(poly), local[:, 0], local[:, 1]).sum())
-            # half the mean point spacing 1/sqrt(density): how far a boundary point sits from the edge
-            sigma = 0.5 / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
+            # a fraction of the mean point spacing 1/sqrt(density) (boundary points sit within a spacing of the edge)
+            sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
             # the building's own points would mark the true edges, which lie outside a LiDAR outline
             # shrunk by half a point spacing, as "off the building": the projected lines stand for it
             inside = None
