@@ -55,7 +55,8 @@ def weak_buildings(seed: int) -> list[Building]:
         cx, cy = ORIGIN[0] + 30.0 + 30.0 * (i % 2) * 2, ORIGIN[1] + 30.0 + 60.0 * (i // 2)
         gap = float(rng.uniform(1.0, 2.0))
         kind = "flat" if i % 2 == 0 else "gable"
-        for k, dx in enumerate((-(6 + gap / 2), 6 + gap / 2)):
+        half = 4.0 + 0.3 + gap / 2  # half width + overhang + half the gap between the roofs
+        for k, dx in enumerate((-half, half)):
             out.append(Building.rectangle(2 * i + k + 1, (cx + dx, cy), 10.0, 8.0, angle_deg=90.0, kind=kind,
                                           eave_height=6.0 + k, ridge_height=9.0 + k, overhang=0.3,
                                           roof_colour=(0.55, 0.35, 0.3)))
@@ -99,9 +100,50 @@ def run_scene(opts: SceneOptions, buildings, perturb: float, rng, snake_opts: Sn
             "polis_seeds": polis(shapely.Polygon(seeds), ring2d), "polis": polis(shapely.Polygon(res.xyz), truth_poly),
             "polis3d": polis(shapely.Polygon(res.xyz), truth_poly, dim=3),
             "dz": float(np.abs(res.xyz[:, 2] - t[:, 2]).mean()), "time": dt, "iters": res.iterations,
-            "gap": gap, "veg": near_veg,
+            "gap": gap, "veg": near_veg, "draw": _drawing(grey, scene.camera, t, seeds, res.xyz),
         })
     return rows
+
+
+def _drawing(grey, camera, truth, seeds, result, pad: int = 20):
+    """Image crop around a building and the three rings in crop pixels, for the figure."""
+    tc = camera.project(truth)
+    sc = camera.project(np.column_stack([seeds, truth[:, 2]]))
+    rc = camera.project(result)
+    c0, r0 = np.floor(np.vstack([tc, sc, rc]).min(axis=0)).astype(int) - pad
+    c1, r1 = np.ceil(np.vstack([tc, sc, rc]).max(axis=0)).astype(int) + pad
+    c0, r0 = max(c0, 0), max(r0, 0)
+    off = np.array([c0, r0])
+    return grey[r0:r1, c0:c1], tc - off, sc - off, rc - off
+
+
+def figure(rows, path: str) -> None:
+    """Three panels: the median isolated case, the worst neighbour case, the worst tree case."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    iso = sorted((r for r in rows if r["tag"] == "isolated"), key=lambda r: r["polis"])
+    picks = [("isolated", iso[len(iso) // 2] if iso else None)]
+    for name, f in (("neighbour 1-2 m away", lambda r: r["tag"] == "weak" and r["veg"] == 0),
+                    ("tree over the roof edge", lambda r: r["tag"] == "weak" and r["veg"] >= 20)):
+        sel = [r for r in rows if f(r)]
+        picks.append((name, max(sel, key=lambda r: r["polis"]) if sel else None))
+    picks = [(n, r) for n, r in picks if r is not None]
+    fig, axes = plt.subplots(1, len(picks), figsize=(3.3 * len(picks), 3.3))
+    for ax, (name, r) in zip(np.atleast_1d(axes), picks):
+        img, tc, sc, rc = r["draw"]
+        ax.imshow(img, cmap="gray", vmin=0, vmax=1)
+        for ring, style, label in ((tc, "g-", "truth"), (sc, "y--", "seeds"), (rc, "r-", "snake")):
+            q = np.vstack([ring, ring[:1]])
+            ax.plot(q[:, 0], q[:, 1], style, lw=1.2, label=label)
+        ax.set_title(f"{name}\nPoLiS {r['polis']:.2f} m", fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    np.atleast_1d(axes)[0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
 
 
 def main() -> None:
@@ -111,12 +153,14 @@ def main() -> None:
     ap.add_argument("--gsd", type=float, default=0.2)
     ap.add_argument("--perturb", type=float, default=1.0)
     ap.add_argument("--weak", action="store_true", help="also run the adjacent-buildings / trees scenes")
-    ap.add_argument("--grid", type=int, default=5)
+    ap.add_argument("--grid", type=int, default=SnakeOptions.grid)
+    ap.add_argument("--fine-grid", type=int, default=SnakeOptions.fine_grid)
+    ap.add_argument("--figure", help="write a PNG of one isolated and the worst weak cases")
     ap.add_argument("--w-height", type=float, default=SnakeOptions.w_height,
                     help="0 gives the paper's image-only external energy")
     args = ap.parse_args()
     rng = np.random.default_rng(2024)
-    sopt = SnakeOptions(grid=args.grid, w_height=args.w_height)
+    sopt = SnakeOptions(grid=args.grid, fine_grid=args.fine_grid, w_height=args.w_height)
     # warm the numba caches so times are per building, not per compile
     warm = simulate_scene(SceneOptions(seed=99, size=40, density=4, gsd=args.gsd, trees=False))
     t = corners(warm.truth["roof_outlines"].geometries[0])
@@ -127,10 +171,14 @@ def main() -> None:
         rows += run_scene(opts, isolated_buildings(s + 1), args.perturb, rng, sopt, "isolated")
     if args.weak:
         for s in range(args.scenes):
-            opts = SceneOptions(seed=s + 11, size=150.0, density=args.density, gsd=args.gsd, trees=True,
-                                tree_density=60.0, origin=ORIGIN)
+            opts = SceneOptions(seed=s + 11, size=150.0, density=args.density, gsd=args.gsd, trees=False,
+                                origin=ORIGIN)
             rows += run_scene(opts, weak_buildings(s + 1), args.perturb, rng, sopt, "weak")
-    print(f"density {args.density} pts/m2, GSD {args.gsd} m, seeds moved <= {args.perturb} m, grid {args.grid}, "
+            opts = SceneOptions(seed=s + 21, size=150.0, density=args.density, gsd=args.gsd, trees=True,
+                                tree_density=40.0, origin=ORIGIN)
+            rows += [r for r in run_scene(opts, isolated_buildings(s + 21), args.perturb, rng, sopt, "weak")
+                     if r["veg"] >= 20]  # crowns reaching over the roof edge
+    print(f"density {args.density} pts/m2, GSD {args.gsd} m, seeds moved <= {args.perturb} m, grid {args.grid}/{args.fine_grid}, "
           f"w_height {args.w_height}")
     print("| set | shape | buildings | PoLiS seeds (m) | PoLiS snake mean / max (m) | PoLiS 3D (m) | mean abs dZ (m) "
           "| time mean / max (s) |")
@@ -138,7 +186,7 @@ def main() -> None:
     groups = [("isolated", "rectangle", lambda r: r["tag"] == "isolated" and r["kind"] != "l_shape"),
               ("isolated", "L", lambda r: r["tag"] == "isolated" and r["kind"] == "l_shape"),
               ("weak", "neighbour <= 2 m", lambda r: r["tag"] == "weak" and r["gap"] <= 2.0 and r["veg"] == 0),
-              ("weak", "tree over roof edge", lambda r: r["tag"] == "weak" and r["veg"] > 0)]
+              ("weak", "tree over roof edge", lambda r: r["tag"] == "weak" and r["veg"] >= 20)]
     for tag, name, f in groups:
         sel = [r for r in rows if f(r)]
         if not sel:
@@ -148,6 +196,8 @@ def main() -> None:
         print(f"| {tag} | {name} | {len(sel)} | {np.mean([r['polis_seeds'] for r in sel]):.3f} | "
               f"{p.mean():.3f} / {p.max():.3f} | {np.mean([r['polis3d'] for r in sel]):.3f} | "
               f"{np.mean([r['dz'] for r in sel]):.3f} | {tm.mean():.2f} / {tm.max():.2f} |")
+    if args.figure:
+        figure(rows, args.figure)
     for r in rows:
         print(f"  {r['tag']:8s} id {r['id']:3d} {r['kind']:9s} n={r['n']} seeds {r['polis_seeds']:.2f} -> "
               f"{r['polis']:.3f} m, dz {r['dz']:.2f}, {r['time']:.2f} s, {r['iters']} it, gap {r['gap']:.1f}, "

@@ -11,7 +11,8 @@ and minimises exactly with dynamic programming.  Steps:
 3. energy tables over candidate pairs (image gradient across each side,
    evenness of spacing) and triplets (right angles) (:mod:`.energy`);
 4. exact DP on the cycle (:mod:`.dp`); the lattice is re-centred on the
-   result, and shrunk by ``shrink`` once no vertex lands on its border;
+   result, and shrunk by ``shrink`` once no vertex lands on its border (or
+   after four re-centrings at one scale);
    the Gaussian scale of the image gradient follows the lattice step
    (coarse to fine), so coarse lattices see edges between their nodes;
 5. stop when the lattice step is at most ``min_step`` and nothing moved to the
@@ -64,9 +65,15 @@ class SnakeOptions:
         Initial half-width (m) of the candidate lattice around each seed;
         cover the seeds' distance to the true corners.
     grid : int, default 5
-        Candidates per axis (odd, >= 3); the DP costs O(n grid^10).
+        Candidates per axis at the first (coarsest) scale (odd, >= 3); the DP
+        costs O(n grid^10).
+    fine_grid : int, default 3
+        Candidates per axis at the finer scales (odd, >= 3): once the coarse
+        lattice has found the edges, Amini's 3 x 3 neighbourhood, re-centred
+        until stable, refines them at 1/400 of the cost of 5 x 5.
     shrink : float, default 0.5
-        Factor applied to the window once the solution is inside it.
+        Factor applied to the lattice step once the solution is inside the
+        lattice.
     min_step : float or None
         Final lattice step (m); None: half the image GSD at the seeds.
     max_iterations : int, default 40
@@ -99,6 +106,7 @@ class SnakeOptions:
     height_offset: float | None = None
     window: float = 1.5
     grid: int = 5
+    fine_grid: int = 3
     shrink: float = 0.5
     min_step: float | None = None
     max_iterations: int = 40
@@ -114,8 +122,10 @@ class SnakeOptions:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not self.window > 0:
             raise ValueError(f"window must be > 0 m, got {self.window}")
-        if not (isinstance(self.grid, int) and self.grid >= 3 and self.grid % 2 == 1):
-            raise ValueError(f"grid must be an odd integer >= 3, got {self.grid}")
+        for name in ("grid", "fine_grid"):
+            g = getattr(self, name)
+            if not (isinstance(g, int) and g >= 3 and g % 2 == 1):
+                raise ValueError(f"{name} must be an odd integer >= 3, got {g}")
         if not 0 < self.shrink < 1:
             raise ValueError(f"shrink must be in (0, 1), got {self.shrink}")
         if not (isinstance(self.max_iterations, int) and self.max_iterations >= 1):
@@ -314,14 +324,16 @@ def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
     min_step = opt.min_step if opt.min_step is not None else 0.5 * ctx.gsd
     resolved["min_step"] = min_step
     ring = seeds.copy()
-    half = opt.window
+    grid = opt.grid
+    step = 2 * opt.window / (grid - 1)
     converged = False
     it = 0
+    repeats, max_repeats = 0, 4
     lo, hi = seeds.min(axis=0) - reach, seeds.max(axis=0) + reach
     while it < opt.max_iterations:
-        step = 2 * half / (opt.grid - 1)
+        half = step * (grid - 1) / 2
         sigma = max(opt.sigma_px, 0.5 * step / ctx.gsd)
-        off = _lattice(opt.grid, half)
+        off = _lattice(grid, half)
         cands = np.clip(ring[:, None, :] + off[None, :, :], lo, hi)
         unary, pair, triple, _ = _tables(ring, cands, ctx, sigma, opt)
         labels, energy = cycle_dp(unary, pair, triple)
@@ -329,12 +341,19 @@ def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
         chosen = off[labels]
         ring = cands[np.arange(len(ring)), labels]
         on_border = np.any(np.abs(chosen) >= half - 1e-9)
-        log.debug("snake iteration %d: step %.3f m, sigma %.2f px, E = %.4f, border %s", it, step, sigma, energy, on_border)
-        if not on_border:
+        repeats += 1
+        log.debug("snake iteration %d: %dx%d step %.3f m, sigma %.2f px, E = %.4f, border %s",
+                  it, grid, grid, step, sigma, energy, on_border)
+        # re-centre while a vertex sits on the lattice border, but at most
+        # ``max_repeats`` times per scale: a vertex on a weak edge can walk
+        # along it (or two solutions alternate) for ever
+        if not on_border or repeats >= max_repeats:
+            repeats = 0
             if step <= min_step + 1e-12:
-                converged = True
+                converged = not on_border
                 break
-            half = max(half * opt.shrink, min_step * (opt.grid - 1) / 2)
+            step = max(step * opt.shrink, min_step)
+            grid = opt.fine_grid
     if not converged:
         log.warning("snake stopped after %d iterations without converging", it)
     energy, terms = polygon_energy(ring, ctx, max(opt.sigma_px, 0.5 * min_step / ctx.gsd), opt)
