@@ -168,11 +168,11 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     Examples
     --------
     >>> import numpy as np
-    >>> g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T
+    >>> g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T  # points 0..9.9 x 0..5.7 m
     >>> xyz = np.column_stack([g, np.full(len(g), 5.0)])
     >>> out = trace_outline(xyz)
-    >>> out.status, len(out.corners[0]), round(out.area)
-    ('ok', 4, 60)
+    >>> out.status, len(out.corners[0]), out.degrees, round(out.area)
+    ('ok', 4, [[1, 1, 1, 1]], 57)
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
