@@ -44,6 +44,10 @@ def test_faces_follow_the_ridges():
         shared = fa.boundary.intersection(fb.boundary)
         assert shared.length > 0.8 * shapely.force_2d(g).length
         assert shapely.hausdorff_distance(shared, shapely.force_2d(g)) < 0.5
+        # Face vertices along the line (off the outline) were snapped onto it.
+        on = [c for c in shapely.get_coordinates(shared) if shapely.distance(shapely.force_2d(g), shapely.Point(c)) < 0.3
+              and shapely.distance(model.outline.boundary, shapely.Point(c)) > 1e-9]
+        assert on and max(shapely.distance(shapely.force_2d(g), shapely.Point(c)) for c in on) < 1e-6
 
 
 def test_step_edges_on_constructed_faces():

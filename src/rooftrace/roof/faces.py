@@ -27,7 +27,7 @@ from shapely.geometry import LineString, Polygon, shape
 
 from rooftrace.roof.planes import plane_height
 
-__all__ = ["partition_outline", "lift_to_plane", "step_edges"]
+__all__ = ["partition_outline", "snap_to_lines", "lift_to_plane", "step_edges"]
 
 log = logging.getLogger(__name__)
 
@@ -194,6 +194,59 @@ def partition_outline(
                 pids.append(pid)
     polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
     return polys, pids
+
+
+def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
+    """Move face vertices onto the ridge, hip and valley lines they follow.
+
+    Vertices on the outline stay (the faces must keep tiling it).  Any other
+    vertex within ``tol`` (m, plan) of a line end goes to the end, else one
+    within ``tol`` of a line is projected on it.  The move is a function of the vertex alone, so vertices shared by two
+    faces stay shared.  Afterwards the face edges along a line are the line
+    (in 3D too, once lifted, as the line lies on both planes).  If any face
+    comes out invalid or the faces stop tiling the outline, the faces are
+    returned unchanged.
+    """
+    if not lines or not polys:
+        return polys
+    seg = np.array([np.asarray(g.coords)[[0, -1], :2] for g in lines])
+    ends = seg.reshape(-1, 2)
+    a, b = seg[:, 0], seg[:, 1]
+    ab = b - a
+    L2 = np.maximum((ab * ab).sum(axis=1), 1e-12)
+    boundary = outline.boundary
+
+    def _snap(coords):
+        xy = coords[:, :2]
+        out = xy.copy()
+        de = np.hypot(xy[:, None, 0] - ends[None, :, 0], xy[:, None, 1] - ends[None, :, 1])
+        je = np.argmin(de, axis=1)
+        at_end = de[np.arange(len(xy)), je] <= tol
+        ap = xy[:, None, :] - a[None]
+        t = np.clip((ap * ab[None]).sum(axis=2) / L2, 0, 1)
+        proj = a[None] + t[..., None] * ab[None]
+        ds = np.hypot(xy[:, None, 0] - proj[..., 0], xy[:, None, 1] - proj[..., 1])
+        js = np.argmin(ds, axis=1)
+        on_seg = ds[np.arange(len(xy)), js] <= tol
+        on_outline = shapely.distance(boundary, shapely.points(xy)) < 1e-9
+        end_ok = at_end & ~on_outline
+        move = on_seg & ~on_outline & ~end_ok
+        out[move] = proj[np.flatnonzero(move), js[move]]
+        out[end_ok] = ends[je[end_ok]]
+        return out
+
+    try:
+        snapped = [shapely.remove_repeated_points(shapely.transform(p, _snap)) for p in polys]
+        area = sum(p.area for p in polys)
+        ok = (all(p.is_valid and p.geom_type == "Polygon" for p in snapped)
+              and abs(sum(p.area for p in snapped) - area) <= 1e-6 * max(area, 1.0)
+              and abs(shapely.union_all(snapped).area - area) <= 1e-6 * max(area, 1.0))
+    except shapely.errors.GEOSException:
+        ok = False
+    if not ok:
+        log.debug("face snapping to lines undone (would break the tiling)")
+        return polys
+    return snapped
 
 
 def lift_to_plane(geom, plane: np.ndarray):

@@ -31,7 +31,7 @@ from rooftrace import config
 from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.faces import lift_to_plane, partition_outline, step_edges
+from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
 from rooftrace.roof.planes import estimate_spacing, segment_planes
 from rooftrace.roof.ridges import intersection_lines
 
@@ -340,6 +340,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         log.warning("building %s: no roof faces (%s)", building_id, exc)
         roof.status = "no_faces"
         return roof
+    polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
     roof.faces = [lift_to_plane(p, fit.planes[i]) for p, i in zip(polys, pids)]
     roof.face_plane = list(pids)
     steps, spairs = step_edges(polys, pids, fit.planes, step_height=opt.step_height,
