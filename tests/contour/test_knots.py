@@ -44,3 +44,20 @@ def test_refine_corners_moves_a_misplaced_corner():
     pts = np.column_stack([xy, np.zeros(len(xy))])
     got = refine_corners(pts, np.array([0, 53, 100, 150]))  # corner 1 is 0.6 m up the right side
     assert got[[0, 2, 3]].tolist() == [0, 100, 150] and abs(got[1] - 50) <= 1
+
+
+def test_merge_collinear_drops_vertices_along_straight_walls():
+    from rooftrace.contour.cdspline import CDSplineOptions
+
+    square = np.array([(0, 0), (10, 0), (10, 10), (0, 10)], float)
+    s = np.arange(0, 40, 0.2)
+    seg = (s // 10).astype(int)
+    u = (s % 10) / 10
+    xy = square[seg] + u[:, None] * (square[(seg + 1) % 4] - square[seg])
+    xy += np.random.default_rng(0).normal(0, 0.02, xy.shape)
+    pts = np.column_stack([xy, np.zeros(len(xy))])
+    corners = np.array([0, 20, 50, 75, 100, 130, 150, 170])  # 4 true corners + 4 mid-wall vertices
+    plain = spline_outline(pts, corners, options=CDSplineOptions(merge_angle=0.0))
+    merged = spline_outline(pts, corners, options=CDSplineOptions(merge_angle=15.0))
+    assert len(plain.degrees) == 8 and len(merged.degrees) == 4
+    assert merged.sigma < 0.05

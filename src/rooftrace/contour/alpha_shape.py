@@ -255,7 +255,8 @@ def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: c
     mid = pi + 0.5 * d
     perp = np.column_stack([d[:, 1], -d[:, 0]]) * h[:, None]  # right of i->j (eq. 4.1)
     tree = tree if tree is not None else cKDTree(xy)
-    dist, _ = tree.query(np.concatenate([mid + perp, mid - perp]), k=1, workers=-1)
+    centres = np.concatenate([mid + perp, mid - perp])
+    dist, _ = tree.query(centres, k=1, workers=-1 if len(centres) > 20000 else 1)  # threads cost more on small sets
     # p_i and p_j lie on the circle; anything strictly closer is inside
     empty = dist >= np.concatenate([a, a]) * (1.0 - 1e-9)
     right_empty, left_empty = empty[: len(a)], empty[len(a):]

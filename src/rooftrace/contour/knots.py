@@ -35,6 +35,48 @@ def refine_corners(points: np.ndarray, corners: np.ndarray, rounds: int = 2) -> 
     return corners
 
 
+def _merge_collinear(points: np.ndarray, corners: np.ndarray, fit: CDSpline, options: CDSplineOptions):
+    """Drop corners between two straight segments whose fitted directions differ by < ``merge_angle``.
+
+    Douglas-Peucker on a ragged alpha boundary leaves extra vertices along
+    straight walls; the fitted control points are far less noisy than the
+    boundary points, so the angle is measured on them.  Non-adjacent corners
+    go in one batch, then the curve is refitted, until none is left.
+    """
+    for _ in range(len(corners)):
+        deg = np.asarray(fit.degrees)
+        m = len(corners)
+        if m <= 3:
+            break
+        offsets = np.concatenate([[0], np.cumsum(deg)])
+        ctrl = fit.control_points[:, :2]
+        start = ctrl[offsets[:-1] % len(ctrl)]
+        end = ctrl[offsets[1:] % len(ctrl)]
+        d = end - start
+        d_in = np.roll(d, 1, axis=0)  # segment k-1 ends at corner k
+        cos = np.einsum("ij,ij->i", d_in, d) / np.maximum(np.linalg.norm(d_in, axis=1) * np.linalg.norm(d, axis=1), 1e-12)
+        angle = np.degrees(np.arccos(np.clip(cos, -1, 1)))
+        straight = (deg == 1) & (np.roll(deg, 1) == 1)
+        cand = np.flatnonzero(straight & (angle < options.merge_angle))
+        if len(cand) == 0:
+            break
+        cand = cand[np.argsort(angle[cand], kind="stable")]
+        drop: list[int] = []
+        for k in cand:  # not two neighbours at once: the merged direction changes
+            if all(abs(k - j) not in (1, m - 1) for j in drop) and m - len(drop) > 3:
+                drop.append(int(k))
+        keep = np.setdiff1d(np.arange(m), drop)
+        new_corners = corners[keep]
+        # the merged segment keeps the degree of the segment it starts with (1 on both sides)
+        new_deg = deg[keep]
+        try:
+            fit = fit_cdspline(points, new_corners, new_deg)
+        except GeometryError:
+            break
+        corners = new_corners
+    return corners, fit
+
+
 def spline_outline(points: np.ndarray, corners: np.ndarray, candidates: np.ndarray | None = None,
                    options: CDSplineOptions | None = None) -> CDSpline:
     """Refined corners, iterative CD-spline, and splitting of segments that need degree >= 4.
@@ -58,6 +100,8 @@ def spline_outline(points: np.ndarray, corners: np.ndarray, candidates: np.ndarr
         except GeometryError:
             pass
     fit = iterative_cdspline(points, corners, options)
+    if options.merge_angle > 0:
+        corners, fit = _merge_collinear(points, corners, fit, options)
     if not options.split or candidates is None or len(candidates) == 0:
         return fit
     q = len(points)
