@@ -4,6 +4,7 @@ import numpy as np
 import pyproj
 import pytest
 import shapely
+import shapely.affinity
 
 from rooftrace.config import make_options
 from rooftrace.errors import InputError
@@ -130,3 +131,32 @@ def test_translation_and_shuffle_invariance(rng):
     l1 = sorted(round(g.length, 2) for g in r1.ridges)
     l2 = sorted(round(g.length, 2) for g in r2.ridges)
     assert np.allclose(l1, l2, atol=0.02)
+
+
+@pytest.mark.parametrize("case", ["wall", "duplicates", "multipolygon", "empty_outline", "nan_spacing", "two_points_apart"])
+def test_odd_input_never_raises(case, rng):
+    m = models.gable()
+    xyz, _ = models.sample_roof(m, 12, 0.03, seed=1)
+    outline = m.outline
+    kw = {}
+    if case == "wall":
+        xyz = np.column_stack([rng.uniform(0, 10, 500), np.zeros(500), rng.uniform(0, 6, 500)])
+        outline = None
+    elif case == "duplicates":
+        xyz = np.repeat(xyz[:1], 300, axis=0)
+        outline = None
+    elif case == "multipolygon":
+        outline = shapely.MultiPolygon([m.outline, shapely.affinity.translate(m.outline, 100, 0)])
+    elif case == "empty_outline":
+        outline = shapely.Polygon()
+    elif case == "nan_spacing":
+        kw["mean_spacing"] = float("nan")
+    elif case == "two_points_apart":
+        xyz = np.vstack([xyz, xyz + [500.0, 0, 0]])
+    roof = roof_structure(xyz, outline, **kw)
+    assert roof.status in {"ok", "too_few_points", "degenerate", "no_planes", "no_lines", "no_faces"}
+    if case in ("multipolygon", "nan_spacing", "two_points_apart"):
+        assert roof.status == "ok" and "ridge" in roof.ridge_kind
+    if case == "wall":
+        assert len(roof.planes) == 0
+    faces_layer([roof]), ridges_layer([roof])

@@ -175,7 +175,8 @@ class RoofStructure:
         Mean point spacing used (m).
     status : str
         ``ok``, or why the structure is empty or partial (``too_few_points``,
-        ``degenerate``, ``no_planes``, ``no_faces``).
+        ``degenerate``, ``no_planes``; with planes but no lines or faces:
+        ``no_lines``, ``no_faces``).
     """
 
     building_id: int = 0
@@ -296,7 +297,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if n < max(10, opt.k_neighbours):
         return _empty(building_id, n, "too_few_points")
     try:
-        s = float(mean_spacing) if mean_spacing else estimate_spacing(xyz)
+        ok = mean_spacing is not None and np.isfinite(mean_spacing) and mean_spacing > 0
+        s = float(mean_spacing) if ok else estimate_spacing(xyz)
     except GeometryError:
         return _empty(building_id, n, "degenerate")
     if outline is None:
@@ -325,26 +327,37 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     radius = opt.adjacency_radius or link
     line_tol = opt.line_tolerance or link
     adj = plane_adjacency(xyz, labels, fit.planes, radius, opt.min_links)
-    lines = intersection_lines(
-        fit.planes, adj, outline2d, line_tolerance=line_tol,
-        snap=opt.snap_distance or max(1.0, 4.0 * s, 1.5 * link), ridge_max_slope=opt.ridge_max_slope,
-        min_length=opt.min_ridge_length, xyz=xyz, labels=labels,
-    )
+    # Geometry kernels can still fail on odd outlines (GEOS topology errors):
+    # the planes stand, the building gets a status, the run goes on.
+    try:
+        lines = intersection_lines(
+            fit.planes, adj, outline2d, line_tolerance=line_tol,
+            snap=opt.snap_distance or max(1.0, 4.0 * s, 1.5 * link), ridge_max_slope=opt.ridge_max_slope,
+            min_length=opt.min_ridge_length, xyz=xyz, labels=labels,
+        )
+    except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
+        log.warning("building %s: no ridge lines (%s)", building_id, exc)
+        roof.status = "no_lines"
+        return roof
     roof.ridges, roof.ridge_kind, roof.ridge_planes = list(lines.lines), list(lines.kinds), list(lines.pairs)
     cell = opt.cell or s / 2
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol
         )
-    except (GeometryError, shapely.errors.GEOSException) as exc:
+        polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
+    except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
         roof.status = "no_faces"
         return roof
-    polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
     roof.faces = [lift_to_plane(p, fit.planes[i]) for p, i in zip(polys, pids)]
     roof.face_plane = list(pids)
-    steps, spairs = step_edges(polys, pids, fit.planes, step_height=opt.step_height,
-                                min_length=opt.min_ridge_length, simplify=cell / 2)
+    try:
+        steps, spairs = step_edges(polys, pids, fit.planes, step_height=opt.step_height,
+                                    min_length=opt.min_ridge_length, simplify=cell / 2)
+    except (shapely.errors.GEOSException, ValueError) as exc:
+        log.warning("building %s: no step edges (%s)", building_id, exc)
+        steps, spairs = [], []
     roof.ridges += steps
     roof.ridge_kind += ["step"] * len(steps)
     roof.ridge_planes += spairs
