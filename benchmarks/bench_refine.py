@@ -251,10 +251,15 @@ def summarise(cases: list[dict]) -> dict:
         sec = [(r["sides"], r["seconds"]) for r in rows if np.isfinite(r["seconds"])]
         s812 = [t for n, t in sec if 8 <= n <= 12]
         lines = sum(r["lines"] for r in img)
+        before = np.array([r["polis_lidar"] for r in rows])
+        after = np.array([r["polis_refined"] for r in rows])
+        sane = before < 1.0  # a LiDAR outline off by metres is another building (merged blocks): no image can fix it
         out[density] = {
             "buildings": len(rows), "refined": len(ok),
-            "polis_lidar": float(np.mean([r["polis_lidar"] for r in rows])),
-            "polis_refined": float(np.mean([r["polis_refined"] for r in rows])),
+            "polis_lidar": float(np.mean(before)),
+            "polis_refined": float(np.mean(after)),
+            "polis_lidar_sane": float(np.mean(before[sane])), "polis_refined_sane": float(np.mean(after[sane])),
+            "n_sane": int(sane.sum()), "improved": int((after < before).sum()), "worse": int((after > before).sum()),
             "ridge_err_lidar": float(np.mean([e for r in rows for e in r["ridge_err_lidar"]] or [np.nan])),
             "ridge_err_refined": float(np.mean([e for r in rows for e in r["ridge_err_refined"]] or [np.nan])),
             "polis_px_perturbed": float(np.mean(px)) if px else float("nan"),
@@ -280,7 +285,11 @@ def main(argv=None) -> int:
                          "stage on true building points, or the whole pipeline")
     ap.add_argument("--terrain-filter", action="store_true", help="refine with seed 000's terrain-line filter")
     ap.add_argument("--json", type=Path, default=None, help="write all rows here")
+    ap.add_argument("--summarise", type=Path, default=None, help="only summarise the cases of an earlier --json")
     args = ap.parse_args(argv)
+    if args.summarise:
+        print(json.dumps(summarise(json.loads(args.summarise.read_text())["cases"]), indent=2))
+        return 0
     cases = []
     for density in args.densities:
         for seed in args.seeds:

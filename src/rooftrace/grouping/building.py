@@ -66,6 +66,11 @@ class RefineOptions:
     image_sigma_px : float, default 0.7
         Precision of a vertex from image lines (px), measured on the
         simulated scenes of benchmarks/bench_refine.py.
+    carry_shift_px : float, default 1.0
+        When the median shift of the image-supported vertices from their
+        projections exceeds this (px) and twice their median deviation from
+        it (a camera or LiDAR offset, not edge noise), the vertices without
+        image support move by it too.
     lidar_sigma : float, default 0.48
         Planimetric precision (m) of LiDAR outline vertices when it cannot
         be derived (seed 000 §3); :func:`rooftrace.refine.refine_buildings`
@@ -108,6 +113,7 @@ class RefineOptions:
     derive_sigma: bool = True
     lidar_sigma_spacing: float = 0.5
     image_sigma_px: float = 0.7
+    carry_shift_px: float = 1.0
     lidar_sigma: float = 0.48
     plane_tolerance: float = 0.5
     max_shift_k: float = 3.0
@@ -317,12 +323,21 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     chosen_image = np.array([image_line[s_][k] for s_, k in enumerate(choice)])
     supported = np.array([any(chosen_image[line] for line, _ in j.members) for j in topo.junctions])
     pixels = rec.points
-    if opt.fuse and (rec.moved & supported).any():
-        pixels = fuse_positions(rec.points, ref_points, rec.moved & supported, opt.image_sigma_px,
+    use = rec.moved & supported
+    carried = np.zeros(len(use), bool)
+    if opt.fuse and use.any():
+        pixels = fuse_positions(rec.points, ref_points, use, opt.image_sigma_px,
                                 (lidar_sigma if lidar_sigma is not None else opt.lidar_sigma)
                                 / camera.ground_sample_distance)
+        shifts = rec.points[use] - ref_points[use]
+        t = np.median(shifts, axis=0)
+        spread = np.median(np.linalg.norm(shifts - t, axis=1))
+        if use.sum() >= 3 and np.hypot(*t) > max(opt.carry_shift_px, 2.0 * spread):
+            # a clear registration error is common to the roof: vertices without image support follow it
+            carried = ~use
+            pixels[carried] = ref_points[carried] + t
     xyz, ok = to_object_space(camera, pixels, jplanes, original, opt.max_move, jlines)
-    moved = rec.moved & ok & supported
+    moved = (use | carried) & ok
     xyz = np.where(moved[:, None], xyz, original)
 
     # an invalid ring (tiny or crossing sides): give back the largest moves one by one
