@@ -160,3 +160,11 @@ def test_odd_input_never_raises(case, rng):
     if case == "wall":
         assert len(roof.planes) == 0
     faces_layer([roof]), ridges_layer([roof])
+
+
+def test_flat_roof_has_no_aspect():
+    m = models.flat_annex()
+    xyz, _ = models.sample_roof(m, 12, 0.03, seed=1)
+    roof = roof_structure(xyz, m.outline)
+    assert np.all(roof.slope_deg < 0.5) and np.isnan(roof.aspect_deg).all()
+    assert np.isnan(faces_layer([roof]).attributes["aspect_deg"]).all()

@@ -203,10 +203,11 @@ class RoofStructure:
     @property
     def aspect_deg(self) -> np.ndarray:
         """Direction each plane faces (downslope), deg clockwise from north
-        (0 north, 90 east); NaN for a level plane."""
+        (0 north, 90 east); NaN for a flat plane (slope under 1°, where the
+        direction is noise)."""
         a, b = self.planes[:, 0], self.planes[:, 1]
         asp = np.degrees(np.arctan2(a, b)) % 360.0
-        return np.where(np.hypot(a, b) < 1e-9, np.nan, asp)
+        return np.where(self.slope_deg < 1.0, np.nan, asp)
 
 
 def point_hull(xy: np.ndarray, max_edge: float | None = None, *, floor: float = 0.0):
@@ -375,7 +376,7 @@ def faces_layer(structures: list[RoofStructure]) -> Layer:
     """The ``roof_faces`` layer: one PolygonZ per face.
 
     Attributes: ``building_id``, ``plane_id``, ``slope_deg``, ``aspect_deg``
-    (downslope direction clockwise from north, NaN when level), ``rmse`` (m,
+    (downslope direction clockwise from north, NaN under 1° of slope), ``rmse`` (m,
     height residuals of the plane's points), ``n_points``.
     """
     geoms, cols = [], {k: [] for k in ("building_id", "plane_id", "slope_deg", "aspect_deg", "rmse", "n_points")}
