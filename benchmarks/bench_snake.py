@@ -64,15 +64,21 @@ def weak_buildings(seed: int) -> list[Building]:
 
 
 def corners(poly) -> np.ndarray:
-    """Open ring (n, 3) of a truth roof outline without collinear vertices."""
+    """Open ring (n, 3) of the plan corners of a truth roof outline.
+
+    Repeated vertices and vertices collinear in plan go (a gable end's apex
+    is a vertex of the 3D outline but no corner an operator would click).
+    """
     ring = np.asarray(poly.exterior.coords)[:-1]
-    keep = []
-    for i in range(len(ring)):
-        a, b, c = ring[i - 1, :2], ring[i, :2], ring[(i + 1) % len(ring), :2]
-        u, w = b - a, c - b
-        if abs(u[0] * w[1] - u[1] * w[0]) > 1e-6 * np.linalg.norm(u) * np.linalg.norm(w):
-            keep.append(i)
-    return ring[keep]
+    ring = ring[np.linalg.norm(ring[:, :2] - np.roll(ring[:, :2], 1, axis=0), axis=1) > 1e-6]
+    while True:
+        a, c = np.roll(ring[:, :2], 1, axis=0), np.roll(ring[:, :2], -1, axis=0)
+        u, w = ring[:, :2] - a, c - ring[:, :2]
+        cross = np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0])
+        straight = cross <= 1e-3 * np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1)
+        if not straight.any():
+            return ring
+        ring = np.delete(ring, np.flatnonzero(straight)[0], axis=0)
 
 
 def run_scene(opts: SceneOptions, buildings, perturb: float, rng, snake_opts: SnakeOptions, tag: str = ""):
@@ -89,7 +95,7 @@ def run_scene(opts: SceneOptions, buildings, perturb: float, rng, snake_opts: Sn
         t0 = time.perf_counter()
         res = snake_outline(seeds, grey, scene.camera, scene.cloud.xyz, snake_opts)
         dt = time.perf_counter() - t0
-        truth_poly = shapely.Polygon(t)
+        truth_poly = geom  # the full 3D outline, gable apexes included
         ring2d = shapely.Polygon(t[:, :2])
         others = [g for g, b in zip(truth.geometries, truth.attributes["building_id"]) if b != bid]
         gap = min((shapely.distance(ring2d, shapely.Polygon(np.asarray(g.exterior.coords)[:, :2])) for g in others),
@@ -178,8 +184,8 @@ def main() -> None:
                                 tree_density=40.0, origin=ORIGIN)
             rows += [r for r in run_scene(opts, isolated_buildings(s + 21), args.perturb, rng, sopt, "weak")
                      if r["veg"] >= 20]  # crowns reaching over the roof edge
-    print(f"density {args.density} pts/m2, GSD {args.gsd} m, seeds moved <= {args.perturb} m, grid {args.grid}/{args.fine_grid}, "
-          f"w_height {args.w_height}")
+    print(f"density {args.density} pts/m2, GSD {args.gsd} m, seeds moved <= {args.perturb} m, "
+          f"grid {args.grid}/{args.fine_grid}, w_height {args.w_height}")
     print("| set | shape | buildings | PoLiS seeds (m) | PoLiS snake mean / max (m) | PoLiS 3D (m) | mean abs dZ (m) "
           "| time mean / max (s) |")
     print("|---|---|---|---|---|---|---|---|")

@@ -329,6 +329,7 @@ def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
     converged = False
     it = 0
     repeats, max_repeats = 0, 4
+    prev = None
     lo, hi = seeds.min(axis=0) - reach, seeds.max(axis=0) + reach
     while it < opt.max_iterations:
         half = step * (grid - 1) / 2
@@ -340,7 +341,11 @@ def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
         it += 1
         chosen = off[labels]
         ring = cands[np.arange(len(ring)), labels]
-        on_border = np.any(np.abs(chosen) >= half - 1e-9)
+        # an energy that no longer drops counts as stable even on the border:
+        # at the finest steps two near-equal solutions can alternate
+        stalled = prev is not None and energy > prev - 1e-4 * abs(prev)
+        prev = energy
+        on_border = bool(np.any(np.abs(chosen) >= half - 1e-9)) and not stalled
         repeats += 1
         log.debug("snake iteration %d: %dx%d step %.3f m, sigma %.2f px, E = %.4f, border %s",
                   it, grid, grid, step, sigma, energy, on_border)
@@ -354,8 +359,9 @@ def snake_outline(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray,
                 break
             step = max(step * opt.shrink, min_step)
             grid = opt.fine_grid
+            prev = None
     if not converged:
-        log.warning("snake stopped after %d iterations without converging", it)
+        log.info("snake stopped after %d iterations, still moving", it)
     energy, terms = polygon_energy(ring, ctx, max(opt.sigma_px, 0.5 * min_step / ctx.gsd), opt)
     z_offset = opt.z_offset if opt.z_offset is not None else resolved["spacing"]
     resolved["z_offset"] = z_offset

@@ -94,7 +94,12 @@ class Tin:
         The median, not the mean (DESIGN.md's s_avg), because hull slivers
         and gaps in the local cloud would pull the mean up.
         """
-        return float(np.median(self.edge_lengths()))
+        s = self._tri.simplices
+        p = self._tri.points
+        # every triangle's three sides: interior edges count twice, which
+        # leaves the median where it is and saves the np.unique of edge_lengths
+        d = np.concatenate([p[s[:, 0]] - p[s[:, 1]], p[s[:, 1]] - p[s[:, 2]], p[s[:, 2]] - p[s[:, 0]]])
+        return float(np.median(np.hypot(d[:, 0], d[:, 1])))
 
     def grid(self, x0: float, y0: float, cell: float, nx: int, ny: int) -> np.ndarray:
         """Z on the cell centres ``(x0 + i cell, y0 + j cell)``, (ny, nx) float64; NaN outside the hull.
