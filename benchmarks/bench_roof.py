@@ -17,6 +17,7 @@ Usage::
     .venv/bin/python benchmarks/bench_roof.py --synth 1 2 3 4 5   # rooftrace.synth scenes (ray-cast ALS)
     .venv/bin/python benchmarks/bench_roof.py --real         # Delft AHN3 + IGN LiDAR HD
     .venv/bin/python benchmarks/bench_roof.py --figure docs/images/roof_delft.png --building 7
+    .venv/bin/python benchmarks/bench_roof.py --figure docs/images/roof_ign.png --dataset ign --building 6
 
 On the real clouds (no roof truth) the check is that pitched roofs get their
 lines: a building counts as pitched when it has at least two planes steeper
@@ -171,16 +172,18 @@ def run_real(options: RoofOptions) -> dict:
     return out
 
 
-def render(path: str, building: int, options: RoofOptions) -> None:
-    """Plan view (faces coloured by plane, lines by kind) and 3D view of one Delft building."""
+def render(path: str, building: int, options: RoofOptions, dataset: str = "delft") -> None:
+    """Plan view (faces coloured by plane, lines by kind) and 3D view of one real building."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    bid, xyz, outline = next(b for b in delft_buildings() if b[0] == building)
+    source = delft_buildings if dataset == "delft" else ign_buildings
+    bid, xyz, outline = next(b for b in source() if b[0] == building)
     roof = roof_structure(xyz, outline, options, building_id=bid)
+    outline = roof.outline
     o = np.asarray(outline.bounds[:2])
     cmap = plt.get_cmap("Set3")
     colours = {"ridge": "red", "hip": "darkorange", "valley": "blue", "step": "black"}
@@ -198,7 +201,8 @@ def render(path: str, building: int, options: RoofOptions) -> None:
     uniq = dict(zip(labels, handles))
     ax.legend(uniq.values(), uniq.keys(), loc="upper right", fontsize=8)
     ax.set_aspect("equal")
-    ax.set_title(f"Delft BGT building {bid}: {len(roof.planes)} planes, {len(roof.ridges)} lines", fontsize=9)
+    name = f"Delft BGT building {bid}" if dataset == "delft" else f"IGN LiDAR HD cluster {bid}"
+    ax.set_title(f"{name}: {len(roof.planes)} planes, {len(roof.ridges)} lines", fontsize=9)
     ax.set_xlabel("m")
     ax3 = fig.add_subplot(1, 2, 2, projection="3d")
     polys = [np.asarray(f.exterior.coords) - [*o, 0] for f in roof.faces]
@@ -290,11 +294,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--real", action="store_true", help="run on the real clouds in ../shared/data")
     ap.add_argument("--synth", type=int, nargs="+", metavar="SEED", help="run on rooftrace.synth scenes of these seeds")
     ap.add_argument("--figure", help="render one Delft building to this PNG")
-    ap.add_argument("--building", type=int, default=7, help="BGT feature index for --figure")
+    ap.add_argument("--building", type=int, default=7, help="building index for --figure (BGT feature / IGN cluster)")
+    ap.add_argument("--dataset", choices=["delft", "ign"], default="delft", help="real data set for --figure")
     args = ap.parse_args(argv)
     options = RoofOptions()
     if args.figure:
-        render(args.figure, args.building, options)
+        render(args.figure, args.building, options, args.dataset)
         return {}
     if args.synth:
         rows = run_synth(args.synth, args.density, not args.no_outline, options)
