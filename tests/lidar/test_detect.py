@@ -137,3 +137,35 @@ def test_real_ign_tile_against_its_classes():
     assert f1(det.classification == 6, truth == 6) > 0.93
     assert f1(det.classification == 2, truth == 2) > 0.97
     assert det.n_buildings >= 1 and det.sigma_h < 0.05
+
+
+def _one_box(seed, box):
+    rng = np.random.default_rng(seed)
+    xyz, truth = scene(rng, size=40, density=10, slope=0.0, boxes=(box,))
+    return xyz, truth
+
+
+def test_narrow_flat_objects_are_not_buildings():
+    # a hedge trimmed flat: 2 m wide, 20 m long, 2.5 m high
+    xyz, truth = _one_box(5, (10.0, 20.0, 20.0, 2.0, 2.5))
+    det = detect_buildings(PointCloud(xyz, crs=RD))
+    assert det.n_buildings == 0
+    opt = DetectOptions.from_config({"segment": {"min_width": 1.0}})
+    wide = detect_buildings(PointCloud(xyz, crs=RD), opt)
+    assert wide.n_buildings == 1 and f1(wide.classification == 6, truth == BUILDING) > 0.98
+
+
+def test_clusters_the_laser_went_through_are_not_buildings():
+    xyz, truth = _one_box(6, (10.0, 10.0, 12.0, 12.0, 5.0))
+    n = len(xyz)
+    fields = {"return_number": np.ones(n, np.uint8), "number_of_returns": np.ones(n, np.uint8)}
+    plain = detect_buildings(PointCloud(xyz, dict(fields), crs=RD))
+    assert plain.n_buildings == 1
+    # every roof point is the first of two returns: the pulse went on to the ground
+    fields["number_of_returns"] = np.where(truth == BUILDING, 2, 1).astype(np.uint8)
+    through = detect_buildings(PointCloud(xyz, fields, crs=RD))
+    assert through.n_buildings == 0
+    from rooftrace.lidar.classify import ClassifyOptions
+
+    off = DetectOptions(classify=ClassifyOptions(max_penetration=None))
+    assert detect_buildings(PointCloud(xyz, fields, crs=RD), off).n_buildings == 1

@@ -26,7 +26,7 @@ def detect(
     min_area: Annotated[Optional[float], typer.Option(
         "--min-area", min=0.01, help="Smallest building kept, Ar_min (m²); default 4.")] = None,
     min_height: Annotated[Optional[float], typer.Option(
-        "--min-height", min=0.0, help="Lowest height above ground of roof points (m); default 2.5.")] = None,
+        "--min-height", min=0.0, help="Lowest height above ground of roof points (m); default 2.")] = None,
     seed_cell: Annotated[Optional[float], typer.Option(
         "--seed-cell", min=1.0, help="Ground seed grid cell (m), larger than the largest building; default 30.")] = None,
     json_: opt.Json = False,
@@ -39,6 +39,7 @@ def detect(
     building_id (0 = none).  The input's own classification is ignored.
     """
     from rooftrace.config import load_config
+    from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import require_metric_crs
     from rooftrace.io.las import write_las
@@ -48,8 +49,6 @@ def detect(
     setup_logging(quiet)
     check_output(output, overwrite)
     if output.suffix.lower() not in (".las", ".laz"):
-        from rooftrace.errors import InputError
-
         raise InputError(f"{output}: output must end in .las or .laz")
     options = DetectOptions.from_config(
         load_config(config),

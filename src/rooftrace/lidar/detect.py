@@ -1,12 +1,32 @@
-"""The detection flow: outliers → ground → segmentation → building/vegetation.
+"""The detection flow: outliers → spacing → ground → features → segmentation → building/vegetation.
+
+Stages and where they follow the thesis (Santos 2019, ch. 3):
+
+1. cell-histogram outliers (§3.1) → class 7;
+2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1);
+3. progressive TIN densification (§3.2) → class 2 and the height above
+   ground (HAG) of every point;
+4. eigen-features (L, P, S, entropy; N = Ar_min·d_avg neighbours) and a
+   surface normal for every non-ground point (§3.4);
+5. region growing of the points above ``segment.min_height`` into roof-level
+   clusters (§3.3; the height test is measured along the normals);
+6. k-means on the mean entropy of the clusters of at least T_Np points
+   (§3.4) with the guards of :mod:`rooftrace.lidar.classify`; building
+   clusters that touch in plan are merged into buildings.
+
+Beyond the thesis, a building then takes in the non-ground points next to it
+whose own entropy is on the building side (walls, roof edges, dormers cut
+off by the height test), and drops out when it is narrower than
+``segment.min_width`` or when the laser went through it (``classify.max_penetration``).
 
 Class rules (first match wins):
 
 1. noise (outlier filter) → 7;
-2. ground (TIN filter, height above the TIN at most ``ground_tolerance``) → 2,
+2. ground (height above the TIN at most ``ground.ground_tolerance``) → 2,
    whatever stands on it;
-3. a point of a roof-level cluster judged building, in a building of at least
-   T_Np points → 6, with its ``building_id`` and ``roof_level_id``;
+3. a point of a building → 6, with its ``building_id`` (1..B, by each
+   building's lowest (x, y) point) and ``roof_level_id`` (0 for absorbed
+   wall points that belong to no roof level);
 4. a point of another cluster of at least T_Np points, not linear → 5 (high
    vegetation);
 5. anything else (low objects, small or linear clusters) → 1.
@@ -53,10 +73,10 @@ class DetectOptions:
 
     @classmethod
     def from_config(cls, config: dict | None = None, **overrides: Any) -> "DetectOptions":
-        """Build from a TOML config dict; ``overrides`` are ``"section.key"``-free per-stage dicts.
+        """Build from a TOML config dict (:func:`rooftrace.config.load_config`) and per-stage overrides.
 
         ``overrides`` maps a section name (``"segment"`` ...) to a dict of
-        option overrides (``None`` values ignored), e.g. from CLI flags.
+        option overrides, e.g. from CLI flags; ``None`` values are ignored.
         """
         parts = {}
         for name, opt_cls in (("outliers", OutlierOptions), ("ground", GroundOptions),
@@ -162,6 +182,8 @@ def _absorb(pts: np.ndarray, group: np.ndarray, eligible: np.ndarray, radius: fl
 def _group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
     """Width of each group in plan: sqrt(12 · smallest variance), exact for a filled rectangle (m)."""
     ok = group >= 0
+    if not ok.any():
+        return np.zeros(k)
     g = group[ok]
     cnt = np.maximum(np.bincount(g, minlength=k), 1)
     c = xy[ok] - xy[ok].mean(axis=0)
@@ -326,7 +348,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
             keep &= ~(pen > co.max_penetration * co.building_penetration)
         if so.min_width:
             keep &= _group_widths(pts[high, :2], group_high, len(gsize)) >= so.min_width
-        group_high = np.where((group_high >= 0) & keep[np.maximum(group_high, 0)], group_high, -1)
+        keep = np.append(keep, False)  # slot for "no group"
+        group_high = np.where(keep[np.where(group_high >= 0, group_high, len(keep) - 1)], group_high, -1)
         group_all = np.full(len(above), -1, np.int64)
         group_all[high] = group_high
         levels_all = np.full(len(above), -1, np.int64)

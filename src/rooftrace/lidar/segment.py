@@ -9,11 +9,15 @@ within the thresholds, so the result equals the connected components of the
 link graph, which a KD-tree pair query and :mod:`scipy.sparse.csgraph` give
 without a Python loop.
 
-Beyond the thesis: the height test allows the roof slope,
-``|dz| < L_Dh + d_xy·tan(max_slope)``, because with sigma_H of a few
-centimetres (AHN3, LiDAR HD) a pitched roof would otherwise shatter into
-strips; a step between roof levels (a wall) is still a break.  Roof levels
-that touch in plan (some pair of their points closer than L_Dxy) are merged
+Beyond the thesis: with sigma_H of a few centimetres (AHN3, LiDAR HD),
+``|dz| < 2·sigma_H`` shatters every pitched roof into strips.  The default
+test (``height_test='normal'``) measures the pair's height difference along
+each point's surface normal instead, which is the thesis' ``|dz|`` on a flat
+roof, keeps a pitched roof plane whole and still breaks at steps between roof
+levels and in tree crowns (no consistent normal).  The other test
+(``'slope'``) keeps the vertical difference but allows the roof slope,
+``|dz| < L_Dh + d_xy·tan(max_slope)``.  Roof levels that touch in plan (some
+pair of their points closer than L_Dxy) are merged
 into one building, keeping the roof-level labels.
 """
 
