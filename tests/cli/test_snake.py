@@ -111,3 +111,13 @@ def test_snake_cli_seeds_off_image(files, capsys):
     assert main(_args(d, "far.geojson", "far.gpkg")) == 2
     err = capsys.readouterr().err
     assert "error:" in err and ("outside the image" in err or "LiDAR points" in err)
+
+
+def test_snake_cli_config_table(files, capsys):
+    d, truth, _ = files
+    (d / "paper.toml").write_text("[snake]\nw_height = 0.0\nw_angle = 1.0\n")
+    assert main(_args(d, out="paper.gpkg") + ["--config", str(d / "paper.toml")]) == 0
+    assert len(read_layer(d / "paper.gpkg", "roof_outlines")) == 2
+    (d / "typo.toml").write_text("[snake]\nw_angel = 1.0\n")
+    assert main(_args(d, out="typo.gpkg") + ["--config", str(d / "typo.toml")]) == 2
+    assert "w_angel" in capsys.readouterr().err
