@@ -376,6 +376,14 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     ------
     GeometryError
         ``too_few_points``, ``collinear`` or ``no_ring`` (no closed boundary).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> xy = np.mgrid[0:10:0.5, 0:6:0.5].reshape(2, -1).T
+    >>> shape = alpha_shape(xy, AlphaOptions(strategy="building"))
+    >>> len(shape.rings), len(shape.rings[0]), round(shape.alpha, 3)
+    (1, 60, 0.707)
     """
     options = options or AlphaOptions()
     xy = np.asarray(xy, dtype=np.float64)

@@ -164,6 +164,12 @@ def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) ->
     ndarray of shape (Q, sum(d)) if closed else (Q, sum(d) + 1)
         Column ``offset_k + r`` holds the r-th basis function of segment k,
         ``offset_k = sum(d[:k])``; neighbouring segments share a column.
+
+    Examples
+    --------
+    >>> a = cd_basis([0.0, 0.25, 0.5, 0.75], [0.0, 0.5, 1.0], [1, 2])
+    >>> a.round(3).tolist()
+    [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.0, 1.0, 0.0], [0.25, 0.25, 0.5]]
     """
     t = np.asarray(t, dtype=np.float64)
     breaks = np.asarray(breaks, dtype=np.float64)

@@ -156,6 +156,16 @@ def ring_corners(points: np.ndarray, options: CornerOptions | None = None) -> np
     then again from the sharpest corner found, so vertex 0 is kept only if it
     is itself critical (thesis §5.5).  Corners whose turning angle is below
     ``t_ang`` are then removed one at a time, smallest angle first.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> side = np.linspace(0, 1, 10, endpoint=False)[:, None]
+    >>> square = np.concatenate([np.hstack([side * 10, 0 * side]), np.hstack([10 + 0 * side, side * 10]),
+    ...                          np.hstack([10 - side * 10, 10 + 0 * side]), np.hstack([0 * side, 10 - side * 10])])
+    >>> ring = np.roll(np.column_stack([square, np.zeros(40)]), 5, axis=0)  # start mid-side
+    >>> ring_corners(ring).tolist()
+    [5, 15, 25, 35]
     """
     options = options or CornerOptions()
     points = np.asarray(points, dtype=np.float64)
