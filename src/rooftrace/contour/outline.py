@@ -363,10 +363,10 @@ def connected_buildings(xy: np.ndarray, radius: float, min_points: int = 3) -> n
     pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, label = connected_components(graph, directed=False)
-    counts = np.bincount(label)
+    big = np.bincount(label) >= min_points
     _, first = np.unique(label, return_index=True)
-    rank = np.empty(len(first), dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(1, len(first) + 1)
-    ids = rank[label]
-    ids[counts[label] < min_points] = 0
-    return ids
+    order = np.argsort(first)  # components in order of their first point
+    rank = np.zeros(len(first), dtype=np.int64)
+    kept = order[big[order]]
+    rank[kept] = np.arange(1, len(kept) + 1)
+    return rank[label]
