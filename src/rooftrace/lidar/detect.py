@@ -36,8 +36,11 @@ The input's own classification is never read.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -122,25 +125,15 @@ class Detection:
         return int(self.building_id.max(initial=0))
 
 
-class _Clock:
-    def __init__(self, reporter: Reporter) -> None:
-        self.reporter = reporter
-        self.timings: dict[str, float] = {}
-
-    def __call__(self, name: str):
-        clock = self
-
-        class _Stage:
-            def __enter__(self):
-                self.cm = clock.reporter.stage(name)
-                self.cm.__enter__()
-                self.t0 = time.perf_counter()
-
-            def __exit__(self, *exc):
-                clock.timings[name] = clock.timings.get(name, 0.0) + time.perf_counter() - self.t0
-                self.cm.__exit__(*exc)
-
-        return _Stage()
+@contextlib.contextmanager
+def _timed(timings: dict[str, float], reporter: Reporter, name: str) -> Iterator[None]:
+    """Report a stage and add its wall time to ``timings``."""
+    with reporter.stage(name):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
 
 
 def _check_cloud(cloud: PointCloud) -> None:
@@ -258,7 +251,8 @@ def detect_buildings(
 
 
 def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) -> Detection:
-    clock = _Clock(reporter or Reporter())
+    timings: dict[str, float] = {}
+    clock = functools.partial(_timed, timings, reporter or Reporter())
     xyz = cloud.xyz
     n = len(xyz)
     cls = np.full(n, ASPRS.UNCLASSIFIED, np.uint8)
@@ -387,5 +381,5 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
         density=d_avg,
         sigma_h=sigma_h,
         params=params,
-        timings=clock.timings,
+        timings=timings,
     )
