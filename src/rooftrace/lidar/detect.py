@@ -188,6 +188,13 @@ def _group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
     return np.sqrt(12 * np.maximum(small, 0))
 
 
+def _absorb_entropy(threshold: float, centroids: list | None, margin: float) -> float:
+    """Entropy limit of absorbed points: ``margin`` of the way from the threshold to the vegetation centroid."""
+    if not centroids or centroids[1] <= threshold:
+        return threshold
+    return threshold + margin * (centroids[1] - threshold)
+
+
 def _penetration(cloud: PointCloud, index: np.ndarray) -> np.ndarray | None:
     """1.0 where a point is not the last return of its pulse, from the LAS return numbers; None without them."""
     rn = cloud.fields.get("return_number")
@@ -351,7 +358,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
         if so.absorb_rounds and len(above):
             # only points whose own neighbourhood is on the building side
             # (roof edges, dormers, walls) join; hedges and crowns do not
-            eligible = feats[:, 3] <= threshold
+            eligible = feats[:, 3] <= _absorb_entropy(threshold, cparams["centroids"], so.absorb_margin)
             group_all = _absorb(pts, group_all, eligible, link_d, so.absorb_rounds)
             if so.absorb_touching:
                 group_all = _absorb(pts, group_all, np.ones(len(above), bool), s_avg, 1)

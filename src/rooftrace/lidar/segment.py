@@ -75,6 +75,11 @@ class SegmentOptions:
         ``sqrt(12·smallest variance)`` of their roof points, exact for a
         rectangle) are dropped: hedges and walls trimmed flat look like
         roofs to the entropy test.  ``None`` disables it.
+    absorb_margin : float, default 1.0
+        Entropy limit of absorbed points, as the fraction of the way from the
+        k-means threshold to the vegetation centroid (0: the threshold; 1:
+        the vegetation centroid).  A point next to a roof is a roof edge or a
+        wall unless it looks at least as volumetric as a typical crown.
     absorb_touching : bool, default True
         After that, a building also takes in any unassigned point closer
         than s_avg (3D) to it, whatever its entropy (points interleaved with
@@ -92,6 +97,7 @@ class SegmentOptions:
     normal_neighbours: int = 12
     absorb_rounds: int = 3
     absorb_touching: bool = True
+    absorb_margin: float = 1.0
     min_width: float | None = 2.5
 
     def __post_init__(self) -> None:
@@ -99,6 +105,8 @@ class SegmentOptions:
             raise ValueError(f"segment.height_test must be 'normal' or 'slope', got {self.height_test!r}")
         if self.normal_neighbours < 3:
             raise ValueError(f"segment.normal_neighbours must be >= 3, got {self.normal_neighbours}")
+        if not 0 <= self.absorb_margin <= 1:
+            raise ValueError(f"segment.absorb_margin must be in [0, 1], got {self.absorb_margin}")
         for name in ("link_distance", "link_height", "min_area"):
             v = getattr(self, name)
             if v is not None and not v > 0:
