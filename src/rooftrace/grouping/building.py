@@ -377,5 +377,6 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         refined_sides=sides[:n_out], energy=float(e_used),
         exact_energy=float(exact.energy) if exact is not None else float("nan"),
         ga_exact_gap=float(ga.energy - exact.energy) if exact is not None else float("nan"),
-        choice=choice, image_outline=rec.points[:n_out], kinds=topo.kinds, ring_sizes=topo.ring_sizes, references=refs, selected=selected,
+        choice=choice, image_outline=np.where(moved[:, None], pixels, ref_points)[:n_out], kinds=topo.kinds,
+        ring_sizes=topo.ring_sizes, references=refs, selected=selected,
         candidate_sets=cand_sets, seconds=time.perf_counter() - t0)

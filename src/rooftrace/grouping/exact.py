@@ -116,7 +116,8 @@ def exact_minimise(problem: GroupingProblem, max_table: int = 2**22) -> ExactRes
     """
     k = np.asarray(problem.n_candidates, int)
     m = len(k)
-    factors: list[tuple[tuple[int, ...], np.ndarray]] = [((s,), np.asarray(u, float)) for s, u in enumerate(problem.unary)]
+    factors: list[tuple[tuple[int, ...], np.ndarray]] = [((s,), np.asarray(u, float))
+                                                         for s, u in enumerate(problem.unary)]
     for (s, t), tab in zip(problem.pairs, problem.pair_tables):
         factors.append(((int(s), int(t)), np.asarray(tab, float)))
     edges = {(int(s), int(t)) for s, t in problem.pairs}
