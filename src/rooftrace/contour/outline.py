@@ -134,12 +134,21 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions) -> t
     vertices, corner_index = spline.ring(options.cdspline.densify)
     degrees = spline.degrees
     reg = options.regularize
+    # each regularisation step is kept only if the ring stays simple (no self-crossing)
     if reg.snap:
         direction = dominant_direction(vertices, corner_index, degrees)
-        vertices = snap_ring(vertices, corner_index, degrees, direction, reg.snap_tolerance)
+        snapped = snap_ring(vertices, corner_index, degrees, direction, reg.snap_tolerance)
+        if _simple(snapped):
+            vertices = snapped
     if reg.offset_factor > 0:
-        vertices = offset_ring(vertices, reg.offset_factor * spacing, reg.max_offset_ratio)
+        moved = offset_ring(vertices, reg.offset_factor * spacing, reg.max_offset_ratio)
+        if _simple(moved):
+            vertices = moved
     return vertices, corner_index, degrees, spline.sigma
+
+
+def _simple(vertices: np.ndarray) -> bool:
+    return len(vertices) >= 3 and bool(shapely.LinearRing(vertices[:, :2]).is_simple)
 
 
 def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None) -> RoofOutline:
