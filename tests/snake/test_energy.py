@@ -5,7 +5,7 @@ import pytest
 from scipy import ndimage
 
 from rooftrace.image.camera import FrameCamera
-from rooftrace.snake.energy import angle_energy, edge_field, side_energy, spacing_energy
+from rooftrace.snake.energy import angle_energy, edge_field, height_energy, side_energy, spacing_energy
 
 
 def test_angle_term_zero_at_right_angles_one_when_straight():
@@ -92,3 +92,18 @@ def test_edge_field_window_matches_full_image(step_scene):
     np.testing.assert_allclose(g2, k * g1, atol=1e-9)
     with pytest.raises(ValueError, match="sigma"):
         edge_field(image, 0.0)
+
+
+def test_height_term_rewards_the_roof_edge_only():
+    # roof of height 6 m for x < 0, ground beyond: the edge is the line x = 0
+    step = lambda xy: np.where(np.asarray(xy)[..., 0] < 0.0, 6.0, 0.0)  # noqa: E731
+    a = np.array([[0.0, 10.0], [-3.0, 10.0], [3.0, 10.0]])
+    b = np.array([[0.0, 0.0], [-3.0, 0.0], [3.0, 0.0]])
+    # running from y=10 to y=0 the interior (x < 0) is on the right: clockwise
+    e = height_energy(step, a, b, offset=0.5, step=2.0, interior=-1)
+    np.testing.assert_allclose(np.diag(e), [-1.0, 0.0, 0.0])
+    # the other orientation sees the step the wrong way round: no reward
+    assert height_energy(step, a[:1], b[:1], 0.5, interior=1)[0, 0] == 0.0
+    # a small step counts in proportion
+    half = lambda xy: step(xy) / 6.0  # noqa: E731
+    assert height_energy(half, a[:1], b[:1], 0.5, step=2.0, interior=-1)[0, 0] == pytest.approx(-0.5)

@@ -7,7 +7,8 @@ import shapely
 from rooftrace.errors import InputError
 from rooftrace.evaluate.metrics import polis
 from rooftrace.snake.scene import Roof, l_shape, rectangle, render_scene
-from rooftrace.snake.snake import SnakeOptions, pixel_seeds_to_object, snake_outline
+from rooftrace.snake.seeds import pixel_seeds_to_object
+from rooftrace.snake.snake import SnakeOptions, snake_outline
 
 
 @pytest.fixture(scope="module")
