@@ -121,3 +121,15 @@ def test_snake_cli_config_table(files, capsys):
     (d / "typo.toml").write_text("[snake]\nw_angel = 1.0\n")
     assert main(_args(d, out="typo.gpkg") + ["--config", str(d / "typo.toml")]) == 2
     assert "w_angel" in capsys.readouterr().err
+
+
+def test_snake_cli_plain_geojson_in_map_coordinates(files):
+    # a hand-written GeoJSON has no "crs" member: it reads as WGS 84, but the
+    # coordinates are metres in the cloud's CRS and must be taken as such
+    d, truth, _ = files
+    feats = [{"type": "Feature", "properties": {"building": "b"},
+              "geometry": {"type": "MultiPoint", "coordinates": (truth[0][:, :2] + 0.3).tolist()}}]
+    (d / "plain.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    assert main(_args(d, "plain.geojson", "plain.gpkg")) == 0
+    geom = read_layer(d / "plain.gpkg", "roof_outlines").geometries[0]
+    assert polis(geom, shapely.Polygon(truth[0])) < 0.2

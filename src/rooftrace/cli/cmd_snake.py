@@ -102,7 +102,14 @@ def snake(
     layer = read_layer(seeds)
     groups = seed_groups(layer, str(seeds))
     if not seeds_in_pixels:
-        check_same_crs(cloud.crs, layer.crs, where, str(seeds))
+        allxy = np.concatenate([r[:, :2] for _, r in groups])
+        if layer.crs is not None and layer.crs.is_geographic and (np.abs(allxy).max(axis=0) > [180.0, 90.0]).any():
+            # a GeoJSON without a "crs" member reads as WGS 84 (RFC 7946), but
+            # hand-written seeds are usually in the map CRS: metres, not degrees
+            log.warning("%s: coordinates are not degrees although the file says %s; taking them in the cloud's CRS",
+                        seeds, layer.crs.name)
+        else:
+            check_same_crs(cloud.crs, layer.crs, where, str(seeds))
     w, h = cam.image_size
 
     geoms, attrs = [], {k: [] for k in ("building", "energy", "e_image", "e_angle", "e_spacing", "iterations",
