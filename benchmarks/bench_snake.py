@@ -102,7 +102,8 @@ def run_scene(opts: SceneOptions, buildings, perturb: float, rng, snake_opts: Sn
                   default=np.inf)
         near_veg = int(shapely.contains_xy(ring2d.buffer(1.5), veg[:, 0], veg[:, 1]).sum()) if len(veg) else 0
         rows.append({
-            "tag": tag, "id": int(bid), "n": len(t), "kind": next(b.kind for b in scene.buildings if b.building_id == bid),
+            "tag": tag, "id": int(bid), "n": len(t),
+            "kind": next(b.kind for b in scene.buildings if b.building_id == bid),
             "polis_seeds": polis(shapely.Polygon(seeds), ring2d), "polis": polis(shapely.Polygon(res.xyz), truth_poly),
             "polis3d": polis(shapely.Polygon(res.xyz), truth_poly, dim=3),
             "dz": float(np.abs(res.xyz[:, 2] - t[:, 2]).mean()), "time": dt, "iters": res.iterations,

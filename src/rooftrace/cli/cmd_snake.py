@@ -57,7 +57,8 @@ def seed_groups(layer, where: str) -> list[tuple[object, np.ndarray]]:
 @app.command("snake")
 def snake(
     output: opt.Output,
-    image: Annotated[Path, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).", show_default=False)],
+    image: Annotated[Path, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).",
+                                        show_default=False)],
     camera: Annotated[Path, typer.Option("--camera", help="camera.json of the image.", show_default=False)],
     points: Annotated[list[Path], typer.Option("--points", help="LiDAR point cloud(s) (LAS/LAZ); repeat for several.",
                                                show_default=False)],

@@ -257,7 +257,8 @@ def _context(seeds: np.ndarray, image: np.ndarray, camera, xyz: np.ndarray, opt:
     keep = np.all((xyz[:, :2] >= lo - opt.margin) & (xyz[:, :2] <= hi + opt.margin), axis=1)
     local = xyz[keep]
     if len(local) < 3:
-        raise InputError(f"only {len(local)} LiDAR points near the seeds around {seeds.mean(axis=0).round(2).tolist()}; "
+        centre = seeds.mean(axis=0).round(2).tolist()
+        raise InputError(f"only {len(local)} LiDAR points near the seeds around {centre}; "
                          "are the seeds in the cloud's CRS and area?")
     try:
         tin = Tin(local)
