@@ -15,6 +15,7 @@ Usage::
     .venv/bin/python benchmarks/bench_roof.py --density 12 --noise 0.04 --repeats 10
     .venv/bin/python benchmarks/bench_roof.py --no-outline   # outline from the points
     .venv/bin/python benchmarks/bench_roof.py --synth 1 2 3 4 5   # rooftrace.synth scenes (ray-cast ALS)
+    .venv/bin/python benchmarks/bench_roof.py --pipeline 1 2 3   # end to end through rooftrace.pipeline
     .venv/bin/python benchmarks/bench_roof.py --real         # Delft AHN3 + IGN LiDAR HD
     .venv/bin/python benchmarks/bench_roof.py --figure docs/images/roof_delft.png --building 7
     .venv/bin/python benchmarks/bench_roof.py --figure docs/images/roof_ign.png --dataset ign --building 6
@@ -267,6 +268,37 @@ def run_synth(seeds: list[int], density: float, use_outline: bool, options: Roof
     return rows
 
 
+def run_pipeline_scenes(seeds: list[int], density: float) -> None:
+    """End to end: simulated cloud -> ``rooftrace.pipeline.run_pipeline``
+    (detection, outlines, roof planes) -> ridges scored against the truth."""
+    from rooftrace.pipeline import run_pipeline
+    from rooftrace.synth.scene import SceneOptions
+    from rooftrace.synth.simulate import simulate_scene
+
+    print("| seed | buildings found / true | completeness | correctness | position error (m) | lines | roof stage (s) |")
+    print("|" + "---|" * 7)
+    acc = []
+    for seed in seeds:
+        sc = simulate_scene(SceneOptions(seed=seed, density=density, image=False))
+        res = run_pipeline(sc.cloud, seed=seed)
+        ext = [g for st in res.structures for g in st.ridges]
+        ref = list(sc.truth["ridges"].geometries)
+        r = ridge_scores(ext, ref, 0.5)
+        kinds = {}
+        for st in res.structures:
+            for k in st.ridge_kind:
+                kinds[k] = kinds.get(k, 0) + 1
+        print(f"| {seed} | {len(res.structures)} / {len(sc.truth['roof_outlines'])} | {_pct(r['ridge_completeness'])} | "
+              f"{_pct(r['ridge_correctness'])} | {_num(r['ridge_position_error'])} | "
+              f"{', '.join(f'{k} {v}' for k, v in sorted(kinds.items()))} | {res.timings.get('roof_planes', np.nan):.1f} |")
+        le = sum(shapely.force_2d(g).length for g in ext)
+        lr = sum(shapely.force_2d(g).length for g in ref)
+        acc.append((r["ridge_completeness"] * lr, lr, r["ridge_correctness"] * le, le, r["ridge_position_error"] * le))
+    # Scenes share their origin: weight per scene, never pool their lines.
+    a = np.nansum(np.array(acc, dtype=float), axis=0)
+    print(f"| **all** | | {_pct(a[0] / a[1])} | {_pct(a[2] / a[3])} | {_num(a[4] / a[3])} | | |")
+
+
 def _pct(v: float) -> str:
     return "–" if not np.isfinite(v) else f"{100 * v:.1f} %"
 
@@ -293,6 +325,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--json", action="store_true", help="print the summary as JSON")
     ap.add_argument("--real", action="store_true", help="run on the real clouds in ../shared/data")
     ap.add_argument("--synth", type=int, nargs="+", metavar="SEED", help="run on rooftrace.synth scenes of these seeds")
+    ap.add_argument("--pipeline", type=int, nargs="+", metavar="SEED",
+                    help="end to end: simulated scenes through rooftrace.pipeline.run_pipeline")
     ap.add_argument("--figure", help="render one Delft building to this PNG")
     ap.add_argument("--building", type=int, default=7, help="building index for --figure (BGT feature / IGN cluster)")
     ap.add_argument("--dataset", choices=["delft", "ign"], default="delft", help="real data set for --figure")
@@ -300,6 +334,9 @@ def main(argv=None) -> dict:
     options = RoofOptions()
     if args.figure:
         render(args.figure, args.building, options, args.dataset)
+        return {}
+    if args.pipeline:
+        run_pipeline_scenes(args.pipeline, args.density)
         return {}
     if args.synth:
         rows = run_synth(args.synth, args.density, not args.no_outline, options)
