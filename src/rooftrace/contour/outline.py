@@ -140,10 +140,12 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions) -> t
         snapped = snap_ring(vertices, corner_index, degrees, direction, reg.snap_tolerance)
         if _simple(snapped):
             vertices = snapped
-    if reg.offset_factor > 0:
-        moved = offset_ring(vertices, reg.offset_factor * spacing, reg.max_offset_ratio)
+    for fraction in (1.0, 0.5, 0.25) if reg.offset_factor > 0 else ():
+        # a narrow notch can close up under the full shift; a smaller one often still fits
+        moved = offset_ring(vertices, fraction * reg.offset_factor * spacing, reg.max_offset_ratio)
         if _simple(moved):
             vertices = moved
+            break
     return vertices, corner_index, degrees, spline.sigma
 
 
