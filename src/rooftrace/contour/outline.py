@@ -172,6 +172,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
 
     Raises
     ------
+    ValueError
+        ``xyz`` is not of shape (N, 3).
     GeometryError
         Too few points, collinear points, or no closed ring even with alpha
         tripled; the message is the status.
