@@ -66,7 +66,7 @@ def test_town_metadata(town):
     for stage in ("outliers", "spacing", "ground", "features", "segment", "classify", "buildings"):
         assert det.timings[stage] >= 0
     p = det.params
-    assert p["segment"]["link_distance"] == pytest.approx(2 * det.mean_spacing)
+    assert p["segment"]["link_distance"] == pytest.approx(2.25 * det.mean_spacing)
     assert p["segment"]["min_points"] == round(4 * det.density)
     assert p["classify"]["method"] in ("kmeans", "fallback")
 

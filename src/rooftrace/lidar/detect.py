@@ -289,7 +289,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
         params["ground"] = {**options_dict(opt.ground), **gparams}
 
     so = opt.segment
-    link_d = so.link_distance or 2.0 * s_avg
+    link_d = so.link_distance or so.link_factor * s_avg
     # along the normals the pair test must also absorb the normals' own
     # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)

@@ -8,7 +8,8 @@ TIN is rebuilt and the test repeated until nothing is added.
 
 Two choices keep this fast on city blocks (850k points in a few seconds):
 the densification runs on the lowest point of each small cell (about
-``3·s_avg`` wide; the ground is never above the lowest point of its cell), and
+``max(1 m, 3·s_avg)`` wide; the ground is never above the lowest point of
+its cell), and
 every accepted point of a round is added at once.  Every point of the cloud is
 then labelled from the final TIN: ground when its height above the TIN is at
 most ``ground_tolerance``.
@@ -51,7 +52,7 @@ class GroundOptions:
         point to the facet's vertices (Axelsson 2000).
     candidate_cell : float or None
         Side (m) of the cells whose lowest point takes part in the
-        densification.  ``None``: ``max(0.5, 3·s_avg)`` (about 1 m in a 12 pts/m² city survey).
+        densification.  ``None``: ``max(1.0, 3·s_avg)``.
     ground_tolerance : float or None
         Largest height (m) above the final TIN of a ground point.  ``None``:
         ``max(0.2, 5·sigma_H)``.
@@ -227,7 +228,7 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude):
     idx_usable = np.flatnonzero(usable)
     if len(idx_usable) < 3:
         raise GeometryError("ground filter: fewer than 3 points left after removing noise")
-    cand_cell = opt.candidate_cell or max(0.5, 3.0 * mean_spacing)
+    cand_cell = opt.candidate_cell or max(1.0, 3.0 * mean_spacing)
     tol = opt.ground_tolerance or max(0.2, 5.0 * sigma_h)
     origin = xyz[idx_usable].min(axis=0)
     local = xyz - origin  # Qhull needs coordinates near zero

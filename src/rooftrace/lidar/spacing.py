@@ -37,9 +37,10 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     ij = np.floor((xy - lo) / side).astype(np.int64)
     key = ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]
     uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    # blocks of typical population: the densest ones are tree crowns with
-    # several returns per pulse, the sparsest ones fringe or water
-    best = np.lexsort((uniq, np.abs(counts - np.median(counts))))[:4]
+    # blocks holding about the mean population: the densest ones are tree
+    # crowns with several returns per pulse, the sparsest ones slivers at
+    # the grid's edge, fringe or water
+    best = np.lexsort((uniq, np.abs(counts - per_block)))[:4]
     return [np.flatnonzero(inverse == b) for b in best]
 
 
@@ -52,7 +53,7 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
         Planimetric coordinates (m).
     max_points : int, default 60000
         Above this, the mean is taken over four square blocks holding about
-        ``max_points / 4`` points each (the blocks of a grid closest to the median population),
+        ``max_points / 4`` points each (the blocks of a grid closest to that population),
         so the cost stays bounded while the local density is untouched.
 
     Returns
