@@ -71,6 +71,7 @@ def test_refine_writes_refined_layers_with_attributes(files, capsys):
     ("far", "does not cover"),
     ("nolayer", "no layer 'roof_outlines'"),
     ("suffix", "GeoPackage"),
+    ("config", "mrf.beta must be > 0"),
 ])
 def test_user_errors_exit_2(files, capsys, case, message):
     tmp, _, _ = files
@@ -81,9 +82,14 @@ def test_user_errors_exit_2(files, capsys, case, message):
         src = tmp / "far.gpkg"
     elif case == "nolayer":
         src = tmp / "noroofs.gpkg"
-    else:
+    extra = []
+    if case == "config":
+        (tmp / "bad.toml").write_text("[mrf]\nbeta = -1\n")
+        extra = ["--config", str(tmp / "bad.toml")]
+    elif case == "suffix":
         out = tmp / "bad.shp"
-    code = main(["refine", str(src), "--image", str(tmp / "image.tif"), "--camera", str(cam), "-o", str(out), "-q"])
+    code = main(["refine", str(src), "--image", str(tmp / "image.tif"), "--camera", str(cam), "-o", str(out), "-q",
+                 *extra])
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error:") and message in err, err
     assert not out.exists()

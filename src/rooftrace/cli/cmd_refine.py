@@ -92,6 +92,10 @@ def refine(
     cfg = load_config(config)
     try:
         options = RefineOptions.from_config(cfg)
+    except InputError as exc:
+        if config is None or str(config) in str(exc):
+            raise
+        raise InputError(f"{config}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise InputError(f"{config}: {exc}") from None
 
