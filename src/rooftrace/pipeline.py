@@ -20,7 +20,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
-__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers"]
+__all__ = ["RunResult", "run_pipeline", "check_config", "points_by_building", "building_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,21 @@ def building_layers(outlines: list, structures: list, refined: Any = None) -> di
     return {"roof_outlines": roof_outlines, "ridges": ridges, "roof_faces": faces_layer(structures)}
 
 
+def check_config(config: dict | None) -> None:
+    """Refuse config tables that no stage of a run reads (a typo must not silently do nothing)."""
+    # importing the stage packages registers their sections in KNOWN_SECTIONS; one config file
+    # may serve every command, so the [simulate] and [snake] tables are accepted too
+    import rooftrace.contour.outline  # noqa: F401
+    import rooftrace.lidar.detect  # noqa: F401
+    import rooftrace.refine  # noqa: F401
+    import rooftrace.roof  # noqa: F401
+    import rooftrace.snake  # noqa: F401
+    import rooftrace.synth  # noqa: F401
+    from rooftrace.config import KNOWN_SECTIONS, check_sections
+
+    check_sections(config or {}, KNOWN_SECTIONS)
+
+
 def run_pipeline(
     cloud: PointCloud,
     *,
@@ -159,6 +174,7 @@ def run_pipeline(
 
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
+    check_config(config)
 
     detection = detect_buildings(cloud, config=config, reporter=reporter)
     members = points_by_building(detection.building_id)
@@ -177,7 +193,6 @@ def run_pipeline(
 
     refined = None
     if image is not None and camera is not None and outlines:
-        from rooftrace.config import make_options
         from rooftrace.refine import RefineOptions, refine_buildings
 
         t0 = time.perf_counter()
@@ -185,13 +200,14 @@ def run_pipeline(
             plane_by_id = {s.building_id: s.planes for s in structures}
             ridge_geoms = [r for s in structures for r in s.ridges]
             ridge_ids = [s.building_id for s in structures for _ in s.ridges]
+            ridge_kinds = [k for s in structures for k in s.ridge_kind]
             refined = refine_buildings(
                 [o.polygon for o in outlines], ridge_geoms, image, camera,
                 points_xyz=cloud.xyz,
                 planes=[plane_by_id.get(o.building_id) for o in outlines],
                 building_ids=[o.building_id for o in outlines],
                 ridge_building_ids=ridge_ids,
-                options=make_options(RefineOptions, config), seed=seed,
+                options=RefineOptions.from_config(config), seed=seed, ridge_kinds=ridge_kinds,
             )
         timings["refine"] = time.perf_counter() - t0
 

@@ -30,6 +30,8 @@ from rooftrace.cli import cmd_refine  # noqa: F401,E402
 from rooftrace.cli import cmd_simulate  # noqa: F401,E402
 from rooftrace.cli import cmd_resect  # noqa: F401,E402
 from rooftrace.cli import cmd_snake  # noqa: F401,E402
+from rooftrace.cli import cmd_run  # noqa: F401,E402
+from rooftrace.cli import cmd_demo  # noqa: F401,E402
 
 __all__ = ["main"]
 
