@@ -30,7 +30,7 @@ CITY3D = DATA / "city3d_ahn3_single_buildings" / "instances_002"
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 
 
-THESIS = dict(scale=1.0, t_dist=0.6, offset_factor=0.0, snap=False, test="global", split=False,
+THESIS = dict(enabled=False, scale=1.0, t_dist=0.6, offset_factor=0.0, snap=False, test="global", split=False,
               points_per_degree=1, max_overshoot=1e9)
 
 

@@ -26,9 +26,12 @@ def demo(
     quiet: opt.Quiet = False,
 ) -> None:
     """Generate a synthetic scene with exact truth, run the whole method on it, evaluate, write a report."""
+    import json
+
     import numpy as np
 
     from rooftrace.errors import InputError
+    from rooftrace.io.atomic import atomic_path
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.vector import read_layer, write_layers
@@ -62,24 +65,32 @@ def demo(
 
     truth = read_layer(files["truth"], "roof_outlines")
     truth_ridges = read_layer(files["truth"], "ridges", missing_ok=True)
-    metrics = evaluate(
-        list(result.layers["roof_outlines"].geometries), list(truth.geometries),
-        extracted_ridges=list(result.layers["ridges"].geometries),
-        reference_ridges=list(truth_ridges.geometries) if truth_ridges is not None else None,
-    )
-    import json
-
-    (output / "metrics.json").write_text(json.dumps(metrics, indent=1, default=float) + "\n")
-    building = cloud.fields.get("truth_class") == 6 if "truth_class" in cloud.fields else None
-    report = write_report(output, metrics, list(result.layers["roof_outlines"].geometries), list(truth.geometries),
+    reference_ridges = list(truth_ridges.geometries) if truth_ridges is not None else None
+    outlines = list(result.layers["roof_outlines"].geometries)
+    ridges = list(result.layers["ridges"].geometries)
+    metrics = evaluate(outlines, list(truth.geometries), extracted_ridges=ridges, reference_ridges=reference_ridges)
+    with atomic_path(output / "metrics.json", overwrite=True) as tmp:
+        tmp.write_text(json.dumps(metrics, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    building = cloud.fields["truth_class"] == 6 if "truth_class" in cloud.fields else None
+    report = write_report(output, metrics, outlines, list(truth.geometries),
                           points_xy=cloud.xyz[building, :2] if building is not None else None,
+                          extracted_ridges=ridges, reference_ridges=reference_ridges,
                           title=f"rooftrace demo — synthetic scene, seed {seed}")
     summary = {"output": str(output), "report": str(report), **{k: metrics.get(k) for k in (
         "completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean",
-        "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched")}, "run": result.summary()}
+        "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched",
+        "ridge_completeness", "ridge_correctness", "ridge_position_error")}}
+    if result.refined is not None:
+        # what the image adds: the same scores for the LiDAR-only outlines of this run
+        lidar_only = evaluate([o.polygon for o in result.outlines], list(truth.geometries))
+        summary["polis_mean_lidar_only"] = lidar_only["polis_mean"]
+        summary["f_score_lidar_only"] = lidar_only["f_score"]
+    summary["run"] = result.summary()
     if json_:
         emit_json(summary)
     else:
         typer.echo(f"report: {report}")
-        for key in ("f_score", "polis_mean", "n_reference", "n_matched"):
-            typer.echo(f"{key:>12}: {summary[key]}")
+        for key in ("f_score", "polis_mean", "polis_mean_lidar_only", "rmse_z", "ridge_position_error",
+                    "n_reference", "n_matched"):
+            if key in summary:
+                typer.echo(f"{key:>22}: {summary[key]}")

@@ -21,6 +21,7 @@ from rooftrace.contour.cdspline import CDSplineOptions
 from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
+from rooftrace.contour.surface import SurfaceOptions, lift_to_roof
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
@@ -29,7 +30,8 @@ __all__ = ["OutlineOptions", "RoofOutline", "trace_outline", "outline_buildings"
 
 log = logging.getLogger(__name__)
 
-_STAGES = {"alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions, "regularize": RegularizeOptions}
+_STAGES = {"surface": SurfaceOptions, "alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions,
+           "regularize": RegularizeOptions}
 KNOWN_SECTIONS.update(_STAGES)
 
 #: alpha is enlarged by these factors when the shape does not close or falls apart (status "alpha_enlarged")
@@ -42,6 +44,8 @@ class OutlineOptions:
 
     Attributes
     ----------
+    surface : SurfaceOptions
+        ``[surface]``: enabled, radius_factor, max_slope, tolerance.
     alpha : AlphaOptions
         ``[alpha]``: strategy, alpha, radius, long_edge_sigma, min_hole_area.
     corners : CornerOptions
@@ -52,6 +56,7 @@ class OutlineOptions:
         ``[regularize]``: offset_factor, snap, snap_tolerance, max_offset_ratio.
     """
 
+    surface: SurfaceOptions = field(default_factory=SurfaceOptions)
     alpha: AlphaOptions = field(default_factory=AlphaOptions)
     corners: CornerOptions = field(default_factory=CornerOptions)
     cdspline: CDSplineOptions = field(default_factory=CDSplineOptions)
@@ -59,9 +64,9 @@ class OutlineOptions:
 
     @classmethod
     def from_config(cls, config: dict | None = None, **overrides: Any) -> "OutlineOptions":
-        """Options from a TOML config dict (tables ``alpha``, ``corners``, ``cdspline``, ``regularize``).
+        """Options from a TOML config dict (tables ``surface``, ``alpha``, ``corners``, ``cdspline``, ``regularize``).
 
-        Keyword overrides name a field of any of the four stages (e.g.
+        Keyword overrides name a field of any of the five stages (e.g.
         ``strategy="point"``, ``snap=True``); ``None`` means not given.
         """
         routed: dict[str, dict[str, Any]] = {name: {} for name in _STAGES}
@@ -193,10 +198,10 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         raise ValueError(f"trace_outline: xyz must have shape (N, 3), not {xyz.shape}")
     if not np.isfinite(xyz).all():
         raise GeometryError("non_finite")
-    _, first = np.unique(xyz[:, :2], axis=0, return_index=True)
+    pts = _roof_surface(xyz, options.surface, mean_spacing)
     # work near the origin: map coordinates (1e5 m) cost the least-squares fits digits
     origin = np.append(np.floor(xyz[:, :2].min(axis=0)), 0.0)
-    pts = xyz[np.sort(first)] - origin
+    pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
     status = "ok"
@@ -249,6 +254,27 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     z = xyz[:, 2]
     return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(xyz), status,
                        float(z.min()), float(z.mean()), float(z.max()), sigma)
+
+
+def _roof_surface(xyz: np.ndarray, options: SurfaceOptions, mean_spacing: float | None) -> np.ndarray:
+    """The points the outline is traced from: one per plan position, the highest, at roof height."""
+    if options.enabled and len(xyz) >= 4:
+        spacing = mean_spacing if mean_spacing else _nn_spacing(xyz[:, :2])
+        if spacing > 0:
+            xyz = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
+                               tolerance=options.tolerance)
+    # points sharing a plan position (a wall seen from two strips): keep the highest, it is the roof
+    order = np.lexsort((-xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    keep = np.ones(len(order), bool)
+    keep[1:] = np.any(xyz[order][1:, :2] != xyz[order][:-1, :2], axis=1)
+    return xyz[np.sort(order[keep])]
+
+
+def _nn_spacing(xy: np.ndarray) -> float:
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(xy).query(xy, k=2)
+    return float(np.median(d[:, 1]))
 
 
 def _area(xy: np.ndarray) -> float:
