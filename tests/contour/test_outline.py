@@ -132,3 +132,17 @@ def test_connected_buildings():
     b = a + (30, 0)
     ids = connected_buildings(np.concatenate([a, b, [[100.0, 100.0]]]), radius=0.8)
     assert set(ids[: len(a)]) == {1} and set(ids[len(a):-1]) == {2} and ids[-1] == 0
+
+
+def test_a_ring_pinched_at_a_point_keeps_both_wings():
+    from rooftrace.contour.outline import _make_valid
+
+    # two 10 m squares touching at (10, 10), traced as one ring through the pinch
+    ring = np.array([[0, 0, 5], [10, 0, 5], [10, 10, 5], [20, 10, 6], [20, 20, 6], [10, 20, 6], [10, 10, 6],
+                     [0, 10, 5]], float)
+    polygon = shapely.Polygon(ring)
+    assert not polygon.is_valid
+    fixed, corners = _make_valid(polygon, [ring], [np.arange(len(ring))])
+    assert fixed.is_valid and fixed.geom_type == "Polygon" and fixed.has_z
+    assert fixed.area == pytest.approx(200, abs=0.5)  # both wings and a bridge of a few cm²
+    assert set(np.round(np.asarray(fixed.exterior.coords)[:, 2])) == {5, 6}

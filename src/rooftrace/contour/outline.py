@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
@@ -271,8 +272,6 @@ def _roof_surface(xyz: np.ndarray, options: SurfaceOptions, mean_spacing: float 
 
 
 def _nn_spacing(xy: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
     d, _ = cKDTree(xy).query(xy, k=2)
     return float(np.median(d[:, 1]))
 
@@ -287,8 +286,12 @@ def _make_valid(polygon, rings: list[np.ndarray], corners: list[np.ndarray]):
     parts = [g for g in getattr(fixed, "geoms", [fixed]) if isinstance(g, shapely.Polygon) and not g.is_empty]
     if not parts:
         return None, []
-    best = shapely.orient_polygons(max(parts, key=lambda g: g.area)) if hasattr(shapely, "orient_polygons") \
-        else shapely.geometry.polygon.orient(max(parts, key=lambda g: g.area))
+    best = max(parts, key=lambda g: g.area)
+    if len(parts) > 1 and best.area < 0.95 * sum(g.area for g in parts):
+        # a ring pinched at a point (two wings of one roof touching): join the wings rather than drop one
+        best = _join_parts(parts, rings) or best
+    best = shapely.orient_polygons(best) if hasattr(shapely, "orient_polygons") \
+        else shapely.geometry.polygon.orient(best)
     corner_xy = np.concatenate([r[c, :2] for r, c in zip(rings, corners)]) if rings else np.empty((0, 2))
     new_corners = []
     for ring in [best.exterior, *best.interiors]:
@@ -296,6 +299,24 @@ def _make_valid(polygon, rings: list[np.ndarray], corners: list[np.ndarray]):
         hit = np.min(np.linalg.norm(xy[:, None] - corner_xy[None], axis=2), axis=1) < 1e-6
         new_corners.append(np.flatnonzero(hit))
     return best, new_corners
+
+
+def _join_parts(parts: list, rings: list[np.ndarray], width: float = 0.1):
+    """The parts of a pinched ring joined by bridges ``width`` metres wide where they touch, Z from the ring."""
+    flat = [shapely.force_2d(p) for p in parts if p.area > 1e-6]
+    grown = [p.buffer(width) for p in flat]
+    bridges = [grown[a].intersection(grown[b]) for a in range(len(grown)) for b in range(a + 1, len(grown))]
+    joined = shapely.union_all(flat + bridges)
+    if not isinstance(joined, shapely.Polygon) or joined.is_empty:
+        return None
+    xyz = np.concatenate(rings)
+    tree = cKDTree(xyz[:, :2])
+
+    def lift(ring):
+        xy = np.asarray(ring.coords)[:, :2]
+        return np.column_stack([xy, xyz[tree.query(xy)[1], 2]])
+
+    return shapely.Polygon(lift(joined.exterior), [lift(h) for h in joined.interiors])
 
 
 def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: OutlineOptions | None = None, *,
