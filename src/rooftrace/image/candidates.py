@@ -11,6 +11,8 @@ For each 3D line:
    default the rule's Steger lines are added and the Canny lines kept);
 5. remove terrain lines when LiDAR points are given (seed 000);
 6. merge collinear fragments (9 deg, 3 px);
+6b. re-locate each candidate at the sub-pixel gradient maxima across it,
+   with a robust line fit (:func:`~rooftrace.image.refit.refit_lines`, ours);
 7. keep candidates of at least 15 % of the projected length within 20 deg
    of its direction (seed 000); a line left without candidates keeps its
    projection as the only one (source ``'projected'``).
@@ -29,7 +31,9 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.edges import canny_edges, link_chains
 from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
-from rooftrace.image.projection import clip_to_window, in_window, line_windows, project_lines, window_slices
+from rooftrace.image.refit import refit_lines
+from rooftrace.image.projection import (clip_to_window, in_window, line_windows, project_lines, window_frame,
+                                        window_slices)
 from rooftrace.image.steger import steger_lines, steger_sigma
 from rooftrace.image.terrain import PixelHeights, sample_segments, terrain_lines
 
@@ -95,6 +99,14 @@ class CandidateOptions:
         Largest angle to the projected line (deg), seed 000 §2.1.
     terrain_height_tolerance : float, default 1.0
         Metres below the lowest roof edge that make a line terrain-compatible (ours).
+    refit : bool, default True
+        Re-locate merged candidates on the gradient at ``refit_sigma``
+        (:func:`~rooftrace.image.refit.refit_lines`, ours): straightens
+        fragments of two edges merged into one tilted line and removes the
+        outward pull of a thin wall strip.  False: the seeds' lines as found.
+    refit_sigma, refit_search : float, default 0.7, 2.0
+        Derivative scale (px) and search half-length across the line (px)
+        of the refit.
     """
 
     section = "candidates"
@@ -123,9 +135,13 @@ class CandidateOptions:
     min_length_fraction: float = 0.15
     max_angle: float = 20.0
     terrain_height_tolerance: float = 1.0
+    refit: bool = True
+    refit_sigma: float = 0.7
+    refit_search: float = 2.0
 
     def __post_init__(self):
-        positive = ("sigma_xy", "sigma_z", "canny_sigma", "line_width", "split_tolerance")
+        positive = ("sigma_xy", "sigma_z", "canny_sigma", "line_width", "split_tolerance", "refit_sigma",
+                    "refit_search")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"candidates.{name} must be positive, got {getattr(self, name)}")
@@ -301,6 +317,24 @@ def extract_candidates(
                     found = found[~drop]
                     sources = [s for s, d in zip(sources, drop) if not d]
                 found, sources = merge_collinear(found, sources, opt.merge_angle, opt.merge_distance)
+                if opt.refit and len(found):
+                    # only the part beside the side counts: past its ends a line is usually another
+                    # building's edge, collinear within the merge tolerance, that would tilt the fit
+                    p0, u, nrm, length = window_frame(ref)
+                    m, h = float(error[i]) + 1.0, 1e6
+                    box = np.array([p0 - m * u - h * nrm, p0 + (length + m) * u - h * nrm,
+                                    p0 + (length + m) * u + h * nrm, p0 - m * u + h * nrm])
+                    found, kept = clip_to_window(found, box)
+                    sources = [s for s, k in zip(sources, kept) if k]
+                    grey = crop if crop.ndim == 2 else crop.mean(axis=2)
+                    # step edges only: a Steger line is the centre of a bar, between two opposite steps
+                    step = np.array([s != "steger" for s in sources], bool)
+                    # a step of half the weakest contrast Canny may seed on, at the refit's scale
+                    floor = 0.5 * opt.min_contrast / (np.sqrt(2 * np.pi) * np.hypot(opt.refit_sigma, 0.5))
+                    found[step] = refit_lines(grey, found[step] - [c0, r0], opt.refit_sigma, opt.refit_search,
+                                              min_strength=floor)[0] + [c0, r0]
+                    # two fragments refitted onto one edge are one candidate
+                    found, sources = merge_collinear(found, sources, 3.0, 0.5, duplicate_tol=0.5)
                 # a merged line's ends may stick out of the window by a fraction of a pixel
                 found, inside_win = clip_to_window(found, win)
                 sources = [s for s, k in zip(sources, inside_win) if k]
