@@ -135,7 +135,7 @@ def test_connected_buildings():
 
 
 def test_a_ring_pinched_at_a_point_keeps_both_wings():
-    from rooftrace.contour.outline import _make_valid
+    from rooftrace.contour.repair import make_valid_outline as _make_valid
 
     # two 10 m squares touching at (10, 10), traced as one ring through the pinch
     ring = np.array([[0, 0, 5], [10, 0, 5], [10, 10, 5], [20, 10, 6], [20, 20, 6], [10, 20, 6], [10, 10, 6],

@@ -14,7 +14,6 @@ from typing import Any
 
 import numpy as np
 import shapely
-from scipy.spatial import cKDTree
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
@@ -22,7 +21,8 @@ from rooftrace.contour.cdspline import CDSplineOptions
 from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
-from rooftrace.contour.surface import SurfaceOptions, lift_to_roof
+from rooftrace.contour.repair import make_valid_outline
+from rooftrace.contour.surface import SurfaceOptions, outline_points
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
@@ -199,7 +199,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         raise ValueError(f"trace_outline: xyz must have shape (N, 3), not {xyz.shape}")
     if not np.isfinite(xyz).all():
         raise GeometryError("non_finite")
-    pts = _roof_surface(xyz, options.surface, mean_spacing)
+    pts = outline_points(xyz, options.surface, mean_spacing)
     # work near the origin: map coordinates (1e5 m) cost the least-squares fits digits
     origin = np.append(np.floor(xyz[:, :2].min(axis=0)), 0.0)
     pts = pts - origin
@@ -247,7 +247,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         corners.append(corner_index)
     polygon = shapely.Polygon(rings[0], rings[1:])
     if not polygon.is_valid:
-        polygon, corners = _make_valid(polygon, rings, corners)
+        polygon, corners = make_valid_outline(polygon, rings, corners)
         degrees = degrees[: 1 + len(polygon.interiors)] if polygon is not None else []
         status = "repaired"
     if polygon is None or polygon.is_empty:
@@ -257,66 +257,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
                        float(z.min()), float(z.mean()), float(z.max()), sigma)
 
 
-def _roof_surface(xyz: np.ndarray, options: SurfaceOptions, mean_spacing: float | None) -> np.ndarray:
-    """The points the outline is traced from: one per plan position, the highest, at roof height."""
-    if options.enabled and len(xyz) >= 4:
-        spacing = mean_spacing if mean_spacing else _nn_spacing(xyz[:, :2])
-        if spacing > 0:
-            xyz = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
-                               tolerance=options.tolerance)
-    # points sharing a plan position (a wall seen from two strips): keep the highest, it is the roof
-    order = np.lexsort((-xyz[:, 2], xyz[:, 1], xyz[:, 0]))
-    keep = np.ones(len(order), bool)
-    keep[1:] = np.any(xyz[order][1:, :2] != xyz[order][:-1, :2], axis=1)
-    return xyz[np.sort(order[keep])]
-
-
-def _nn_spacing(xy: np.ndarray) -> float:
-    d, _ = cKDTree(xy).query(xy, k=2)
-    return float(np.median(d[:, 1]))
-
-
 def _area(xy: np.ndarray) -> float:
     x, y = xy[:, 0], xy[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-
-
-def _make_valid(polygon, rings: list[np.ndarray], corners: list[np.ndarray]):
-    fixed = shapely.make_valid(polygon)
-    parts = [g for g in getattr(fixed, "geoms", [fixed]) if isinstance(g, shapely.Polygon) and not g.is_empty]
-    if not parts:
-        return None, []
-    best = max(parts, key=lambda g: g.area)
-    if len(parts) > 1 and best.area < 0.95 * sum(g.area for g in parts):
-        # a ring pinched at a point (two wings of one roof touching): join the wings rather than drop one
-        best = _join_parts(parts, rings) or best
-    best = shapely.orient_polygons(best) if hasattr(shapely, "orient_polygons") \
-        else shapely.geometry.polygon.orient(best)
-    corner_xy = np.concatenate([r[c, :2] for r, c in zip(rings, corners)]) if rings else np.empty((0, 2))
-    new_corners = []
-    for ring in [best.exterior, *best.interiors]:
-        xy = np.asarray(ring.coords)[:-1, :2]
-        hit = np.min(np.linalg.norm(xy[:, None] - corner_xy[None], axis=2), axis=1) < 1e-6
-        new_corners.append(np.flatnonzero(hit))
-    return best, new_corners
-
-
-def _join_parts(parts: list, rings: list[np.ndarray], width: float = 0.1):
-    """The parts of a pinched ring joined by bridges ``width`` metres wide where they touch, Z from the ring."""
-    flat = [shapely.force_2d(p) for p in parts if p.area > 1e-6]
-    grown = [p.buffer(width) for p in flat]
-    bridges = [grown[a].intersection(grown[b]) for a in range(len(grown)) for b in range(a + 1, len(grown))]
-    joined = shapely.union_all(flat + bridges)
-    if not isinstance(joined, shapely.Polygon) or joined.is_empty:
-        return None
-    xyz = np.concatenate(rings)
-    tree = cKDTree(xyz[:, :2])
-
-    def lift(ring):
-        xy = np.asarray(ring.coords)[:, :2]
-        return np.column_stack([xy, xyz[tree.query(xy)[1], 2]])
-
-    return shapely.Polygon(lift(joined.exterior), [lift(h) for h in joined.interiors])
 
 
 def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: OutlineOptions | None = None, *,

@@ -24,7 +24,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SurfaceOptions", "below_roof", "lift_to_roof"]
+__all__ = ["SurfaceOptions", "below_roof", "lift_to_roof", "outline_points"]
 
 
 @dataclass(frozen=True)
@@ -154,3 +154,38 @@ def _below(xyz: np.ndarray, radius: float, max_slope: float, tolerance: float):
     flagged[i[dz > allowance]] = True
     flagged[j[-dz > allowance]] = True
     return flagged, i, j, d
+
+
+def outline_points(xyz: np.ndarray, options: SurfaceOptions | None = None,
+                   mean_spacing: float | None = None) -> np.ndarray:
+    """The points an outline is traced from: one per plan position (the highest), at roof height.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3)
+        One building's points, metres.
+    options : SurfaceOptions, optional
+    mean_spacing : float, optional
+        Point spacing (m); estimated from nearest neighbours when not given.
+
+    Returns
+    -------
+    ndarray of shape (M, 3), M <= N
+        In input order.
+    """
+    options = options or SurfaceOptions()
+    if options.enabled and len(xyz) >= 4:
+        spacing = mean_spacing if mean_spacing else _nn_spacing(xyz[:, :2])
+        if spacing > 0:
+            xyz = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
+                               tolerance=options.tolerance)
+    # points sharing a plan position (a wall seen from two strips): keep the highest, it is the roof
+    order = np.lexsort((-xyz[:, 2], xyz[:, 1], xyz[:, 0]))
+    keep = np.ones(len(order), bool)
+    keep[1:] = np.any(xyz[order][1:, :2] != xyz[order][:-1, :2], axis=1)
+    return xyz[np.sort(order[keep])]
+
+
+def _nn_spacing(xy: np.ndarray) -> float:
+    d, _ = cKDTree(xy).query(xy, k=2)
+    return float(np.median(d[:, 1]))
