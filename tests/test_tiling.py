@@ -1,14 +1,38 @@
+"""Tiled runs (issue 9): tiles with buffers equal one piece, workers, Dask, resume."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import laspy
 import numpy as np
 import pytest
+import shapely
 
-from rooftrace.tiling import TileOptions, split_to_tiles, tile_grid
+from rooftrace.cli.main import main
+from rooftrace.errors import InputError
+from rooftrace.io.vector import read_layer
+from rooftrace.tiling import (
+    TileOptions,
+    merge_tiles,
+    owned_buildings,
+    sample_windows,
+    split_to_tiles,
+    tile_cell_ranges,
+    tile_grid,
+)
 
+from .conftest import DELFT
 
-def test_grid_is_anchored_at_multiples_of_the_tile_size():
-    xs, ys = tile_grid([1030.0, 2010.0, 1490.0, 2260.0], 100.0)
-    np.testing.assert_array_equal(xs, [1000, 1100, 1200, 1300, 1400])
-    np.testing.assert_array_equal(ys, [2000, 2100, 2200])
+LAYERS = ("roof_outlines", "ridges", "roof_faces")
+# a 100 m synthetic block cut into 2 x 2 tiles of 50 m; outlier cells of
+# 25 m let a 25 m buffer stay 25 m (buffered tiles follow the cell lines)
+TILED = ["--tile-size", "50", "--buffer", "25"]
 
 
 def _las(path, xyz):
@@ -20,34 +44,270 @@ def _las(path, xyz):
     las.write(path)
 
 
+def assert_same_layers(a, b, tol=1e-6):
+    """Same features in the same order, geometries within ``tol`` metres, identical attributes."""
+    for name in LAYERS:
+        la, lb = read_layer(a, name), read_layer(b, name)
+        assert len(la) == len(lb), name
+        for ga, gb in zip(la.geometries, lb.geometries):
+            assert (ga is None and gb is None) or shapely.equals_exact(ga, gb, tolerance=tol), name
+        assert la.attributes.keys() == lb.attributes.keys(), name
+        for key in la.attributes:
+            va, vb = np.asarray(la.attributes[key]), np.asarray(lb.attributes[key])
+            if va.dtype.kind == "f":
+                np.testing.assert_array_equal(va, vb, err_msg=f"{name}.{key}")  # NaN == NaN here
+            else:
+                assert va.tolist() == vb.tolist(), (name, key)
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    """A simulated 100 m block (about 50k points, a dozen buildings) and a config with 25 m outlier cells."""
+    from rooftrace.io.las import write_las
+    from rooftrace.synth import SceneOptions, simulate_scene
+
+    d = tmp_path_factory.mktemp("block")
+    scene = simulate_scene(SceneOptions(size=100.0, density=5.0, seed=2, image=False))
+    write_las(d / "points.laz", scene.cloud)
+    (d / "config.toml").write_text("[outliers]\ncell = 25.0\n")
+    return d
+
+
+@pytest.fixture(scope="module")
+def one_piece(block):
+    out = block / "one.gpkg"
+    assert main(["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), "-q"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiled(block):
+    out = block / "tiled.gpkg"
+    args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED, "-q"]
+    assert main(args) == 0
+    return out
+
+
+def test_grid_is_anchored_at_multiples_of_the_tile_size():
+    xs, ys = tile_grid([1030.0, 2010.0, 1490.0, 2260.0], 100.0)
+    np.testing.assert_array_equal(xs, [1000, 1100, 1200, 1300, 1400])
+    np.testing.assert_array_equal(ys, [2000, 2100, 2200])
+
+
+def test_buffered_tiles_follow_the_cell_lines():
+    r = tile_cell_ranges(np.array([1000.0, 1100.0]), 100.0, 20.0, 990.0, 25.0)
+    # [980, 1120) widened to 25 m cells from 990: cells -1..5 ([965, 1140))
+    np.testing.assert_array_equal(r, [[-1, 5], [3, 9]])
+
+
 def test_split_puts_each_point_in_every_buffered_tile_that_holds_it(tmp_path, rng):
     xyz = np.column_stack([rng.uniform(0, 300, 5000), rng.uniform(0, 200, 5000), rng.uniform(0, 10, 5000)])
     a, b = tmp_path / "a.las", tmp_path / "b.laz"
     _las(a, xyz[:2500])
     _las(b, xyz[2500:])
     opts = TileOptions(tile_size=100.0, buffer=20.0, chunk_size=700)
-    index = split_to_tiles([a, b], tmp_path / "run", opts)
-    assert index["tile_size"] == 100.0 and index["buffer"] == 20.0
+    index = split_to_tiles([a, b], tmp_path / "run", opts, cell=10.0)
+    assert index["tile_size"] == 100.0 and index["points"] == 5000 and index["sample_points"] == 5000
+    ox, oy = index["origin"]
+    pts = np.concatenate([np.asarray(laspy.read(p).xyz) for p in (a, b)])
+    kx, ky = np.floor((pts[:, 0] - ox) / 10.0), np.floor((pts[:, 1] - oy) / 10.0)
+    in_core = np.zeros(len(pts), int)
     for key, tile in index["tiles"].items():
-        x0, y0 = tile["origin"]
-        parts = sorted((tmp_path / "run" / "tiles" / key).glob("*.npy"))
-        got = np.concatenate([np.load(p) for p in parts])
-        expect = xyz[(xyz[:, 0] >= x0 - 20) & (xyz[:, 0] < x0 + 120) & (xyz[:, 1] >= y0 - 20) & (xyz[:, 1] < y0 + 120)]
-        # the floor-based assignment is half-open like the expectation, up to the 1 mm scale
-        assert abs(len(got) - len(expect)) <= 2
+        cx0, cx1, cy0, cy1 = tile["cells"]
+        got = np.concatenate([np.load(p) for p in sorted((tmp_path / "run" / "tiles" / key).glob("*.npy"))])
+        expect = pts[(kx >= cx0) & (kx <= cx1) & (ky >= cy0) & (ky <= cy1)]
+        # the same points in the same (file, then point) order as the whole input
+        np.testing.assert_array_equal(np.column_stack([got["x"], got["y"], got["z"]]), expect)
         assert tile["points"] == len(got)
-    cores = sum(
-        ((xyz[:, 0] >= t["origin"][0]) & (xyz[:, 0] < t["origin"][0] + 100)
-         & (xyz[:, 1] >= t["origin"][1]) & (xyz[:, 1] < t["origin"][1] + 100)).sum()
-        for t in index["tiles"].values()
-    )
-    assert cores == len(xyz)
+        x0, y0 = tile["origin"]
+        assert ox + cx0 * 10 <= x0 - 20 and ox + (cx1 + 1) * 10 >= x0 + 120
+        in_core += (pts[:, 0] >= x0) & (pts[:, 0] < x0 + 100) & (pts[:, 1] >= y0) & (pts[:, 1] < y0 + 100)
+    assert (in_core == 1).all()
+    sample = np.concatenate([np.load(p) for p in sorted((tmp_path / "run" / "sample").glob("*.npy"))])
+    np.testing.assert_array_equal(sample["x"], pts[:, 0])
+
+
+def test_large_inputs_are_sampled_on_four_windows_of_whole_cells():
+    assert sample_windows([0, 0, 1000, 1000], 1000, 2000, (0, 0), 50.0) is None
+    w = sample_windows([0, 0, 1000, 1000], 10_000_000, 2_000_000, (0, 0), 50.0)
+    assert w.shape == (4, 4)
+    sides = (w[:, 1] - w[:, 0] + 1) * 50.0
+    # 500k points at 10 pts/m² need about 224 m, rounded up to whole cells
+    assert (sides >= 224).all() and (sides <= 300).all()
+    assert len({tuple(r) for r in w}) == 4
 
 
 def test_split_refuses_non_las(tmp_path):
     p = tmp_path / "a.txt"
     p.write_text("1 2 3\n")
-    from rooftrace.errors import InputError
-
     with pytest.raises(InputError, match="LAS/LAZ only"):
         split_to_tiles([p], tmp_path / "run", TileOptions())
+
+
+def test_bad_tile_options_name_the_flag():
+    with pytest.raises(InputError, match="--tile-size"):
+        TileOptions(tile_size=-5)
+    with pytest.raises(InputError, match="--workers"):
+        TileOptions(workers=0)
+
+
+def test_a_building_belongs_to_the_tile_holding_its_centre():
+    # building 1 spans the seam x = 10 with its box centre at 9.5; building 2 is all right of it
+    xyz = np.array([[5.0, 0, 3], [14.0, 1, 3], [6.0, 2, 3], [11.0, 0, 5], [13.0, 1, 5], [1.0, 1, 0]])
+    bid = np.array([1, 1, 1, 2, 2, 0])
+    ids, owned, key, box = owned_buildings(xyz, bid, (-np.inf, 10.0, -np.inf, np.inf), (0.0, 0.0))
+    assert ids.tolist() == [1, 2] and owned.tolist() == [True, False]
+    np.testing.assert_array_equal(key, [[5, 0, 3], [11, 0, 5]])
+    np.testing.assert_array_equal(box[0], [5, 0, 14, 2])
+    ids, owned, _, _ = owned_buildings(xyz, bid, (10.0, np.inf, -np.inf, np.inf), (0.0, 0.0))
+    assert owned.tolist() == [False, True]
+
+
+def test_merge_numbers_buildings_by_their_lowest_point_whatever_the_tile_order():
+    def tile(ids, keys, xs):
+        polys = [shapely.box(x, 0, x + 1, 1) for x in xs]
+        layer = {"wkb": [shapely.to_wkb(p) for p in polys], "geometry_type": "Polygon",
+                 "attributes": {"building_id": ids, "area": [1.0] * len(ids)}}
+        return {"layers": {"roof_outlines": layer}, "buildings": {"id": ids, "key": keys}}
+
+    a = tile([1, 2], [[5, 0, 0], [1, 0, 0]], [5, 1])
+    b = tile([1], [[3, 0, 0]], [3])
+    for order in ([a, b], [b, a]):
+        layer = merge_tiles(order)["roof_outlines"]
+        assert layer.attributes["building_id"] == [1, 2, 3]
+        assert [g.bounds[0] for g in layer.geometries] == [1, 3, 5]
+
+
+def test_fixed_parameters_reproduce_the_detection(rng):
+    from rooftrace.cloud import PointCloud
+    from rooftrace.lidar.detect import DerivedParams, detect_buildings
+
+    from .lidar.scenes import scene
+
+    xyz, _ = scene(rng, size=50.0, boxes=((8, 8, 12, 9, 6), (30, 28, 10, 14, 9)), trees=((35, 10, 4, 3, 9),))
+    cloud = PointCloud(xyz + [85000.0, 447000.0, 0.0])
+    free = detect_buildings(cloud)
+    d = free.derived
+    assert d.origin == tuple(cloud.xyz[:, :2].min(axis=0)) and d.entropy_threshold is not None
+    assert DerivedParams.from_dict(json.loads(json.dumps(d.to_dict()))) == d
+    fixed = detect_buildings(cloud, derived=d)
+    np.testing.assert_array_equal(free.classification, fixed.classification)
+    np.testing.assert_array_equal(free.building_id, fixed.building_id)
+    assert fixed.params["classify"]["method"] == "fixed"
+    with pytest.raises(ValueError, match="derived.sigma_h"):
+        DerivedParams(sigma_h=-1.0)
+
+
+def test_four_tiles_give_the_buildings_of_one_piece(block, one_piece, tiled):
+    assert len(read_layer(one_piece, "roof_outlines")) >= 5
+    assert_same_layers(one_piece, tiled)
+    assert not Path(str(tiled) + ".parts").exists()
+
+
+def test_two_workers_give_the_output_of_one(block, tiled, tmp_path):
+    out = tmp_path / "w2.gpkg"
+    args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED,
+            "--workers", "2", "-q"]
+    assert main(args) == 0
+    assert_same_layers(tiled, out, tol=0.0)
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_runs_on_a_dask_scheduler_and_worker(block, tiled, tmp_path):
+    dask = str(Path(sys.executable).with_name("dask"))
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True, env=env)]
+    try:
+        procs.append(subprocess.Popen([dask, "worker", address, "--nworkers", "1", "--nthreads", "1",
+                                       "--no-dashboard", "--host", "127.0.0.1"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                                      env=env, cwd=tmp_path))
+        from dask.distributed import Client
+
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(1, timeout=60)
+        out = tmp_path / "dask.gpkg"
+        args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED,
+                "--scheduler", address, "-q"]
+        assert main(args) == 0
+        assert_same_layers(tiled, out, tol=0.0)
+    finally:
+        for p in reversed(procs):
+            os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def test_a_killed_run_resumes_without_redoing_finished_tiles(block, tiled, tmp_path, monkeypatch):
+    import rooftrace.pipeline
+
+    out = tmp_path / "killed.gpkg"
+    args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED, "-q"]
+    proc = subprocess.Popen([str(Path(sys.executable).with_name("rooftrace")), *args],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    results = Path(str(out) + ".parts") / "results"
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(results.glob("*.pkl"))) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait()
+    done = {p.name: p.stat().st_mtime_ns for p in results.glob("*.pkl")}
+    n_tiles = len(json.loads((results.parent / "tiles.json").read_text())["tiles"])
+    assert 2 <= len(done) < n_tiles and not out.exists()
+
+    calls = []
+    original = rooftrace.pipeline.run_pipeline
+
+    def counting(*a, **k):
+        calls.append(1)
+        return original(*a, **k)
+
+    monkeypatch.setattr(rooftrace.pipeline, "run_pipeline", counting)
+    assert main([*args, "--resume"]) == 0
+    # only the parameters were kept too: every pipeline call is an unfinished tile
+    assert len(calls) == n_tiles - len(done)
+    assert_same_layers(tiled, out, tol=0.0)
+
+
+def test_resume_refuses_other_options(block, tmp_path, capsys):
+    out = tmp_path / "r.gpkg"
+    parts = Path(str(out) + ".parts")
+    parts.mkdir()
+    (parts / "run.json").write_text(json.dumps({"inputs": ["elsewhere.laz"]}))
+    code = main(["run", str(block / "points.laz"), "-o", str(out), *TILED, "--resume", "-q"])
+    assert code == 2
+    assert "different inputs or options" in capsys.readouterr().err
+
+
+def test_tiled_runs_refuse_the_classified_points(block, tmp_path, capsys):
+    code = main(["run", str(block / "points.laz"), "-o", str(tmp_path / "a.gpkg"), "--classified",
+                 str(tmp_path / "a.laz"), *TILED, "-q"])
+    assert code == 2 and "--classified" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_delft_as_four_tiles_gives_the_buildings_of_one_piece(tmp_path):
+    """Issue 9: 2 x 2 tiles of 250 m with a 60 m buffer (about 3 min on 2 cores)."""
+    files = [DELFT / "ahn3_cropped_1.laz", DELFT / "ahn3_cropped_2.laz"]
+    if not all(f.exists() for f in files):
+        pytest.skip(f"real data not available: {DELFT}")
+    one, four = tmp_path / "one.gpkg", tmp_path / "four.gpkg"
+    common = [*map(str, files), "--crs", "EPSG:28992", "-q"]
+    assert main(["run", *common, "-o", str(one)]) == 0
+    assert main(["run", *common, "-o", str(four), "--tile-size", "250", "--buffer", "60", "--workers", "2"]) == 0
+    assert len(read_layer(one, "roof_outlines")) > 20
+    assert_same_layers(one, four)

@@ -143,6 +143,7 @@ def run_pipeline(
     camera: Any = None,
     seed: int = 0,
     reporter: Reporter | None = None,
+    derived: Any = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -164,6 +165,10 @@ def run_pipeline(
         Seed of the genetic algorithm.
     reporter : Reporter, optional
         Progress callbacks.
+    derived : rooftrace.lidar.detect.DerivedParams, optional
+        Data-derived detection parameters fixed for this cloud (a tile of a
+        tiled run gets those of the whole input); by default measured on
+        ``cloud``.
 
     Returns
     -------
@@ -176,7 +181,7 @@ def run_pipeline(
     timings: dict[str, float] = {}
     check_config(config)
 
-    detection = detect_buildings(cloud, config=config, reporter=reporter)
+    detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
     members = points_by_building(detection.building_id)
 
     t0 = time.perf_counter()

@@ -58,7 +58,7 @@ from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching, 
 from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
 from rooftrace.progress import Reporter
 
-__all__ = ["DetectOptions", "Detection", "detect_buildings"]
+__all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
 
 log = logging.getLogger(__name__)
 
@@ -88,6 +88,82 @@ class DetectOptions:
         return cls(**parts)
 
 
+@dataclass(frozen=True)
+class DerivedParams:
+    """The detection parameters that come from the data, resolved or fixed.
+
+    Every threshold of the detection follows from the options and these
+    numbers.  Left ``None`` they are measured on the cloud being detected;
+    a tiled run measures them once on the whole input (or a sample of it,
+    see :func:`rooftrace.tiling.estimate_parameters`) and fixes them for
+    every tile, so a tile detects its buildings exactly as the whole cloud
+    would.  :attr:`Detection.derived` holds the values a run used, so
+    ``detect_buildings(c, derived=detect_buildings(c).derived)`` gives the
+    same result as ``detect_buildings(c)``.
+
+    Attributes
+    ----------
+    origin : (float, float) or None
+        Corner (m) the grids of the outlier filter and of the ground filter
+        (candidate and seed cells) are anchored at, and the origin of the
+        local frames.  ``None``: the lowest x and y of the cloud.
+    mean_spacing : float or None
+        s_avg (m), :func:`rooftrace.lidar.spacing.mean_spacing` of the points
+        left by the outlier filter.
+    density : float or None
+        d_avg (pts/m²), :func:`rooftrace.lidar.spacing.point_density`.
+    sigma_h : float or None
+        sigma_H (m), :func:`rooftrace.lidar.spacing.height_precision`.
+    entropy_threshold : float or None
+        Building/vegetation boundary of the mean cluster entropy (k-means
+        with k = 2, thesis §3.4; :func:`rooftrace.lidar.classify.separate_buildings`).
+    entropy_centroids : (float, float) or None
+        The two k-means centroids (building, vegetation), which bound the
+        entropy of absorbed points (``segment.absorb_margin``); ``None`` with a
+        fixed ``entropy_threshold`` means one population (no margin).
+    """
+
+    origin: tuple[float, float] | None = None
+    mean_spacing: float | None = None
+    density: float | None = None
+    sigma_h: float | None = None
+    entropy_threshold: float | None = None
+    entropy_centroids: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("mean_spacing", "density", "sigma_h"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"derived.{name} must be a finite number > 0, got {v}")
+        if self.origin is not None and (len(self.origin) != 2 or not np.isfinite(self.origin).all()):
+            raise ValueError(f"derived.origin must be two finite numbers, got {self.origin}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable form (floats round-trip exactly through :mod:`json`)."""
+        return {
+            "origin": None if self.origin is None else [float(v) for v in self.origin],
+            "mean_spacing": self.mean_spacing,
+            "density": self.density,
+            "sigma_h": self.sigma_h,
+            "entropy_threshold": self.entropy_threshold,
+            "entropy_centroids": None if self.entropy_centroids is None else [float(v) for v in self.entropy_centroids],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "DerivedParams":
+        """Inverse of :meth:`to_dict`."""
+        origin = d.get("origin")
+        cent = d.get("entropy_centroids")
+        return cls(
+            origin=None if origin is None else (float(origin[0]), float(origin[1])),
+            mean_spacing=d.get("mean_spacing"),
+            density=d.get("density"),
+            sigma_h=d.get("sigma_h"),
+            entropy_threshold=d.get("entropy_threshold"),
+            entropy_centroids=None if cent is None else (float(cent[0]), float(cent[1])),
+        )
+
+
 @dataclass
 class Detection:
     """Result of :func:`detect_buildings`.
@@ -108,6 +184,8 @@ class Detection:
         Every resolved threshold, per stage.
     timings : dict
         Seconds per stage.
+    derived : DerivedParams
+        The data-derived parameters this detection used, all resolved.
     """
 
     classification: np.ndarray
@@ -119,6 +197,7 @@ class Detection:
     sigma_h: float
     params: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    derived: DerivedParams = field(default_factory=DerivedParams)
 
     @property
     def n_buildings(self) -> int:
@@ -224,6 +303,7 @@ def detect_buildings(
     *,
     config: dict | None = None,
     reporter: Reporter | None = None,
+    derived: DerivedParams | None = None,
 ) -> Detection:
     """Classify a LiDAR cloud into ground, buildings, vegetation and noise.
 
@@ -239,6 +319,10 @@ def detect_buildings(
         TOML config, used when ``options`` is None.
     reporter : Reporter, optional
         Progress reporter (silent by default).
+    derived : DerivedParams, optional
+        Data-derived parameters to use instead of measuring them on
+        ``cloud`` (each ``None`` field is still measured).  Tiled runs pass
+        the values of the whole input.
 
     Returns
     -------
@@ -254,19 +338,23 @@ def detect_buildings(
     opt = options or DetectOptions.from_config(config)
     # small per-facet / per-point LAPACK calls (Qhull, eigh): one BLAS thread
     with threadpool_limits(limits=1, user_api="blas"):
-        return _detect(cloud, opt, reporter)
+        return _detect(cloud, opt, reporter, derived or DerivedParams())
 
 
-def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) -> Detection:
+def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fixed: DerivedParams) -> Detection:
     timings: dict[str, float] = {}
     clock = functools.partial(_timed, timings, reporter or Reporter())
     xyz = cloud.xyz
     n = len(xyz)
     cls = np.full(n, ASPRS.UNCLASSIFIED, np.uint8)
     params: dict[str, Any] = {}
+    origin = tuple(float(v) for v in xyz[:, :2].min(axis=0)) if fixed.origin is None else fixed.origin
+    # local frames are shifted by this fixed corner only (not by the
+    # data's own minimum), so a tile rounds exactly like the whole cloud
+    shift = np.array([origin[0], origin[1], 0.0])
 
     with clock("outliers"):
-        noise = histogram_outliers(xyz, opt.outliers)
+        noise = histogram_outliers(xyz, opt.outliers, origin=origin)
         params["outliers"] = {**options_dict(opt.outliers), "n_noise": int(noise.sum())}
     clean = xyz[~noise]
     if len(clean) < 3:
@@ -274,16 +362,16 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
 
     with clock("spacing"):
         try:
-            s_avg = mean_spacing(clean[:, :2])
-            d_avg = point_density(clean[:, :2])
-            sigma_h = height_precision(clean)
+            s_avg = mean_spacing(clean[:, :2]) if fixed.mean_spacing is None else float(fixed.mean_spacing)
+            d_avg = point_density(clean[:, :2]) if fixed.density is None else float(fixed.density)
+            sigma_h = height_precision(clean) if fixed.sigma_h is None else float(fixed.sigma_h)
         except ValueError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
-        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h}
+        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin)}
 
     with clock("ground"):
         try:
-            ground, hag, gparams = progressive_tin(xyz, s_avg, sigma_h, opt.ground, exclude=noise)
+            ground, hag, gparams = progressive_tin(xyz, s_avg, sigma_h, opt.ground, exclude=noise, origin=origin)
         except GeometryError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
         params["ground"] = {**options_dict(opt.ground), **gparams}
@@ -299,7 +387,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
     # every non-ground point gets eigen-features (walls and low annexes may
     # join a building later); only those above min_height are segmented
     above = np.flatnonzero(~noise & ~ground)
-    pts = xyz[above] - xyz[above].min(axis=0) if len(above) else np.empty((0, 3))
+    pts = xyz[above] - shift if len(above) else np.empty((0, 3))
     high = np.flatnonzero(hag[above] >= so.min_height)
     with clock("features"):
         feats = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours)
@@ -317,7 +405,11 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
         big = sizes >= min_pts
         ent = cluster_means(levels, feats[high, 3], len(sizes))
         lin = cluster_means(levels, feats[high, 0], len(sizes))
-        _, cparams = separate_buildings(ent[big], lin[big], co)
+        if fixed.entropy_threshold is None:
+            _, cparams = separate_buildings(ent[big], lin[big], co)
+        else:
+            cent = None if fixed.entropy_centroids is None else list(fixed.entropy_centroids)
+            cparams = {"method": "fixed", "entropy_threshold": float(fixed.entropy_threshold), "centroids": cent}
         threshold = cparams["entropy_threshold"]
         # small clusters (ridges, dormers, roof edges cut off by the height
         # test) take the threshold learnt on the big ones; the building size
@@ -389,4 +481,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None) ->
         sigma_h=sigma_h,
         params=params,
         timings=timings,
+        derived=DerivedParams(
+            origin=origin, mean_spacing=s_avg, density=d_avg, sigma_h=sigma_h, entropy_threshold=float(threshold),
+            entropy_centroids=None if cparams["centroids"] is None else tuple(float(c) for c in cparams["centroids"]),
+        ),
     )

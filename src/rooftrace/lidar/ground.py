@@ -103,9 +103,13 @@ def _lowest_per_cell(xyz: np.ndarray, origin: np.ndarray, cell: float) -> np.nda
     return order[first]
 
 
-def _spatial_order(xy: np.ndarray, width: float) -> np.ndarray:
-    """Serpentine strip order: consecutive queries are neighbours, so Qhull's walk is short."""
-    strip = np.floor((xy[:, 0] - xy[:, 0].min()) / width).astype(np.int64)
+def _spatial_order(xy: np.ndarray, width: float, start: float | None = None) -> np.ndarray:
+    """Serpentine strip order: consecutive queries are neighbours, so Qhull's walk is short.
+
+    Strips start at ``start`` (default: the lowest x); a fixed start gives a
+    tile's points the same relative order as in the whole cloud.
+    """
+    strip = np.floor((xy[:, 0] - (xy[:, 0].min() if start is None else start)) / width).astype(np.int64)
     y = np.where(strip % 2 == 0, xy[:, 1], -xy[:, 1])
     return np.lexsort((y, strip))
 
@@ -171,6 +175,7 @@ def progressive_tin(
     options: GroundOptions | None = None,
     *,
     exclude: np.ndarray | None = None,
+    origin: tuple[float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Classify ground points by progressive TIN densification.
 
@@ -187,6 +192,11 @@ def progressive_tin(
     exclude : ndarray of shape (N,), bool, optional
         Points that take no part (noise); they get a height above ground but
         are never ground.
+    origin : (float, float), optional
+        Corner (m) the candidate and seed grids and the local frame are
+        anchored at.  Default: the lowest x and y of the usable points.  A
+        tiled run passes the corner of the whole input, so that a tile and
+        the whole cloud pick the same lowest point in every cell.
 
     Returns
     -------
@@ -215,10 +225,10 @@ def progressive_tin(
     # a multi-threaded BLAS turns each into a thread rendezvous, 100x slower
     # on a busy machine
     with threadpool_limits(limits=1, user_api="blas"):
-        return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude)
+        return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin)
 
 
-def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude):
+def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin):
     opt = options or GroundOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
     n = len(xyz)
@@ -230,12 +240,15 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude):
         raise GeometryError("ground filter: fewer than 3 points left after removing noise")
     cand_cell = opt.candidate_cell or max(1.0, 3.0 * mean_spacing)
     tol = opt.ground_tolerance or max(0.2, 5.0 * sigma_h)
-    origin = xyz[idx_usable].min(axis=0)
-    local = xyz - origin  # Qhull needs coordinates near zero
+    anchor = xyz[idx_usable, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
+    # Qhull needs coordinates near zero.  Heights are left as they are: a
+    # shift that depends on the data (the lowest z of a tile) would round
+    # differently in a tile and in the whole cloud
+    local = xyz - np.array([anchor[0], anchor[1], 0.0])
     pts = local[idx_usable]
 
     cand = _lowest_per_cell(pts, np.zeros(2), cand_cell)
-    cand = cand[_spatial_order(pts[cand, :2], 10.0)]
+    cand = cand[_spatial_order(pts[cand, :2], 10.0, start=0.0)]
     cxyz = pts[cand]
     seeds = np.unique(_lowest_per_cell(cxyz, np.zeros(2), opt.seed_cell))
     lo, hi = pts[:, :2].min(axis=0) - 1.0, pts[:, :2].max(axis=0) + 1.0

@@ -47,7 +47,9 @@ class OutlierOptions:
             raise ValueError(f"outliers.min_count must be >= 1, got {self.min_count}")
 
 
-def histogram_outliers(xyz: np.ndarray, options: OutlierOptions | None = None) -> np.ndarray:
+def histogram_outliers(
+    xyz: np.ndarray, options: OutlierOptions | None = None, *, origin: tuple[float, float] | None = None
+) -> np.ndarray:
     """Flag points outside their cell's well-populated height interval.
 
     Parameters
@@ -55,6 +57,10 @@ def histogram_outliers(xyz: np.ndarray, options: OutlierOptions | None = None) -
     xyz : ndarray of shape (N, 3), float64
         Coordinates (m).
     options : OutlierOptions, optional
+    origin : (float, float), optional
+        Corner (m) the cell grid is anchored at.  Default: the lowest x and y
+        of ``xyz``.  A tiled run passes the corner of the whole input, so a
+        tile whose extent follows the same cell lines sees the same cells.
 
     Returns
     -------
@@ -85,7 +91,9 @@ def histogram_outliers(xyz: np.ndarray, options: OutlierOptions | None = None) -
     noise = np.zeros(n, bool)
     if n == 0 or not opt.enabled:
         return noise
-    ij = np.floor((xyz[:, :2] - xyz[:, :2].min(axis=0)) / opt.cell).astype(np.int64)
+    anchor = xyz[:, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
+    ij = np.floor((xyz[:, :2] - anchor) / opt.cell).astype(np.int64)
+    ij -= ij.min(axis=0)  # an explicit origin may lie inside the data
     _, cell = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True)
     ncell = cell.max() + 1
     zmin = np.full(ncell, np.inf)
