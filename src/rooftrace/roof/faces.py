@@ -47,25 +47,33 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
     """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary."""
-    while True:
-        areas = np.array([p.area for p in polys])
-        small = [i for i in np.argsort(areas) if areas[i] < min_area]
-        if not small or len(polys) < 2:
-            return polys, ids
-        i = small[0]
-        shared = [polys[i].boundary.intersection(q.boundary).length if j != i else -1 for j, q in enumerate(polys)]
-        j = int(np.argmax(shared))
-        if shared[j] <= 0:
+    polys, ids = list(polys), list(ids)
+    while len(polys) >= 2:
+        geoms = np.array(polys, dtype=object)
+        areas = shapely.area(geoms)
+        small = np.flatnonzero(areas < min_area)
+        if not len(small):
+            break
+        i = int(small[np.argmin(areas[small])])
+        # only faces whose boxes touch this one's can share boundary with it (a roof has hundreds of faces)
+        box = shapely.bounds(geoms)
+        near = np.flatnonzero((box[:, 0] <= box[i, 2]) & (box[:, 2] >= box[i, 0]) & (box[:, 1] <= box[i, 3])
+                              & (box[:, 3] >= box[i, 1]))
+        near = near[near != i]
+        shared = shapely.length(shapely.intersection(shapely.boundary(geoms[i]), shapely.boundary(geoms[near])))
+        if not len(near) or shared.max() <= 0:
             # Isolated island: keep it (it is still part of the tiling).
             if areas[i] < 1e-9:
                 del polys[i], ids[i]
                 continue
-            return polys, ids
+            break
+        j = int(near[np.argmax(shared)])
         merged = shapely.union(polys[j], polys[i])
         if merged.geom_type != "Polygon":
             merged = merged.buffer(0)
         polys[j] = merged
         del polys[i], ids[i]
+    return polys, ids
 
 
 def partition_outline(
