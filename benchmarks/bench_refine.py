@@ -31,12 +31,14 @@ from shapely.geometry import LineString, Polygon
 
 from rooftrace.evaluate.matching import match_buildings
 from rooftrace.evaluate.metrics import polis
+from rooftrace.image.candidates import CandidateOptions
 from rooftrace.io.camera import read_camera
 from rooftrace.pipeline import run_pipeline
 from rooftrace.refine import RefineOptions, refine_buildings
 from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
-PAPER = RefineOptions(terrain_filter=True, fuse=False, ridges_on_planes=False, derive_sigma=False)
+PAPER = RefineOptions(terrain_filter=True, fuse=False, ridges_on_planes=False, derive_sigma=False, wall_penalty=0.0,
+                      candidates=CandidateOptions(refit=False, wall_lines=False))
 SIDE_TOL_PX = 1.5  # a selected line is right when its ends and middle lie this close to the true line
 
 

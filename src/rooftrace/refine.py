@@ -160,11 +160,13 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     ridge_refined = [False] * len(ridges)
     for i, (poly, bid) in enumerate(zip(outlines, ids)):
         mine = by_building.get(bid, [])
-        local = inside = sigma = None
+        local = inside = sigma = ground = None
         if poly is not None and not poly.is_empty and tree is not None:
             x0, y0, x1, y1 = poly.bounds
             near = tree.query_ball_point([(x0 + x1) / 2, (y0 + y1) / 2], np.hypot(x1 - x0, y1 - y0) / 2 + opt.context)
             local = pts[np.sort(np.asarray(near, int))]
+            # the ground under the walls: a low percentile of the points around (robust to a few low outliers)
+            ground = float(np.percentile(local[:, 2], 2.0)) if len(local) >= 20 else None
             n_in = int(shapely.contains_xy(shapely.force_2d(poly), local[:, 0], local[:, 1]).sum())
             # a fraction of the mean point spacing 1/sqrt(density) (boundary points sit within a spacing of the edge)
             sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
@@ -183,7 +185,7 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
         try:
             res = refine_building(poly, [ridges[r] for r in mine], img, camera, points_xyz=local, building_xyz=inside,
                                   planes=None if planes is None else planes[i], options=b_opt, seed=seed + i,
-                                  lidar_sigma=sigma)
+                                  lidar_sigma=sigma, ground_z=ground)
         except (GeometryError, np.linalg.LinAlgError) as exc:
             log.warning("building %d: not refined (%s)", bid, exc)
             res = keep_input(poly, [ridges[r] for r in mine], f"kept: {exc}")

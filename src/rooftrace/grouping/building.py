@@ -23,8 +23,10 @@ from rooftrace.errors import GeometryError
 from rooftrace.grouping.exact import exact_minimise
 from rooftrace.grouping.ga import GAOptions, genetic_minimise
 from rooftrace.grouping.mrf import MRFOptions, build_problem
+from rooftrace.grouping.registration import RoofShift, estimate_shift, shift_references
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
 from rooftrace.grouping.topology import roof_topology
+from rooftrace.image.walls import wall_strips
 
 __all__ = ["RefineOptions", "BuildingRefinement", "refine_building", "fuse_positions", "keep_input"]
 
@@ -92,6 +94,22 @@ class RefineOptions:
     context : float, default 10.0
         Margin (m) around a building within which LiDAR points are used for
         the terrain-line filter.
+    wall_penalty : float, default 5.0
+        Energy added to a candidate marked as the foot of a visible wall
+        with the roof edge inward of it (ours; needs ``ground_z``, see
+        :func:`rooftrace.image.walls.wall_strips`); 0 switches it off.
+        Five times the largest unary term of seed 000 (``w_length`` · 1 for
+        a candidate as long as its side): the roof edge wins unless the
+        pairwise terms strongly disagree.
+    register : bool, default True
+        Measure the proximity term (seed 000 eq. 7-8) against the projected
+        lines moved by the roof's common image shift, estimated from the
+        candidates (:func:`rooftrace.grouping.registration.estimate_shift`;
+        ours) and weighed against the camera's orientation error (its EO
+        covariance): a camera without covariance moves nothing.
+    register_max_px : float, default 12.0
+        Largest shift searched (px); the search radius is otherwise
+        ``max_shift_k · e + 1`` with ``e`` the largest registration error.
     terrain_filter : bool, default False
         Remove candidate lines lying on the terrain (seed 000 §2.1) when
         LiDAR points are given.  Off by default: on the simulated scenes of
@@ -123,6 +141,9 @@ class RefineOptions:
     exact_max_table: int = 2**22
     context: float = 10.0
     terrain_filter: bool = False
+    wall_penalty: float = 5.0
+    register: bool = True
+    register_max_px: float = 12.0
     mrf: MRFOptions = field(default_factory=MRFOptions)
     ga: GAOptions = field(default_factory=GAOptions)
     candidates: object = None
@@ -142,6 +163,8 @@ class RefineOptions:
             raise ValueError("refine.image_sigma_px and refine.lidar_sigma must be > 0")
         if self.simplify_tolerance is not None and self.simplify_tolerance < 0:
             raise ValueError(f"refine.simplify_tolerance must be >= 0, got {self.simplify_tolerance!r}")
+        if not self.wall_penalty >= 0:
+            raise ValueError(f"refine.wall_penalty must be >= 0, got {self.wall_penalty!r}")
         if self.max_shift_k < 0 or self.max_shift_margin_px < 0 or self.exact_max_table < 0:
             raise ValueError("refine.max_shift_k, max_shift_margin_px and exact_max_table must be >= 0")
 
@@ -185,6 +208,7 @@ class BuildingRefinement:
     selected: np.ndarray | None = None
     candidate_sets: list = field(default_factory=list)
     seconds: float = float("nan")
+    image_shift: tuple = ()
 
 
 
@@ -233,6 +257,12 @@ def fuse_positions(image_points: np.ndarray, lidar_points: np.ndarray, use: np.n
     return out
 
 
+def _wall_flags(candidates, n: int) -> np.ndarray:
+    """The ``wall`` flags (n,) float of a LineCandidates (zeros when it has none, e.g. precomputed elsewhere)."""
+    wall = np.asarray(getattr(candidates, "wall", np.zeros(0)), bool)
+    return wall.astype(float) if len(wall) == n else np.zeros(n)
+
+
 def keep_input(outline, ridges, status: str) -> BuildingRefinement:
     """The refinement of a building left as it was, with the reason in ``status``."""
     return BuildingRefinement(outline, list(ridges), [False] * len(ridges), status)
@@ -241,7 +271,8 @@ def keep_input(outline, ridges, status: str) -> BuildingRefinement:
 def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: np.ndarray | None = None,
                     building_xyz: np.ndarray | None = None, planes: np.ndarray | None = None,
                     options: RefineOptions | None = None, seed: int = 0, candidates: list | None = None,
-                    corners: np.ndarray | None = None, lidar_sigma: float | None = None) -> BuildingRefinement:
+                    corners: np.ndarray | None = None, lidar_sigma: float | None = None,
+                    ground_z: float | None = None) -> BuildingRefinement:
     """Refine one roof with the image.
 
     Parameters
@@ -268,6 +299,9 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     lidar_sigma : float, optional
         Planimetric precision (m) of the LiDAR outline vertices, for
         :func:`fuse_positions`; default ``options.lidar_sigma``.
+    ground_z : float, optional
+        Ground height (m) at the building: predicts the visible walls
+        (:func:`rooftrace.image.walls.wall_strips`); None: no wall step.
 
     Returns
     -------
@@ -287,11 +321,16 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     ref_points = camera.project(np.array([j.point for j in topo.junctions]))
     if not _inside_image(camera, ref_points):
         return keep_input(source_outline, ridges, "outside_image")
+    # outward image normals of the sides (the shift estimate) and, with the ground height, the visible walls
+    has_ground = ground_z is not None and bool(np.isfinite(ground_z))
+    width, outward = wall_strips(camera, topo.lines, topo.kinds, outline, ground_z if has_ground else np.nan)
+    width = width if has_ground else None
     if candidates is None:
         from rooftrace.image.candidates import extract_candidates
 
         candidates = extract_candidates(image, camera, topo.lines, list(topo.kinds), points_xyz=points_xyz,
-                                        building_xyz=building_xyz, options=opt.candidates)
+                                        building_xyz=building_xyz, wall_width=width, outward=outward,
+                                        options=opt.candidates)
     if len(candidates) != topo.n_lines:
         raise ValueError(f"candidates: {len(candidates)} sets for {topo.n_lines} lines")
     if corners is None:
@@ -306,13 +345,27 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     short = np.linalg.norm(refs[:, 1] - refs[:, 0], axis=1) < opt.min_side_px
     for s_ in np.flatnonzero(short):
         cand_sets[s_], image_line[s_] = refs[s_:s_ + 1], np.zeros(1, bool)
-    problem = build_problem(refs, cand_sets, topo.pairs, corners, opt.mrf)
+    # a wall foot (or a shadow beyond it) with the roof edge found inward of it is the wrong line
+    penalty = [np.zeros(len(cs)) if short[s_] else opt.wall_penalty * _wall_flags(c, len(cs))
+               for s_, (c, cs) in enumerate(zip(candidates, cand_sets))]
+    error = np.array([c.registration_error for c in candidates], float)
+    roof_shift = RoofShift(np.zeros(2), 0.0, 0)
+    if opt.register:
+        usable = [image_line[s_] & (p == 0) for s_, p in enumerate(penalty)]
+        radius = min(opt.max_shift_k * float(error.max(initial=0.0)) + 1.0, opt.register_max_px)
+        roof_shift = estimate_shift(refs, cand_sets, outward, usable, radius=max(radius, 2.0))
+        # the camera's share of the registration error (px², per axis) is the prior of a common shift
+        centre = np.array([j.point for j in topo.junctions]).mean(axis=0, keepdims=True)
+        sigma_c2 = float(np.asarray(camera.registration_error(centre, 0.0, 0.0)).ravel()[0]) ** 2 / 2.0
+        roof_shift = roof_shift.shrunk(sigma_c2)
+    # the energy measures candidates against the projections moved by the roof's common shift
+    problem = build_problem(shift_references(refs, roof_shift), cand_sets, topo.pairs, corners, opt.mrf,
+                            penalties=penalty)
     ga = genetic_minimise(problem, opt.ga, seed=seed)
     exact = exact_minimise(problem, opt.exact_max_table) if opt.exact_max_table > 0 else None
     choice = exact.choice if (opt.solver == "exact" and exact is not None) else ga.choice
     selected = np.stack([cs[k] for cs, k in zip(cand_sets, choice)])
 
-    error = np.array([c.registration_error for c in candidates], float)
     limit = np.array([opt.max_shift_k * max(error[line] for line, _ in j.members) + opt.max_shift_margin_px
                       for j in topo.junctions])
     rec = reconstruct_image(topo, selected, ref_points, limit)
@@ -379,4 +432,5 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         ga_exact_gap=float(ga.energy - exact.energy) if exact is not None else float("nan"),
         choice=choice, image_outline=np.where(moved[:, None], pixels, ref_points)[:n_out], kinds=topo.kinds,
         ring_sizes=topo.ring_sizes, references=refs, selected=selected,
-        candidate_sets=cand_sets, seconds=time.perf_counter() - t0)
+        candidate_sets=cand_sets, seconds=time.perf_counter() - t0,
+        image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides))

@@ -242,7 +242,7 @@ class GroupingProblem:
 
 
 def build_problem(references: np.ndarray, candidates, pairs: np.ndarray, corners: np.ndarray | None = None,
-                  options: MRFOptions | None = None) -> GroupingProblem:
+                  options: MRFOptions | None = None, *, penalties=None) -> GroupingProblem:
     """Precompute the energy tables of one roof.
 
     Parameters
@@ -256,6 +256,10 @@ def build_problem(references: np.ndarray, candidates, pairs: np.ndarray, corners
     corners : ndarray of shape (C, 2), optional
         Harris corners (col, row); none makes U5 a constant.
     options : MRFOptions, optional
+    penalties : sequence of M ndarrays (K_s,), optional
+        Extra unary energy per candidate, added as is (not one of seed
+        000's terms: e.g. the wall-foot penalty of
+        :class:`~rooftrace.grouping.building.RefineOptions`).
 
     Returns
     -------
@@ -300,4 +304,8 @@ def build_problem(references: np.ndarray, candidates, pairs: np.ndarray, corners
             terms[name].append(v)
         tables.append(sum(w[k] * vals[name] for k, name in enumerate(TERMS) if k > 0))
     unary = [w[0] * u for u in terms["length"]]
+    if penalties is not None:
+        if len(penalties) != len(cands) or any(np.shape(p) != (len(c),) for p, c in zip(penalties, cands)):
+            raise ValueError("penalties: one array (K_s,) per side is needed")
+        unary = [u + np.asarray(p, float) for u, p in zip(unary, penalties)]
     return GroupingProblem(np.array([len(c) for c in cands], int), unary, pairs, tables, terms)

@@ -13,6 +13,9 @@ For each 3D line:
 6. merge collinear fragments (9 deg, 3 px);
 6b. re-locate each candidate at the sub-pixel gradient maxima across it,
    with a robust line fit (:func:`~rooftrace.image.refit.refit_lines`, ours);
+6c. beside a visible wall, look for the roof edge inward of each line and
+   mark the outer line of each roof-edge/wall-foot pair
+   (:func:`~rooftrace.image.walls.mark_wall_lines`, ours);
 7. keep candidates of at least 15 % of the projected length within 20 deg
    of its direction (seed 000); a line left without candidates keeps its
    projection as the only one (source ``'projected'``).
@@ -31,7 +34,9 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.edges import canny_edges, link_chains
 from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
+from rooftrace.image.edges import noise_sigma
 from rooftrace.image.refit import refit_lines
+from rooftrace.image.walls import mark_wall_lines
 from rooftrace.image.projection import (clip_to_window, in_window, line_windows, project_lines, window_frame,
                                         window_slices)
 from rooftrace.image.steger import steger_lines, steger_sigma
@@ -107,6 +112,13 @@ class CandidateOptions:
     refit_sigma, refit_search : float, default 0.7, 2.0
         Derivative scale (px) and search half-length across the line (px)
         of the refit.
+    wall_lines : bool, default True
+        With predicted wall widths (``wall_width`` of
+        :func:`extract_candidates`), search the roof edge inward of lines
+        beside a visible wall and mark wall feet (ours).
+    wall_min_px, wall_margin : float, default 1.0, 1.5
+        Narrowest visible wall (px) that is searched; tolerance (px) on its
+        predicted width.
     """
 
     section = "candidates"
@@ -138,6 +150,9 @@ class CandidateOptions:
     refit: bool = True
     refit_sigma: float = 0.7
     refit_search: float = 2.0
+    wall_lines: bool = True
+    wall_min_px: float = 1.0
+    wall_margin: float = 1.5
 
     def __post_init__(self):
         positive = ("sigma_xy", "sigma_z", "canny_sigma", "line_width", "split_tolerance", "refit_sigma",
@@ -145,7 +160,7 @@ class CandidateOptions:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"candidates.{name} must be positive, got {getattr(self, name)}")
-        non_negative = ("window_k", "window_margin", "min_contrast", "min_segment", "select_angle",
+        non_negative = ("wall_min_px", "wall_margin", "window_k", "window_margin", "min_contrast", "min_segment", "select_angle",
                         "select_separation", "select_equidistance", "merge_angle", "merge_distance",
                         "min_length_fraction", "max_angle", "terrain_height_tolerance")
         for name in non_negative:
@@ -179,6 +194,9 @@ class LineCandidates:
         ``'outline'`` or ``'ridge'``.
     projected_only : bool
         True when nothing survived and the projected line is the only candidate.
+    wall : ndarray of shape (K,) bool
+        Per candidate: the foot of a visible wall (or a line beyond it) with
+        a roof edge found inward of it (:func:`~rooftrace.image.walls.mark_wall_lines`).
     """
 
     reference: np.ndarray
@@ -188,6 +206,7 @@ class LineCandidates:
     source: list[str] = field(default_factory=list)
     kind: str = "outline"
     projected_only: bool = False
+    wall: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
 
 def _detect(crop: np.ndarray, mask: np.ndarray, opt: CandidateOptions):
@@ -213,6 +232,8 @@ def extract_candidates(
     *,
     points_xyz: np.ndarray | None = None,
     building_xyz: np.ndarray | None = None,
+    wall_width: np.ndarray | None = None,
+    outward: np.ndarray | None = None,
     options: CandidateOptions | None = None,
 ) -> list[LineCandidates]:
     """Candidate image lines for each 3D outline side and ridge of one building.
@@ -234,6 +255,10 @@ def extract_candidates(
     building_xyz : ndarray of shape (Q, 3), optional
         The building's own points (where the building is, for the terrain
         filter); ``None`` uses samples along its projected lines.
+    wall_width, outward : ndarray of shape (M,) and (M, 2), optional
+        Predicted visible wall width (px) and outward image normal per line
+        (:func:`~rooftrace.image.walls.wall_strips`); ``None`` skips the
+        wall step.
     options : CandidateOptions, optional
 
     Returns
@@ -299,6 +324,7 @@ def extract_candidates(
         ref, win = reference[i], windows[i]
         found = np.zeros((0, 2, 2))
         sources: list[str] = []
+        wall = np.zeros(0, bool)
         # a line seen end-on (shorter than a pixel) has no direction to search along
         usable = np.isfinite(ref).all() and np.hypot(*(ref[1] - ref[0])) >= 1.0
         sl = window_slices(win, img.shape[:2], pad) if usable else None
@@ -335,16 +361,27 @@ def extract_candidates(
                                               min_strength=floor)[0] + [c0, r0]
                     # two fragments refitted onto one edge are one candidate
                     found, sources = merge_collinear(found, sources, 3.0, 0.5, duplicate_tol=0.5)
+                if (opt.wall_lines and wall_width is not None and outward is not None and len(found)
+                        and wall_width[i] >= opt.wall_min_px):
+                    grey = crop if crop.ndim == 2 else crop.mean(axis=2)
+                    found, sources, wall = mark_wall_lines(grey, found - [c0, r0], sources, outward[i],
+                                                           float(wall_width[i]), sigma=opt.refit_sigma,
+                                                           noise=noise_sigma(grey), margin=opt.wall_margin)
+                    found = found + [c0, r0]
+                else:
+                    wall = np.zeros(len(found), bool)
                 # a merged line's ends may stick out of the window by a fraction of a pixel
                 found, inside_win = clip_to_window(found, win)
                 sources = [s for s, k in zip(sources, inside_win) if k]
+                wall = wall[inside_win]
                 keep = filter_candidates(found, ref, opt.min_length_fraction, opt.max_angle)
-                found = found[keep]
+                found, wall = found[keep], wall[keep]
                 sources = [s for s, k in zip(sources, keep) if k]
         projected_only = len(found) == 0
         if projected_only:
             found, sources = ref[None].copy(), ["projected"]
-        out.append(LineCandidates(ref.copy(), float(error[i]), win, found, sources, kinds[i], projected_only))
+        wall = wall if not projected_only else np.zeros(1, bool)
+        out.append(LineCandidates(ref.copy(), float(error[i]), win, found, sources, kinds[i], projected_only, wall))
     log.debug("candidates: %d lines, %d candidates, %d projected only", len(out),
               sum(len(c.candidates) for c in out), sum(c.projected_only for c in out))
     return out
