@@ -160,3 +160,22 @@ def test_ridge_kinds_are_carried(scene):
     assert res.ridge_attributes["kind"] == ["hip"]
     with pytest.raises(ValueError, match="ridge_kinds"):
         refine_buildings(truth, ridges, img, cam, ridge_kinds=[])
+
+
+def test_common_image_shift_is_estimated_only_for_an_uncertain_camera(scene):
+    # issue 7: a camera off by ~3 px; its EO covariance says so, and the roof's shift is measured
+    cam, img, truth, ridges, planes = scene
+    eo = np.asarray(cam.exterior, float).copy()
+    eo[0] += 0.6  # X0 off by 0.6 m: the projections move 3 px to the left
+    off = cam.with_exterior(eo, np.diag([0.36, 0.36, 0.36, 1e-8, 1e-8, 1e-8]))
+    moved = off.project(np.array(truth[0].exterior.coords)) - cam.project(np.array(truth[0].exterior.coords))
+    assert moved[:, 0].mean() == pytest.approx(-3.0, abs=0.3)
+    res = refine_buildings(truth, ridges, img, off, planes=planes, seed=1)
+    for b in res.buildings:
+        t, n_sides = np.array(b.image_shift[:2]), b.image_shift[3]
+        assert n_sides >= 4
+        np.testing.assert_allclose(t, [3.0, 0.0], atol=0.5)  # the image lines lie 3 px right of the projections
+    exact = refine_buildings(truth, ridges, img, cam, planes=planes, seed=1)
+    assert all(b.image_shift[:2] == (0.0, 0.0) for b in exact.buildings)  # a camera known exactly moves nothing
+    plain = refine_buildings(truth, ridges, img, off, planes=planes, seed=1, options=RefineOptions(register=False))
+    assert all(b.image_shift[3] == 0 for b in plain.buildings)

@@ -34,3 +34,5 @@ def test_options_are_checked():
         RefineOptions(simplify_tolerance=-1.0)
     with pytest.raises(ValueError, match="junction_tolerance"):
         RefineOptions(junction_tolerance=0)
+    with pytest.raises(ValueError, match="wall_penalty"):
+        RefineOptions(wall_penalty=-1.0)

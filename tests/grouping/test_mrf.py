@@ -108,3 +108,14 @@ def test_bad_arguments():
         MRFOptions(w_corner=-1)
     with pytest.raises(ValueError, match="mrf.beta"):
         MRFOptions(beta=0)
+
+
+def test_penalties_add_to_the_unary_energy():
+    refs = np.array([[[0, 0], [10, 0]], [[10, 0], [10, 10]]], float)
+    cands = [refs[:1] + [0, 1], np.concatenate([refs[1:], refs[1:] + [3, 0]])]
+    plain = build_problem(refs, cands, np.array([[0, 1]]))
+    pen = build_problem(refs, cands, np.array([[0, 1]]), penalties=[np.zeros(1), np.array([5.0, 0.0])])
+    assert pen.energy([0, 0]) == pytest.approx(plain.energy([0, 0]) + 5.0)
+    assert pen.energy([0, 1]) == pytest.approx(plain.energy([0, 1]))
+    with pytest.raises(ValueError, match="penalties"):
+        build_problem(refs, cands, np.array([[0, 1]]), penalties=[np.zeros(1), np.zeros(1)])

@@ -1,0 +1,46 @@
+import numpy as np
+
+from rooftrace.grouping.registration import RoofShift, estimate_shift, shift_references
+
+SQUARE = np.array([[[0, 0], [40, 0]], [[40, 0], [40, 30]], [[40, 30], [0, 30]], [[0, 30], [0, 0]]], float)
+OUT = np.array([[0, -1], [1, 0], [0, 1], [-1, 0]], float)
+
+
+def _candidates(t, b, seed=0, distractor=3.0, noise=0.2):
+    rng = np.random.default_rng(seed)
+    true = SQUARE + t + OUT[:, None] * b
+    cands = []
+    for s in range(4):
+        edge = true[s] + OUT[s] * rng.normal(0, noise)
+        cands.append(np.stack([edge, edge + OUT[s] * distractor]))  # the edge and a wall foot beyond it
+    return cands
+
+
+def test_common_shift_and_growth_are_recovered_despite_a_line_beyond_each_side():
+    est = estimate_shift(SQUARE, _candidates([2.5, -3.0], 1.8), OUT, [np.ones(2, bool)] * 4)
+    assert est.n_sides == 4
+    np.testing.assert_allclose(est.translation, [2.5, -3.0], atol=0.4)
+    assert abs(est.growth - 1.8) < 0.4 and 0 < est.variance < 1
+
+
+def test_seed_free_and_order_free():
+    cands = _candidates([1.0, 2.0], 1.0, seed=3)
+    a = estimate_shift(SQUARE, cands, OUT, [np.ones(2, bool)] * 4)
+    b = estimate_shift(SQUARE, [c[::-1] for c in cands], OUT, [np.ones(2, bool)] * 4)
+    np.testing.assert_allclose(a.translation, b.translation)
+
+
+def test_too_few_or_parallel_sides_give_no_estimate():
+    cands = _candidates([1.0, 1.0], 0.0)
+    usable = [np.ones(2, bool), np.zeros(2, bool), np.ones(2, bool), np.zeros(2, bool)]
+    assert estimate_shift(SQUARE, cands, OUT, usable).n_sides == 0  # two parallel sides only
+    ridges = np.full_like(OUT, np.nan)
+    assert estimate_shift(SQUARE, cands, ridges, [np.ones(2, bool)] * 4).n_sides == 0
+
+
+def test_shift_is_weighed_by_the_camera_prior():
+    est = RoofShift(np.array([3.0, -1.0]), 1.0, 4, 0.5)
+    np.testing.assert_array_equal(est.shrunk(0.0).translation, [0, 0])  # a camera known exactly
+    np.testing.assert_allclose(est.shrunk(4.5).translation, [2.7, -0.9])
+    moved = shift_references(SQUARE, est)
+    np.testing.assert_allclose(moved - SQUARE, np.broadcast_to([3.0, -1.0], SQUARE.shape))
