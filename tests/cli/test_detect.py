@@ -109,9 +109,11 @@ def test_bad_input(tmp_path, capsys):
     assert main(["detect", str(fake), "-o", out, "-q"]) == 2
     assert "fake.las" in _error_line(capsys)
 
+    # issue 10: an empty cloud is not an error, it gives an empty classified file and a warning
     empty = _write(tmp_path / "empty.las", np.empty((0, 3)))
-    assert main(["detect", str(empty), "-o", out, "-q"]) == 2
-    assert "empty" in _error_line(capsys)
+    assert main(["detect", str(empty), "-o", str(tmp_path / "empty_out.laz"), "-q"]) == 0
+    assert "no points" in capsys.readouterr().err
+    assert laspy.read(tmp_path / "empty_out.laz").header.point_count == 0
 
     rng = np.random.default_rng(0)
     lonlat = np.column_stack([4.35 + rng.uniform(0, 1e-3, 300), 52.0 + rng.uniform(0, 1e-3, 300), rng.uniform(0, 5, 300)])

@@ -41,7 +41,7 @@ def detect(
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.checks import require_metric_crs
+    from rooftrace.io.checks import check_points, require_metric_crs
     from rooftrace.io.las import write_las
     from rooftrace.io.points import read_points
     from rooftrace.lidar.detect import DetectOptions, detect_buildings
@@ -56,14 +56,27 @@ def detect(
         ground={"seed_cell": seed_cell},
     )
     t0 = time.perf_counter()
-    cloud = read_points(inputs, crs)
-    require_metric_crs(cloud.crs, str(inputs[0]))
+    cloud = read_points(inputs, crs, require_points=False)
+    where = ", ".join(map(str, inputs))
+    require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
+    check_points(cloud.xyz, where)
     t_read = time.perf_counter() - t0
+    if len(cloud) == 0:
+        # an empty tile is data, not a mistake: an empty classified file keeps a batch going
+        log.warning("%s: no points; writing an empty classified file", where)
+        write_las(output, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                  overwrite=overwrite)
+        if json_:
+            emit_json({"output": str(output), "points": 0, "crs": cloud.crs.to_string() if cloud.crs else None,
+                       "classes": {}, "buildings": 0})
+        return
     reporter = reporter_for(quiet or json_)
     try:
         det = detect_buildings(cloud, options, reporter=reporter)
     finally:
         reporter.close()
+    if det.n_buildings == 0:
+        log.warning("%s: no buildings found; the output has no class-6 points", where)
     t0 = time.perf_counter()
     write_las(output, cloud, classification=det.classification, building_id=det.building_id, overwrite=overwrite)
     t_write = time.perf_counter() - t0

@@ -169,6 +169,14 @@ def evaluate_cmd(
     ext, ext_ids, ext_crs, ext_layer = _read_polygons(extracted, layer, "extracted outlines", crs)
     ref, ref_ids, ref_crs, ref_layer = _read_polygons(reference, reference_layer, "reference outlines", crs)
     _check_crs(ext_crs, ref_crs, str(extracted), str(reference))
+    from rooftrace.io.checks import require_metric_crs
+
+    # areas, PoLiS, Hausdorff and RMSE are reported in metres
+    for path, geoms, file_crs in ((extracted, ext, ext_crs), (reference, ref, ref_crs)):
+        if file_crs is not None:  # a file without CRS was warned about by _check_crs
+            require_metric_crs(file_crs, str(path))
+        if not any(g is not None and not g.is_empty for g in geoms):
+            log.warning("%s: no outlines; every score involving it is 0 or undefined", path)
     area = None
     if aoi is not None:
         aoi_geoms, _, aoi_crs, _ = _read_polygons(aoi, None, "area of interest", crs)

@@ -42,18 +42,23 @@ def outline(
     from rooftrace.contour.outline import OutlineOptions, connected_buildings, outline_buildings, outlines_layer
     from rooftrace.errors import GeometryError, InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.checks import require_metric_crs
+    from rooftrace.io.checks import check_points, require_metric_crs
     from rooftrace.io.points import read_points
-    from rooftrace.io.vector import write_layers
+    from rooftrace.io.vector import vector_driver, write_layers
 
     setup_logging(quiet)
     if alpha is not None and alpha not in ("global", "building", "point"):
         raise InputError(f"--alpha must be global, building or point, not {alpha!r}")
     check_output(output, overwrite)
+    vector_driver(output)
     options = OutlineOptions.from_config(load_config(config), strategy=alpha)
     t0 = time.perf_counter()
-    cloud = read_points(inputs, crs)
-    require_metric_crs(cloud.crs, str(inputs[0]))
+    cloud = read_points(inputs, crs, require_points=False)
+    where = ", ".join(map(str, inputs))
+    require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
+    check_points(cloud.xyz, where)
+    if len(cloud) == 0:
+        log.warning("%s: no points; writing an empty roof_outlines layer", where)
     extra = None
     if single_building:
         source = cloud.fields["source_index"].astype(np.int64)
@@ -64,16 +69,24 @@ def outline(
         if "classification" not in cloud.fields:
             raise InputError(f"{inputs[0]}: no classification; use --single-building for a cloud that is one "
                              "building, or classify it first with 'rooftrace detect'")
-        building = cloud.fields["classification"] == BUILDING
-        if not building.any():
-            raise InputError(f"{', '.join(map(str, inputs))}: no class-6 (building) points; "
-                             "classify with 'rooftrace detect' or use --single-building")
+        cls = cloud.fields["classification"]
+        building = cls == BUILDING
+        if len(cloud) and not building.any():
+            if np.isin(cls, (0, 1)).all():  # LAS "never classified" / "unclassified" only
+                raise InputError(f"{where}: not classified (no class-6 building points); classify it with "
+                                 "'rooftrace detect', or use --single-building for a cloud that is one building")
+            log.warning("%s: no class-6 (building) points; writing an empty roof_outlines layer", where)
         xyz = cloud.xyz[building]
         if "building_id" in cloud.fields:
             ids = cloud.fields["building_id"][building].astype(np.int64)
         else:
-            spacing = mean_spacing(xyz[:, :2])
-            ids = connected_buildings(xyz[:, :2], 2.0 * spacing)
+            try:
+                spacing = mean_spacing(xyz[:, :2])
+                ids = connected_buildings(xyz[:, :2], 2.0 * spacing)
+            except GeometryError:
+                # too few or collinear building points for a spacing: one building, which
+                # then gets the status saying why it has no outline
+                ids = np.ones(len(xyz), np.int64)
     spacing = None
     if options.alpha.strategy == "global" and options.alpha.alpha is None:
         try:
@@ -93,6 +106,10 @@ def outline(
     statuses: dict[str, int] = {}
     for o in outlines:
         statuses[o.status] = statuses.get(o.status, 0) + 1
+    failed = [o.building_id for o in outlines if o.polygon is None]
+    if failed:
+        log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s",
+                    len(failed), len(outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
     summary = {
         "output": str(output),
         "layer": "roof_outlines",

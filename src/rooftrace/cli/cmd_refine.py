@@ -101,29 +101,39 @@ def refine(
 
     outlines = read_layer(outlines_path, "roof_outlines")
     ridges = read_layer(outlines_path, "ridges", missing_ok=True) or Layer([], {}, "LineStringZ")
-    if not len(outlines):
-        raise InputError(f"{outlines_path}: the roof_outlines layer is empty")
     target_crs = pyproj.CRS.from_user_input(crs) if crs else outlines.crs
     require_metric_crs(target_crs, str(outlines_path))
     cam = read_camera(camera, image)
     check_same_crs(target_crs, cam.crs, str(outlines_path), str(camera))
     geoms = [g if g is None or shapely.has_z(g) else shapely.force_3d(g) for g in outlines.geometries]
-    vertices = np.concatenate([shapely.get_coordinates(g, include_z=True) for g in geoms if g is not None])
+    vertices = [shapely.get_coordinates(g, include_z=True) for g in geoms if g is not None and not g.is_empty]
+    vertices = np.concatenate(vertices) if vertices else np.empty((0, 3))
     vertices[np.isnan(vertices[:, 2]), 2] = 0.0
     check_image_covers(cam, vertices, str(image))
     grey = read_image(image)
     if grey.shape[::-1] != tuple(cam.image_size):
         raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
                          f"{cam.image_size[0]} x {cam.image_size[1]}")
+    if not len(vertices):
+        # no buildings upstream is a result, not a mistake: pass the empty layers on
+        log.warning("%s: the roof_outlines layer has no outlines; writing empty layers to %s", outlines_path, output)
+        write_layers(output, {"roof_outlines": outlines, "ridges": ridges}, target_crs, overwrite=overwrite)
+        if json_:
+            emit_json({"output": str(output), "buildings": len(outlines), "status": {}, "sides": 0,
+                       "sides_refined": 0})
+        return
 
     xyz = planes = None
     if points is not None:
         from rooftrace.io.points import read_points
 
-        cloud = read_points([points], crs)
+        cloud = read_points([points], crs, require_points=False)
         check_same_crs(target_crs, cloud.crs, str(outlines_path), str(points))
-        xyz = cloud.xyz
-        planes = _roof_planes(geoms, xyz, cfg)
+        if len(cloud):
+            xyz = cloud.xyz
+            planes = _roof_planes(geoms, xyz, cfg)
+        else:
+            log.warning("%s: no points; refining without LiDAR roof planes and terrain-line filter", points)
 
     ridge_geoms = [g if g is None or shapely.has_z(g) else shapely.force_3d(g) for g in ridges.geometries]
     building_ids = _ids(outlines, "building_id", len(geoms))

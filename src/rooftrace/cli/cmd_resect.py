@@ -89,6 +89,10 @@ def resect(
     camera = read_camera(camera_in)
     if getattr(camera, "kind", None) != "frame":
         raise InputError(f"{camera_in}: space resection needs a 'frame' camera, not {camera.kind!r}")
+    if camera.crs is not None:  # X0, Y0, Z0 and the GCPs are metres
+        from rooftrace.io.checks import require_metric_crs
+
+        require_metric_crs(camera.crs, str(camera_in))
     ids, xyz, cr = read_gcps(gcps)
     try:
         result = space_resection(camera, xyz, cr, options=options)

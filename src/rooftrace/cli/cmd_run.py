@@ -40,7 +40,7 @@ def run(
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.checks import check_image_covers, check_same_crs, require_metric_crs
+    from rooftrace.io.checks import check_image_covers, check_points, check_same_crs, require_metric_crs
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import run_pipeline
@@ -49,11 +49,13 @@ def run(
     if alpha is not None and alpha not in ("global", "building", "point"):
         raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
     if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together")
+        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
     if output.suffix.lower() != ".gpkg":
         raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
     check_output(output, overwrite)
     if classified is not None:
+        if classified.suffix.lower() not in (".las", ".laz"):
+            raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
         check_output(classified, overwrite)
     cfg = load_config(config)
 
@@ -71,21 +73,26 @@ def run(
             emit_json(summary)
         return
 
-    cloud = read_points(inputs, crs)
-    require_metric_crs(cloud.crs, str(inputs[0]))
+    cloud = read_points(inputs, crs, require_points=False)
+    where = ", ".join(map(str, inputs))
+    require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
+    check_points(cloud.xyz, where)
     grey = cam = None
     if image is not None:
         from rooftrace.io.camera import read_camera
         from rooftrace.io.raster import read_image
 
         cam = read_camera(camera, image)
-        check_same_crs(cloud.crs, cam.crs, "the point cloud", str(camera))
+        check_same_crs(cloud.crs, cam.crs, where, str(camera))
         check_image_covers(cam, cloud.xyz, str(image))
         grey = read_image(image)
         if grey.shape[::-1] != tuple(cam.image_size):
             raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
                              f"{cam.image_size[0]} x {cam.image_size[1]}")
 
+    if len(cloud) == 0:
+        _write_empty(output, classified, cloud, overwrite, json_, where)
+        return
     reporter = reporter_for(quiet)
     try:
         result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
@@ -99,8 +106,33 @@ def run(
         write_las(classified, cloud, classification=result.detection.classification,
                   building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(output), **result.summary()}
+    failed = [o.building_id for o in result.outlines if o.polygon is None]
+    if not result.outlines:
+        log.warning("%s: no buildings found; the layers of %s are empty", where, output)
+    elif failed:
+        log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s", len(failed),
+                    len(result.outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
     if json_:
         emit_json(summary)
     else:
         log.info("%d buildings, %d ridges, %d roof faces -> %s", summary["buildings"], summary["ridges"],
                  summary["roof_faces"], output)
+
+
+def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:
+    """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
+    import numpy as np
+
+    from rooftrace.io.vector import write_layers
+    from rooftrace.pipeline import building_layers
+
+    log.warning("%s: no points; writing empty layers to %s", where, output)
+    write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+    if classified is not None:
+        from rooftrace.io.las import write_las
+
+        write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                  overwrite=overwrite)
+    if json_:
+        emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
+                   "ridges": 0, "roof_faces": 0, "refined": False})

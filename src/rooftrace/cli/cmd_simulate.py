@@ -16,7 +16,7 @@ from rooftrace.errors import InputError, OutputExistsError
 Density = Annotated[Optional[float], typer.Option("--density", help="Mean ALS pulse density (pts/m²). [default: 12]")]
 Size = Annotated[Optional[float], typer.Option("--size", help="Side of the square scene (m). [default: 160]")]
 Gsd = Annotated[Optional[float], typer.Option("--gsd", help="Image ground sample distance (m/pixel). [default: 0.2]")]
-SeedOpt = Annotated[Optional[int], typer.Option("--seed", help="Seed of everything random. [default: 1]")]
+SeedOpt = Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of everything random (>= 0). [default: 1]")]
 Ortho = Annotated[bool, typer.Option("--orthophoto", help="Render a true orthophoto GeoTIFF instead of a frame image.")]
 Perturb = Annotated[Optional[float], typer.Option(
     "--perturb-camera", min=0.01, help="Also write camera_perturbed.json, off by about this many pixels.")]

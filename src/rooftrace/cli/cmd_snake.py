@@ -78,22 +78,27 @@ def snake(
     import shapely
 
     from rooftrace.config import load_config, make_options
-    from rooftrace.errors import InputError
+    from rooftrace.errors import GeometryError, InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.camera import read_camera
-    from rooftrace.io.checks import check_same_crs, require_metric_crs
+    from rooftrace.io.checks import check_points, check_same_crs, require_metric_crs
     from rooftrace.io.points import read_points
     from rooftrace.io.raster import read_image
-    from rooftrace.io.vector import Layer, read_layer, write_layers
+    from rooftrace.io.vector import Layer, read_layer, vector_driver, write_layers
     from rooftrace.snake import SnakeOptions, pixel_seeds_to_object, snake_outline
 
     setup_logging(quiet)
     t0 = time.perf_counter()
     check_output(output, overwrite)
+    vector_driver(output)
     options = make_options(SnakeOptions, load_config(config))
-    cloud = read_points(points, crs)
+    cloud = read_points(points, crs, require_points=False)
     where = ", ".join(map(str, points))
-    require_metric_crs(cloud.crs, where)
+    if len(cloud) == 0:
+        raise InputError(f"{where}: no points; the snake takes its heights from the LiDAR points, "
+                         "give a cloud that covers the seeds")
+    require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
+    check_points(cloud.xyz, where)
     cam = read_camera(camera, image)
     check_same_crs(cloud.crs, getattr(cam, "crs", None), where, str(camera))
     grey = read_image(image)
@@ -122,11 +127,16 @@ def snake(
             if out.any():
                 raise InputError(f"{seeds}: building {key!r}: seed(s) {np.flatnonzero(out).tolist()} lie outside the "
                                  f"image ({w} x {h} px); pixel seeds are (column, row)")
-            xy = pixel_seeds_to_object(xy, cam, cloud.xyz)
         try:
+            if seeds_in_pixels:
+                xy = pixel_seeds_to_object(xy, cam, cloud.xyz)
             res = snake_outline(xy, grey, cam, cloud.xyz, options)
         except InputError as exc:
             raise InputError(f"{seeds}: building {key!r}: {exc}") from None
+        except GeometryError as exc:
+            # the seeds are the user's: a roof the snake cannot build is theirs to move
+            raise InputError(f"{seeds}: building {key!r}: {exc}; check the seeds and that the cloud covers "
+                             "them") from None
         poly = shapely.Polygon(res.xyz)
         geoms.append(poly)
         attrs["building"].append(key)

@@ -15,7 +15,7 @@ Config = Annotated[Optional[Path], typer.Option("--config", help="TOML file with
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON summary on stdout (logs stay on stderr).")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existing output.")]
 Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
-Seed = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
+Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed of everything random (>= 0).")]
 Workers = Annotated[int, typer.Option("--workers", min=1, help="Parallel workers (processes).")]
 Scheduler = Annotated[Optional[str], typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")]
 TileSize = Annotated[Optional[float], typer.Option("--tile-size", min=1.0, help="Tile side in metres (default: no tiling).")]

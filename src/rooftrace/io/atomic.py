@@ -20,10 +20,10 @@ __all__ = ["atomic_path", "check_output"]
 def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
     """Check that ``path`` can be written; refuse to replace it without ``overwrite``."""
     path = Path(path)
+    if path.is_dir():  # even with --overwrite: a file never replaces a folder
+        raise InputError(f"{path} is a folder; give a file name for the output")
     if path.exists() and not overwrite:
         raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
-    if path.exists() and path.is_dir() and not overwrite:
-        raise InputError(f"{path} is a directory, expected a file name")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.exists():
         raise InputError(f"folder {parent} does not exist; create it or choose another output path")

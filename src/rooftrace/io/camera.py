@@ -21,6 +21,7 @@ from rooftrace.io.atomic import atomic_path
 
 __all__ = ["read_camera", "write_camera", "camera_to_dict", "camera_from_dict"]
 
+_FORMAT_HINT = "fix the camera file (its format is in docs/errors.md, 'Camera file')"
 _EXTERIOR = ("X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg")
 _DISTORTION = ("k1", "k2", "k3", "p1", "p2")
 
@@ -54,7 +55,14 @@ def camera_from_dict(data: dict, where: str = "camera", image: str | os.PathLike
         from rooftrace.io.raster import read_raster_meta
 
         meta = read_raster_meta(image)
-        return OrthoCamera(meta.size, meta.transform, crs or meta.crs, float(data.get("sigma_px", 0.0)))
+        if meta.transform is None:
+            raise InputError(f"{image}: no georeferencing (affine transform), which an orthophoto camera ({where}) "
+                             "needs; give a GeoTIFF orthophoto, or a 'frame' camera for an aerial frame image")
+        if crs is not None and meta.crs is not None and not crs.equals(meta.crs, ignore_axis_order=True):
+            raise InputError(f"{where} ({crs.name}) and {image} ({meta.crs.name}) have different CRSs; "
+                             "drop 'crs' from the camera file or reproject the image")
+        sigma = _number(data, "sigma_px", where) if "sigma_px" in data else 0.0
+        return OrthoCamera(meta.size, meta.transform, crs or meta.crs, sigma)
     if kind != "frame":
         raise InputError(f"{where}: 'type' must be 'frame' or 'orthophoto', got {kind!r}")
     size = data.get("image_size")
@@ -67,6 +75,7 @@ def camera_from_dict(data: dict, where: str = "camera", image: str | os.PathLike
     pp = data.get("principal_point_mm", [0.0, 0.0])
     if not (isinstance(pp, (list, tuple)) and len(pp) == 2):
         raise InputError(f"{where}: 'principal_point_mm' must be [x0, y0]")
+    pp = [_number({"principal_point_mm": v}, "principal_point_mm", where) for v in pp]
     dist_in = data.get("distortion") or {}
     if not isinstance(dist_in, dict) or set(dist_in) - set(_DISTORTION):
         raise InputError(f"{where}: 'distortion' accepts only {', '.join(_DISTORTION)}")
@@ -111,8 +120,13 @@ def read_camera(path: str | os.PathLike, image: str | os.PathLike | None = None)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc})") from None
-    return camera_from_dict(data, str(path), image)
+        raise InputError(f"{path}: not valid JSON ({exc}); {_FORMAT_HINT}") from None
+    try:
+        return camera_from_dict(data, str(path), image)
+    except InputError as exc:
+        if str(path) not in str(exc):  # an image error (orthophoto) names its own file
+            raise
+        raise InputError(f"{exc}; {_FORMAT_HINT}") from None
 
 
 def camera_to_dict(camera: FrameCamera) -> dict:

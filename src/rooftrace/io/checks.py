@@ -1,4 +1,9 @@
-"""Input checks shared by the commands: CRS kinds and agreement, image coverage."""
+"""Input checks shared by the commands: CRS kinds and agreement, image coverage, degenerate clouds.
+
+Each check raises :class:`~rooftrace.errors.InputError` with one message
+that says what is wrong, in which file, and what to do (docs/errors.md
+lists them); data a command can work around only gets a warning.
+"""
 
 from __future__ import annotations
 
@@ -8,14 +13,41 @@ import numpy as np
 
 from rooftrace.errors import InputError
 
-__all__ = ["require_metric_crs", "check_same_crs", "check_image_covers"]
+__all__ = ["require_metric_crs", "check_same_crs", "check_image_covers", "check_points"]
+
+#: a cloud narrower than this across its main direction (metres) is a line, not an area
+_MIN_WIDTH = 0.01
 
 log = logging.getLogger(__name__)
 
 
-def require_metric_crs(crs, where: str) -> None:
-    """Refuse geographic CRSs (degrees): every threshold of the method is in metres."""
+def require_metric_crs(crs, where: str, xy: np.ndarray | None = None) -> None:
+    """Refuse geographic CRSs (degrees): every threshold of the method is in metres.
+
+    Parameters
+    ----------
+    crs : pyproj.CRS or None
+        The data's CRS.  ``None`` only gets a warning (outputs will have no
+        CRS), unless ``xy`` looks like longitude/latitude.
+    where : str
+        File name(s) for the message.
+    xy : ndarray of shape (N, 2), optional
+        Coordinates; without a CRS, a cloud lying within ±180 x ±90 and
+        less than 1 unit across is taken for degrees and refused, since a
+        building outline of less than a metre is no building.
+
+    Raises
+    ------
+    InputError
+        Geographic CRS, or no CRS and coordinates that look like degrees.
+    """
     if crs is None:
+        if xy is not None and len(xy):
+            lo, hi = xy.min(axis=0), xy.max(axis=0)
+            if (np.abs(lo) <= [180, 90]).all() and (np.abs(hi) <= [180, 90]).all() and (hi - lo < 1.0).all():
+                raise InputError(f"{where}: no CRS, and the coordinates look like degrees (longitude/latitude, "
+                                 f"{lo[0]:.6g}..{hi[0]:.6g}, {lo[1]:.6g}..{hi[1]:.6g}); reproject to a projected CRS "
+                                 "in metres, or assign the right one with --crs if they are metres")
         log.warning("%s: no CRS; outputs will have none (assign one with --crs)", where)
         return
     if crs.is_geographic:
@@ -48,3 +80,50 @@ def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float 
         raise InputError(f"{where}: the image does not cover the data ({100 * fraction:.1f} % of it projects "
                          "inside the image); check the image, the camera file and the CRS")
     return fraction
+
+
+def check_points(xyz: np.ndarray, where: str, what: str = "the point cloud") -> None:
+    """Refuse a cloud whose points are all identical or all on one line in plan view.
+
+    Every stage of the method works on an area (ground TIN, alpha shape,
+    roof planes); such a cloud is a wrong file or a wrong export, not data
+    to work around.  An empty cloud passes: commands treat it as "no
+    buildings" and write an empty result with a warning.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3) or (N, 2)
+        Coordinates, metres.
+    where : str
+        File name(s) for the message.
+    what : str
+        What the points are, for the message.
+
+    Raises
+    ------
+    InputError
+        All points identical in plan, or the cloud is narrower than 1 cm
+        across its main direction (collinear).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> check_points(np.random.default_rng(0).uniform(0, 10, (20, 3)), "ok.las")
+    >>> check_points(np.zeros((5, 3)), "one.las")
+    Traceback (most recent call last):
+    ...
+    rooftrace.errors.InputError: one.las: all 5 points of the point cloud have the same x, y; ...
+    """
+    xy = np.asarray(xyz, dtype=np.float64)[:, :2]
+    if len(xy) == 0:
+        return
+    centred = xy - xy.mean(axis=0)
+    if not np.any(centred):
+        raise InputError(f"{where}: all {len(xy)} points of {what} have the same x, y; "
+                         "this is not a LiDAR cloud of an area, check the file and its export")
+    # the smallest singular value over sqrt(N) is the spread across the main direction
+    width = np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(xy))
+    if len(xy) < 3 or width < _MIN_WIDTH:
+        raise InputError(f"{where}: all {len(xy)} points of {what} lie on one line in plan view "
+                         f"(spread across it {width:.3g} m); the method needs points over an area, "
+                         "check the file and its export")

@@ -93,12 +93,21 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
                         fields[name] = np.empty(n, values.dtype)
                     fields[name][start:start + m] = values
                 start += m
+            if n == 0:  # an empty file still has its dimensions, so a writer keeps them
+                empty = laspy.ScaleAwarePointRecord.zeros(0, header=header)
+                fields = {name: np.asarray(empty[name]) for name in names}
     except InputError:
         raise
     except laspy.errors.LaspyException as exc:
-        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+        if path.stat().st_size == 0:
+            raise InputError(f"{path}: the file is empty (0 bytes); re-download or re-export it") from None
+        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc}); check that it is LAS/LAZ, "
+                         "or re-export it") from None
     except (OSError, ValueError, RuntimeError, EOFError) as exc:
-        raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc})") from None
+        raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
+                         "re-download or re-export it") from None
+    if not header.are_points_compressed:
+        _check_point_count(path, header)
     if start < n:
         raise InputError(
             f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
@@ -110,6 +119,22 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
         _check_header_bounds(path, header, xyz)
     tmpl = copy.deepcopy(header)
     return PointCloud(xyz, fields, crs=las_crs(header, str(path)), template=tmpl, sources=[str(path)])
+
+
+def _check_point_count(path: Path, header: laspy.LasHeader) -> None:
+    # laspy reads exactly the announced count, so a header that announces fewer
+    # points than an uncompressed file holds would silently drop the rest
+    n = int(header.point_count)
+    end = int(header.offset_to_point_data) + n * int(header.point_format.size)
+    stop = path.stat().st_size
+    if getattr(header, "number_of_evlrs", 0) and getattr(header, "start_of_first_evlr", 0):
+        stop = int(header.start_of_first_evlr)
+    extra = (stop - end) // int(header.point_format.size)
+    if extra > 0:
+        raise InputError(
+            f"{path}: the header announces {n} points but the file holds {n + extra}; the header is wrong, "
+            "rewrite the file with a LAS tool (e.g. las2las) to repair it"
+        )
 
 
 def _check_header_bounds(path: Path, header: laspy.LasHeader, xyz: np.ndarray) -> None:

@@ -70,10 +70,14 @@ def read_text(path: str | os.PathLike) -> PointCloud:
         if not line or line[0] in "#/":
             continue
         rows.append(line)
+    had_rows = bool(rows)
+    # a header line is any leading row whose first token is not a number
+    while rows and not _is_number(rows[0].split()[0]):
+        rows.pop(0)
+    if had_rows and not rows:
+        raise InputError(f"{path}: not a text point cloud, no line starts with a number; "
+                         "give x y z columns (one point per line) or a LAS/LAZ/PLY file")
     try:
-        # a header line is any leading row whose first token is not a number
-        while rows and not _is_number(rows[0].split()[0]):
-            rows.pop(0)
         data = np.loadtxt(rows, ndmin=2) if rows else np.empty((0, 3))
     except ValueError as exc:
         raise InputError(f"{path}: not a text point cloud of numeric 'x y z' columns ({exc})") from None

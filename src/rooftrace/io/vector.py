@@ -1,7 +1,14 @@
-"""Vector layers in and out (GeoPackage, GeoJSON, FlatGeobuf, any OGR format) via pyogrio.
+"""Vector layers in and out via pyogrio: any OGR format is read; GeoPackage, GeoJSON and FlatGeobuf are written.
 
 A layer is a list of shapely geometries plus columns of attributes.  Several
 layers go into one GeoPackage in a single atomic write.
+
+Only single-file formats are written: an output is written to a temporary
+file beside the target and renamed onto it, which is atomic for one file
+only.  A Shapefile is several files (.shp, .shx, .dbf, .prj, .cpg) that
+cannot be replaced together atomically (and it truncates field names to 10
+characters), so ``.shp`` outputs are refused with a pointer to GeoPackage;
+Shapefiles are still read.
 """
 
 from __future__ import annotations
@@ -19,9 +26,11 @@ import shapely
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["Layer", "write_layers", "read_layer", "list_layers"]
+__all__ = ["Layer", "write_layers", "read_layer", "list_layers", "vector_driver"]
 
-_DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".fgb": "FlatGeobuf", ".shp": "ESRI Shapefile"}
+_DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".fgb": "FlatGeobuf"}
+#: multi-file formats, read but never written (no atomic replacement of a set of files)
+_MULTI_FILE = {".shp": "Shapefile", ".shx": "Shapefile", ".dbf": "Shapefile", ".tab": "MapInfo TAB", ".mif": "MapInfo MIF"}
 
 
 @dataclass
@@ -68,11 +77,31 @@ def write_layers(
 
     Empty layers are written too (with their schema), so a reader always
     finds ``roof_outlines``, ``ridges`` ... even when no building was found.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.gpkg`` (any number of layers), ``.geojson``/``.json`` or ``.fgb``
+        (one layer).
+    layers : mapping of str to Layer
+        Layer name to geometries and attributes.
+    crs : pyproj.CRS, optional
+        Written to every layer.
+    overwrite : bool, default False
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InputError
+        Unknown or multi-file format (Shapefile), several layers for a
+        one-layer format, or an existing output without ``overwrite``.
     """
     path = Path(path)
-    driver = _DRIVERS.get(path.suffix.lower())
-    if driver is None:
-        raise InputError(f"{path}: unknown vector format; use .gpkg, .geojson, .fgb or .shp")
+    driver = vector_driver(path)
     if driver != "GPKG" and len(layers) > 1:
         raise InputError(f"{path}: {driver} holds one layer; use a .gpkg output for {', '.join(layers)}")
     wkt = crs.to_wkt() if crs is not None else None
@@ -93,6 +122,31 @@ def write_layers(
     return path
 
 
+def vector_driver(path: str | os.PathLike) -> str:
+    """The OGR driver that writes ``path``, chosen by its suffix; commands call it before any work.
+
+    Raises
+    ------
+    InputError
+        A multi-file format (Shapefile, MapInfo) or an unknown suffix.
+
+    Examples
+    --------
+    >>> vector_driver("roofs.gpkg"), vector_driver("roofs.fgb")
+    ('GPKG', 'FlatGeobuf')
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in _MULTI_FILE:
+        raise InputError(f"{path}: {_MULTI_FILE[suffix]} output is not supported, it is several files that cannot "
+                         "be replaced atomically; write a GeoPackage (.gpkg) and convert it if needed, e.g. "
+                         f"ogr2ogr {path.with_suffix('.shp').name} {path.with_suffix('.gpkg').name}")
+    driver = _DRIVERS.get(suffix)
+    if driver is None:
+        raise InputError(f"{path}: unknown vector format {suffix or '(no suffix)'!r}; use .gpkg, .geojson or .fgb")
+    return driver
+
+
 def _ogr_type(name: str) -> str:
     # DESIGN.md spells types as OGC does ("PolygonZ"); pyogrio wants "Polygon Z"
     if name.endswith("Z") and not name.endswith(" Z"):
@@ -108,7 +162,9 @@ def list_layers(path: str | os.PathLike) -> list[str]:
     try:
         return [str(r[0]) for r in pyogrio.list_layers(str(path))]
     except Exception as exc:
-        raise InputError(f"{path}: not a readable vector file ({exc})") from None
+        reason = " ".join(str(exc).split(";")[0].split())[:200]
+        raise InputError(f"{path}: not a readable vector file ({reason}); give a GeoPackage, GeoJSON, "
+                         "Shapefile, FlatGeobuf or another OGR vector format") from None
 
 
 def read_layer(path: str | os.PathLike, layer: str | None = None, *, missing_ok: bool = False) -> Layer | None:
