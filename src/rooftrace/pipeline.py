@@ -144,6 +144,7 @@ def run_pipeline(
     seed: int = 0,
     reporter: Reporter | None = None,
     derived: Any = None,
+    buildings: Any = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -169,6 +170,11 @@ def run_pipeline(
         Data-derived detection parameters fixed for this cloud (a tile of a
         tiled run gets those of the whole input); by default measured on
         ``cloud``.
+    buildings : callable, optional
+        ``buildings(xyz, detection)`` returns the ids of the buildings to
+        outline; the others keep their detection but get no outline, planes
+        or features (a tile of a tiled run outlines only the buildings it
+        owns).  Default: all.
 
     Returns
     -------
@@ -182,11 +188,14 @@ def run_pipeline(
     check_config(config)
 
     detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
-    members = points_by_building(detection.building_id)
+    building_id = detection.building_id
+    if buildings is not None:
+        building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
+    members = points_by_building(building_id)
 
     t0 = time.perf_counter()
     outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
-    outlines = outline_buildings(cloud.xyz, detection.building_id, outline_options,
+    outlines = outline_buildings(cloud.xyz, building_id, outline_options,
                                  mean_spacing=detection.mean_spacing, reporter=reporter)
     timings["outline"] = time.perf_counter() - t0
 

@@ -43,6 +43,7 @@ every finished tile of an earlier run of the same inputs and options.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -385,7 +386,8 @@ def _load_cloud(folder: Path, crs) -> "Any":
     return PointCloud(xyz, fields, crs=crs)
 
 
-def estimate_parameters(cloud, config: dict | None = None, *, origin: Sequence[float] | None = None):
+def estimate_parameters(cloud, config: dict | None = None, *, origin: Sequence[float] | None = None,
+                        extent: Sequence[float] | None = None):
     """Measure the data-derived detection parameters once, for every tile.
 
     Parameters
@@ -396,6 +398,8 @@ def estimate_parameters(cloud, config: dict | None = None, *, origin: Sequence[f
         Run config (the detection options).
     origin : (float, float), optional
         Anchor of the grids, fixed for the whole run.
+    extent : (xmin, ymin, xmax, ymax), optional
+        Bounds of the whole input (the ground filter's border).
 
     Returns
     -------
@@ -411,7 +415,8 @@ def estimate_parameters(cloud, config: dict | None = None, *, origin: Sequence[f
     """
     from rooftrace.lidar.detect import DerivedParams, detect_buildings
 
-    fixed = DerivedParams(origin=None if origin is None else (float(origin[0]), float(origin[1])))
+    fixed = DerivedParams(origin=None if origin is None else (float(origin[0]), float(origin[1])),
+                          extent=None if extent is None else tuple(float(v) for v in extent))
     return detect_buildings(cloud, config=config, derived=fixed).derived
 
 
@@ -468,7 +473,7 @@ def owned_buildings(xyz: np.ndarray, building_id: np.ndarray, core: Sequence[flo
 
 def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | None,
                  config: dict | None, alpha: str | None, planes: bool, seed: int,
-                 derived: dict[str, Any]) -> str:
+                 derived: dict[str, Any], extent: Sequence[float] | None = None) -> str:
     """Run the pipeline on one buffered tile and keep the buildings whose centre is in its core.
 
     Parameters
@@ -488,6 +493,9 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         As :func:`rooftrace.pipeline.run_pipeline`.
     derived : dict
         :meth:`DerivedParams.to_dict` of the run.
+    extent : (xmin, ymin, xmax, ymax), optional
+        The buffered tile clipped to the input's bounds: where the ground
+        filter lays its border (see :class:`DerivedParams`).
 
     Returns
     -------
@@ -508,12 +516,24 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
     crs = pyproj.CRS.from_wkt(crs_wkt) if crs_wkt else None
     cloud = _load_cloud(run / "tiles" / key, crs)
     fixed = DerivedParams.from_dict(derived)
+    if extent is not None:
+        fixed = dataclasses.replace(fixed, extent=tuple(float(v) for v in extent))
     result: dict[str, Any] = {"key": key, "points": len(cloud), "layers": {}, "buildings": {}, "timings": {},
                               "edge_buildings": []}
     if len(cloud) >= 3 and np.ptp(cloud.xyz[:, :2], axis=0).min() > 0:
-        run_out = run_pipeline(cloud, config=config, alpha=alpha, planes=planes, seed=seed, derived=fixed)
+        found: dict[str, np.ndarray] = {}
+
+        def owned_only(xyz: np.ndarray, detection) -> np.ndarray:
+            # outlines and roof planes are the costly stages: spend them on
+            # the buildings this tile keeps, not on those of its buffer
+            found["ids"], found["owned"], found["keys"], found["box"] = owned_buildings(
+                xyz, detection.building_id, core, fixed.origin)
+            return found["ids"][found["owned"]]
+
+        run_out = run_pipeline(cloud, config=config, alpha=alpha, planes=planes, seed=seed, derived=fixed,
+                               buildings=owned_only)
         det = run_out.detection
-        ids, owned, keys, box = owned_buildings(cloud.xyz, det.building_id, core, fixed.origin)
+        ids, owned, keys, box = found["ids"], found["owned"], found["keys"], found["box"]
         keep_ids = ids[owned]
         # a building must be processed with all its points: one that reaches
         # the buffer's outer edge (where the tile stops but the data goes on)
@@ -556,6 +576,14 @@ def _core(index: dict, key: str) -> tuple[float, float, float, float]:
     x0, y0 = xs[i], ys[j]
     return (-np.inf if i == 0 else float(x0), np.inf if i == len(xs) - 1 else float(x0 + size),
             -np.inf if j == 0 else float(y0), np.inf if j == len(ys) - 1 else float(y0 + size))
+
+
+def _extent(index: dict, key: str) -> list[float]:
+    """The buffered tile (whole cells) clipped to the input's bounds."""
+    (ox, oy), cell, b = index["origin"], index["cell"], index["bounds"]
+    cx0, cx1, cy0, cy1 = index["tiles"][key]["cells"]
+    return [max(ox + cx0 * cell, b[0]), max(oy + cy0 * cell, b[1]),
+            min(ox + (cx1 + 1) * cell, b[2]), min(oy + (cy1 + 1) * cell, b[3])]
 
 
 def merge_tiles(results: Sequence[dict]) -> dict:
@@ -726,7 +754,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             with reporter.stage("parameters"):
                 sample = _load_cloud(run_dir / "sample", crs_obj)
                 sample.sources = [str(p) for p in paths]
-                derived = estimate_parameters(sample, cfg, origin=index["origin"])
+                derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
                 del sample
             _write_json(derived_path, derived.to_dict())
         timings["parameters"] = time.perf_counter() - t0
@@ -734,7 +762,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                  derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
         keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
         wkt = crs_obj.to_wkt() if crs_obj is not None else None
-        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict()) for k in keys]
+        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k))
+                 for k in keys]
         t0 = time.perf_counter()
         with reporter.stage("tiles", total=len(tasks)):
             result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)

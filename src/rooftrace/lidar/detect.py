@@ -107,6 +107,11 @@ class DerivedParams:
         Corner (m) the grids of the outlier filter and of the ground filter
         (candidate and seed cells) are anchored at, and the origin of the
         local frames.  ``None``: the lowest x and y of the cloud.
+    extent : (float, float, float, float) or None
+        xmin, ymin, xmax, ymax (m) the ground filter's border is laid
+        around.  ``None``: the cloud's bounding box.  A tile uses its own
+        extent clipped to the whole input's, so that along the true edges
+        of the data its TIN ends where the whole cloud's does.
     mean_spacing : float or None
         s_avg (m), :func:`rooftrace.lidar.spacing.mean_spacing` of the points
         left by the outlier filter.
@@ -124,6 +129,7 @@ class DerivedParams:
     """
 
     origin: tuple[float, float] | None = None
+    extent: tuple[float, float, float, float] | None = None
     mean_spacing: float | None = None
     density: float | None = None
     sigma_h: float | None = None
@@ -142,6 +148,7 @@ class DerivedParams:
         """JSON-serialisable form (floats round-trip exactly through :mod:`json`)."""
         return {
             "origin": None if self.origin is None else [float(v) for v in self.origin],
+            "extent": None if self.extent is None else [float(v) for v in self.extent],
             "mean_spacing": self.mean_spacing,
             "density": self.density,
             "sigma_h": self.sigma_h,
@@ -153,9 +160,11 @@ class DerivedParams:
     def from_dict(cls, d: dict[str, Any]) -> "DerivedParams":
         """Inverse of :meth:`to_dict`."""
         origin = d.get("origin")
+        extent = d.get("extent")
         cent = d.get("entropy_centroids")
         return cls(
             origin=None if origin is None else (float(origin[0]), float(origin[1])),
+            extent=None if extent is None else tuple(float(v) for v in extent),
             mean_spacing=d.get("mean_spacing"),
             density=d.get("density"),
             sigma_h=d.get("sigma_h"),
@@ -349,6 +358,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     cls = np.full(n, ASPRS.UNCLASSIFIED, np.uint8)
     params: dict[str, Any] = {}
     origin = tuple(float(v) for v in xyz[:, :2].min(axis=0)) if fixed.origin is None else fixed.origin
+    extent = (tuple(float(v) for v in (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0)))
+              if fixed.extent is None else fixed.extent)
     # local frames are shifted by this fixed corner only (not by the
     # data's own minimum), so a tile rounds exactly like the whole cloud
     shift = np.array([origin[0], origin[1], 0.0])
@@ -371,7 +382,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     with clock("ground"):
         try:
-            ground, hag, gparams = progressive_tin(xyz, s_avg, sigma_h, opt.ground, exclude=noise, origin=origin)
+            ground, hag, gparams = progressive_tin(xyz, s_avg, sigma_h, opt.ground, exclude=noise, origin=origin,
+                                                   bounds=extent)
         except GeometryError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
         params["ground"] = {**options_dict(opt.ground), **gparams}
@@ -482,7 +494,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         params=params,
         timings=timings,
         derived=DerivedParams(
-            origin=origin, mean_spacing=s_avg, density=d_avg, sigma_h=sigma_h, entropy_threshold=float(threshold),
+            origin=origin, extent=extent, mean_spacing=s_avg, density=d_avg, sigma_h=sigma_h, entropy_threshold=float(threshold),
             entropy_centroids=None if cparams["centroids"] is None else tuple(float(c) for c in cparams["centroids"]),
         ),
     )

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError
+from scipy.spatial import Delaunay, QhullError, cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
@@ -59,9 +59,16 @@ class GroundOptions:
     max_iterations : int, default 40
         Upper bound on densification rounds.
     converged_fraction : float, default 0.001
-        The densification stops when a round adds at most this fraction of
-        the TIN's vertices (0 gives Axelsson's "until nothing is added";
-        the last rounds add a handful of points at a full re-triangulation each).
+        The densification of a block (see ``converged_block``) stops when a
+        round adds in it at most this fraction of the TIN vertices it holds
+        (0 gives Axelsson's "until nothing is added"; the last rounds add a
+        handful of points at a full re-triangulation each).
+    converged_block : float or None
+        Side (m) of the square blocks that converge on their own.  ``None``:
+        ``2·seed_cell``.  A rule over the whole cloud would make the ground
+        of one place depend on how much data lies elsewhere, so a tile and
+        the whole cloud would stop at different rounds; blocks anchored at
+        the run's origin converge alike in both.
     facet_rounds : int, default 0
         During the first ``facet_rounds`` rounds only the best candidate of
         each facet is added (Axelsson's rule); afterwards every accepted
@@ -77,9 +84,11 @@ class GroundOptions:
     max_iterations: int = 40
     facet_rounds: int = 0
     converged_fraction: float = 0.001
+    converged_block: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("seed_cell", "iteration_distance", "iteration_angle", "candidate_cell", "ground_tolerance"):
+        for name in ("seed_cell", "iteration_distance", "iteration_angle", "candidate_cell", "ground_tolerance",
+                     "converged_block"):
             v = getattr(self, name)
             if v is not None and not v > 0:
                 raise ValueError(f"ground.{name} must be > 0, got {v}")
@@ -121,13 +130,30 @@ def _triangulate(xy: np.ndarray) -> Delaunay:
         raise GeometryError(f"ground TIN: cannot triangulate {len(xy)} points ({exc.__class__.__name__})") from None
 
 
+def _border(lo: np.ndarray, hi: np.ndarray, step: float) -> np.ndarray:
+    """Border vertices of the TIN: the corners of ``[lo, hi]`` and the multiples of ``step`` along its sides.
+
+    With the four corners alone, the facets between the outermost seeds and
+    the border reach to the far corners, so the ground near an edge would
+    depend on how far the data extends; vertices every ``step`` keep those
+    facets local (and the same in a tile as in the whole cloud: multiples
+    of ``step`` in the frame anchored at the run's origin).
+    """
+    xs = step * np.arange(np.ceil(lo[0] / step), np.floor(hi[0] / step) + 1)
+    ys = step * np.arange(np.ceil(lo[1] / step), np.floor(hi[1] / step) + 1)
+    xs = xs[(xs > lo[0]) & (xs < hi[0])]
+    ys = ys[(ys > lo[1]) & (ys < hi[1])]
+    pts = [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]]
+    pts += [[x, lo[1]] for x in xs] + [[x, hi[1]] for x in xs] + [[lo[0], y] for y in ys] + [[hi[0], y] for y in ys]
+    return np.asarray(pts, np.float64)
+
+
 def _corner_heights(corners: np.ndarray, ground: np.ndarray, k: int = 12) -> np.ndarray:
-    """Height of each corner from a plane fitted to its ``k`` nearest ground points (within their height range)."""
+    """Height of each border vertex from a plane fitted to its ``k`` nearest ground points (within their height range)."""
     k = min(k, len(ground))
-    d2 = ((corners[:, None, :] - ground[None, :, :2]) ** 2).sum(axis=-1)
-    near = np.argsort(d2, axis=1)[:, :k]
+    near = np.asarray(cKDTree(ground[:, :2]).query(corners, k=k)[1]).reshape(len(corners), k)
     z = np.empty(len(corners))
-    for i, idx in enumerate(near):  # four corners
+    for i, idx in enumerate(near):  # a few hundred border vertices at most
         p = ground[idx]
         a = np.column_stack([p[:, :2] - corners[i], np.ones(len(p))])
         coef, *_ = np.linalg.lstsq(a, p[:, 2], rcond=None)
@@ -176,6 +202,7 @@ def progressive_tin(
     *,
     exclude: np.ndarray | None = None,
     origin: tuple[float, float] | None = None,
+    bounds: tuple[float, float, float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Classify ground points by progressive TIN densification.
 
@@ -197,6 +224,11 @@ def progressive_tin(
         anchored at.  Default: the lowest x and y of the usable points.  A
         tiled run passes the corner of the whole input, so that a tile and
         the whole cloud pick the same lowest point in every cell.
+    bounds : (xmin, ymin, xmax, ymax), optional
+        Extent (m) the TIN's border is laid around, 1 m outside.  Default:
+        the bounding box of the usable points.  A tile passes its extent
+        clipped to the whole input's, so that along the data's true edges
+        it has the border of the whole cloud.
 
     Returns
     -------
@@ -213,7 +245,8 @@ def progressive_tin(
     A candidate ``p`` inside facet ``(v0, v1, v2)`` with unit upward normal
     ``n`` is accepted when ``|n·(p − v0)| < iteration_distance`` and
     ``arcsin(|n·(p − v0)| / |p − v_k|) < iteration_angle`` for k = 0, 1, 2.
-    The bounding box corners (1 m outside the data) are TIN vertices with the
+    The border (1 m outside ``bounds``: its corners and a vertex every
+    ``seed_cell`` along its sides) are TIN vertices with the
     height of the nearest seed, so every point lies inside the TIN.
 
     References
@@ -225,10 +258,10 @@ def progressive_tin(
     # a multi-threaded BLAS turns each into a thread rendezvous, 100x slower
     # on a busy machine
     with threadpool_limits(limits=1, user_api="blas"):
-        return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin)
+        return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bounds)
 
 
-def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin):
+def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bounds):
     opt = options or GroundOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
     n = len(xyz)
@@ -251,16 +284,27 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin):
     cand = cand[_spatial_order(pts[cand, :2], 10.0, start=0.0)]
     cxyz = pts[cand]
     seeds = np.unique(_lowest_per_cell(cxyz, np.zeros(2), opt.seed_cell))
-    lo, hi = pts[:, :2].min(axis=0) - 1.0, pts[:, :2].max(axis=0) + 1.0
-    corners = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
-    d2 = ((corners[:, None, :] - cxyz[None, seeds, :2]) ** 2).sum(axis=-1)
-    corner_xyz = np.column_stack([corners, cxyz[seeds[np.argmin(d2, axis=1)], 2]])
+    if bounds is None:
+        lo, hi = pts[:, :2].min(axis=0) - 1.0, pts[:, :2].max(axis=0) + 1.0
+    else:
+        lo = np.asarray(bounds[:2], np.float64) - anchor - 1.0
+        hi = np.asarray(bounds[2:], np.float64) - anchor + 1.0
+    corners = _border(lo, hi, opt.seed_cell)
+    nearest = np.asarray(cKDTree(cxyz[seeds, :2]).query(corners)[1])
+    corner_xyz = np.column_stack([corners, cxyz[seeds[nearest], 2]])
 
     is_ground = np.zeros(len(cxyz), bool)
     is_ground[seeds] = True
     tan_angle = np.tan(np.radians(opt.iteration_angle))
+    # per block: 0 densifying, 1 densifying after the border refit, 2 done
+    block_side = opt.converged_block or 2.0 * opt.seed_cell
+    bij = np.floor(cxyz[:, :2] / block_side).astype(np.int64)
+    _, block = np.unique(bij, axis=0, return_inverse=True)
+    block = block.ravel()
+    n_blocks = int(block.max(initial=-1)) + 1
+    phase = np.zeros(n_blocks, np.int64)
+    corner_block = block[seeds[nearest]]  # a border vertex follows the block of its seed
     rounds = 0
-    refit = True
     for rounds in range(1, opt.max_iterations + 1):
         tin = np.concatenate([corner_xyz, cxyz[is_ground]])
         tri = _triangulate(tin[:, :2])
@@ -288,21 +332,22 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin):
             first = np.ones(len(accept), bool)
             first[1:] = simplex[accept[1:]] != simplex[accept[:-1]]
             accept = accept[first]
-        added = len(accept)
-        log.debug("ground round %d: %d TIN vertices, %d added", rounds, len(tin), added)
-        if added <= opt.converged_fraction * len(tin):
-            if added:
-                is_ground[todo[accept]] = True
-            if not refit:
-                break
-            # the corners took the height of the nearest seed, up to a seed
-            # cell away: on a slope that tilts the border facets.  Once the
-            # ground is dense, extrapolate them from the nearby ground instead
-            # and go on densifying.
-            refit = False
-            corner_xyz[:, 2] = _corner_heights(corners, cxyz[is_ground])
-            continue
+        accept = accept[phase[block[todo[accept]]] < 2]
+        added = np.bincount(block[todo[accept]], minlength=n_blocks)
+        vertices = np.bincount(block[is_ground], minlength=n_blocks)
+        log.debug("ground round %d: %d TIN vertices, %d added", rounds, len(tin), len(accept))
         is_ground[todo[accept]] = True
+        converged = (phase < 2) & (added <= opt.converged_fraction * vertices)
+        # the border vertices took the height of the nearest seed, up to a
+        # seed cell away: on a slope that tilts the border facets.  Once the
+        # ground of their block is dense, extrapolate them from the nearby
+        # ground instead and go on densifying.
+        refit = converged[corner_block] & (phase[corner_block] == 0)
+        if refit.any():
+            corner_xyz[refit, 2] = _corner_heights(corners[refit], cxyz[is_ground])
+        phase[converged] += 1
+        if (phase == 2).all():
+            break
 
     tin = np.concatenate([corner_xyz, cxyz[is_ground]])
     tri = _triangulate(tin[:, :2])
