@@ -31,6 +31,30 @@ def test_pitched_roof_stays_whole_with_normals_but_not_with_the_thesis_test():
     assert len(np.unique(region_growing(roof, 0.8, 0.1, 50.0))) == 1
 
 
+def test_normal_angle_keeps_a_hedge_out_of_the_roof_it_touches(rng):
+    # a flat roof at 3 m and, touching it, a flat-topped hedge at the same
+    # height whose normals scatter (leaves face every way, tilted 50-80 deg);
+    # its points pass the distance-along-normal test of close pairs, so
+    # without the angle test the hedge chains into the roof
+    roof = _roof(0, 0, 10, 6, 3.0, step=0.3)
+    roof[:, 2] += rng.normal(0, 0.01, len(roof))
+    hedge = _roof(0, 6.0, 10, 1.5, 3.0, step=0.3)
+    hedge[:, 2] += rng.normal(0, 0.03, len(hedge))
+    xyz = np.vstack([roof, hedge])
+    tilt = np.radians(rng.uniform(50, 80, len(hedge)))
+    az = rng.uniform(0, 2 * np.pi, len(hedge))
+    n_hedge = np.column_stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)])
+    n_roof = np.column_stack([rng.normal(0, 0.05, (len(roof), 2)), np.ones(len(roof))])
+    normals = np.vstack([n_roof / np.linalg.norm(n_roof, axis=1, keepdims=True), n_hedge])
+    chained = region_growing(xyz, 0.7, 0.2, normals=normals)
+    assert np.mean(chained[len(roof):] == chained[0]) > 0.7  # without the angle test most of the hedge joins the roof
+    levels = region_growing(xyz, 0.7, 0.2, normals=normals, max_normal_angle=45.0)
+    assert len(np.unique(levels[: len(roof)])) == 1  # the roof (normals within ~10 deg) stays whole
+    assert not np.any(levels[len(roof):] == levels[0])
+    # and falls apart into small pieces (pairs of leaves facing alike)
+    assert np.bincount(levels[len(roof):]).max() < len(hedge) // 4
+
+
 def test_merge_touching_ignores_non_members():
     xyz = np.vstack([_roof(0, 0, 4, 4, 5.0), _roof(4.2, 0, 4, 4, 5.0), _roof(8.4, 0, 4, 4, 5.0)])
     labels = np.repeat([0, 1, 2], len(xyz) // 3)
@@ -57,3 +81,6 @@ def test_options_are_checked():
         SegmentOptions(height_test="vertical")
     with pytest.raises(ValueError, match="max_slope"):
         SegmentOptions(max_slope=90)
+    with pytest.raises(ValueError, match="max_normal_angle"):
+        SegmentOptions(max_normal_angle=0)
+    assert SegmentOptions(max_normal_angle=None).max_normal_angle is None  # the test of the previous versions

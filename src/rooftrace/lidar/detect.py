@@ -406,7 +406,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
         normals = feats[high, 4:] if so.height_test == "normal" else None
-        levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals)
+        levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
+                                max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
             **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
