@@ -178,6 +178,12 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     # densities a 3 m ball holds ~400 points, and the pair list of a 60 000-point roof took 2 GB
     cell = np.floor((xy - xy.min(axis=0)) / radius).astype(np.int64)
     nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
+    if nx * ny > 8 * n + 4096:
+        # a few points kilometres apart (issue 10 fuzz: a dense grid of 65 GB): rank the occupied
+        # columns and rows instead; neighbouring ranks are a superset of the neighbouring cells,
+        # and the exact distance test below keeps only the ball
+        cell = np.column_stack([np.unique(cell[:, k], return_inverse=True)[1].ravel() for k in (0, 1)])
+        nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
     key = cell[:, 0] * ny + cell[:, 1]
     order = np.argsort(key, kind="stable")
     cell_ptr = np.zeros(nx * ny + 1, dtype=np.int64)
