@@ -83,4 +83,4 @@ def test_options_are_checked():
         SegmentOptions(max_slope=90)
     with pytest.raises(ValueError, match="max_normal_angle"):
         SegmentOptions(max_normal_angle=0)
-    assert SegmentOptions(max_normal_angle=None).max_normal_angle is None  # the test of the previous versions
+    assert SegmentOptions().max_normal_angle is None  # the thesis' linking by default

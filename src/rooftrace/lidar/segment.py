@@ -82,15 +82,19 @@ class SegmentOptions:
         ``max_slope`` allowance.
     normal_neighbours : int, default 12
         Neighbours of the plane fit giving each point's normal.
-    max_normal_angle : float or None, default 45.0
+    max_normal_angle : float or None, default None
         Beyond the thesis (deg): with the ``'normal'`` test, two points are
         linked only when their normals differ by at most this angle
         (smoothness constraint, Rabbani et al. 2006), so that hedges and
         flat-topped crowns touching a roof do not chain into its roof level.
-        ``None`` disables it (the test of the previous versions).  IGN LiDAR
-        HD building F1 0.903 without, 0.922 at 44-47 deg; Delft 0.933 and
-        0.936 (benchmarks/RESULTS.md); below 43 deg a rough Delft roof
-        breaks up, above 48 deg a hedge chains into an IGN roof again.
+        ``None``: no angle test (the thesis' linking).  Not on by default:
+        at 45 deg IGN LiDAR HD building F1 rises 0.903 -> 0.922 and Delft
+        0.933 -> 0.936, but only within 44-47 deg (below 43 a rough Delft
+        roof breaks up, above 48 a hedge chains into an IGN roof again), and
+        crowns then fall apart into clusters too small for the k-means, which
+        on a scene with few trees splits flat roofs from gables instead
+        (tests/lidar/test_detect.py town: building F1 1.0 -> 0.93).  See
+        benchmarks/RESULTS.md.
     absorb_rounds : int, default 3
         Rounds in which a building takes in unassigned points within L_Dxy
         (3D) whose own entropy is on the building side (roof edges, dormers
@@ -121,7 +125,7 @@ class SegmentOptions:
     min_points: int | None = None
     height_test: str = "normal"
     normal_neighbours: int = 12
-    max_normal_angle: float | None = 45.0
+    max_normal_angle: float | None = None
     absorb_rounds: int = 3
     absorb_touching: bool = True
     absorb_margin: float = 1.0
