@@ -20,7 +20,7 @@ levels and in tree crowns (no consistent normal).  The other test
 pair of their points closer than L_Dxy) are merged
 into one building, keeping the roof-level labels.
 
-With the normal test a pair is also required to have coherent normals (the
+Optionally (``max_normal_angle``) the normal test also requires coherent normals (the
 smoothness constraint of Rabbani et al. 2006): the angle between the two
 normals at most ``max_normal_angle``.  A trimmed hedge or a crown with a flat
 top passes the distance test often enough, by chance, to chain into the roof
