@@ -8,8 +8,9 @@ Usage (from the repository root)::
 ``delft`` runs the two Delft AHN3 tiles as one piece and as 2 x 2 tiles of
 250 m (60 m buffer) with 1 and 2 workers, and checks that the three outputs
 hold the same buildings (count, outlines within 1e-6 m, attributes).
-``block`` runs every ``points.laz`` under ``--block`` (a synthetic block
-made with ``rooftrace simulate``, never inside the repository) tiled.
+``block`` runs every ``points.laz`` under ``--block`` tiled: a synthetic
+block of 3 x 3 scenes made with ``rooftrace simulate`` on first use (about
+11 M points; keep it outside the repository).
 
 Every run is a ``rooftrace run --json`` subprocess; its peak memory is the
 largest sum of the resident set sizes of the process and all its children
@@ -137,10 +138,27 @@ def delft(data: Path) -> None:
             print(f"\nstages, {name}:\n{stage_table(n, sums[name])}")
 
 
+def make_block(folder: Path, side: int = 3, size: float = 310.0, density: float = 12.0) -> None:
+    """``side`` x ``side`` scenes of ``rooftrace simulate`` side by side (3 x 3 x 310 m at 12 pts/m²: 10.9 M points)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = []
+    for k in range(side * side):
+        i, j = divmod(k, side)
+        if (folder / f"s{k}" / "points.laz").exists():
+            continue
+        cfg = folder / f"s{k}.toml"
+        cfg.write_text(f"[simulate]\norigin = [{85000 + size * i}, {447000 + size * j}]\n")
+        jobs.append([RT, "simulate", "-o", str(folder / f"s{k}"), "--size", str(size), "--density", str(density),
+                     "--seed", f"1{k}", "--no-image", "--config", str(cfg), "--overwrite", "-q"])
+    for start in range(0, len(jobs), 2):  # two at a time: this machine has two cores
+        procs = [subprocess.Popen(cmd) for cmd in jobs[start:start + 2]]
+        if any(p.wait() for p in procs):
+            raise SystemExit("rooftrace simulate failed")
+
+
 def block(folder: Path, tile_size: float, workers: int, buffer: float) -> None:
+    make_block(folder)
     files = sorted(folder.glob("*/points.laz"))
-    if not files:
-        raise SystemExit(f"no */points.laz under {folder}; make the block first (see benchmarks/RESULTS.md)")
     floor, n = decode_seconds(files)
     print(f"{len(files)} files, decode floor: {floor:.2f} s for {n:,} points ({n / floor:,.0f} points/s)")
     out = folder / "roofs.gpkg"

@@ -105,6 +105,22 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
     return structures
 
 
+def _refine_with_image(cloud: PointCloud, outlines: list, structures: list, image: np.ndarray, camera: Any,
+                       config: dict | None, seed: int):
+    from rooftrace.refine import RefineOptions, refine_buildings
+
+    plane_by_id = {s.building_id: s.planes for s in structures}
+    return refine_buildings(
+        [o.polygon for o in outlines], [r for s in structures for r in s.ridges], image, camera,
+        points_xyz=cloud.xyz,
+        planes=[plane_by_id.get(o.building_id) for o in outlines],
+        building_ids=[o.building_id for o in outlines],
+        ridge_building_ids=[s.building_id for s in structures for _ in s.ridges],
+        ridge_kinds=[k for s in structures for k in s.ridge_kind],
+        options=RefineOptions.from_config(config), seed=seed,
+    )
+
+
 def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
     """The three output layers of DESIGN.md from the stage results."""
     from rooftrace.contour.outline import outlines_layer
@@ -207,22 +223,9 @@ def run_pipeline(
 
     refined = None
     if image is not None and camera is not None and outlines:
-        from rooftrace.refine import RefineOptions, refine_buildings
-
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
-            plane_by_id = {s.building_id: s.planes for s in structures}
-            ridge_geoms = [r for s in structures for r in s.ridges]
-            ridge_ids = [s.building_id for s in structures for _ in s.ridges]
-            ridge_kinds = [k for s in structures for k in s.ridge_kind]
-            refined = refine_buildings(
-                [o.polygon for o in outlines], ridge_geoms, image, camera,
-                points_xyz=cloud.xyz,
-                planes=[plane_by_id.get(o.building_id) for o in outlines],
-                building_ids=[o.building_id for o in outlines],
-                ridge_building_ids=ridge_ids,
-                options=RefineOptions.from_config(config), seed=seed, ridge_kinds=ridge_kinds,
-            )
+            refined = _refine_with_image(cloud, outlines, structures, image, camera, config, seed)
         timings["refine"] = time.perf_counter() - t0
 
     layers = building_layers(outlines, structures, refined)
