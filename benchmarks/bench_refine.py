@@ -38,6 +38,7 @@ from rooftrace.refine import RefineOptions, refine_buildings
 from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
 PAPER = RefineOptions(terrain_filter=True, fuse=False, ridges_on_planes=False, derive_sigma=False, wall_penalty=0.0,
+                      register=False,
                       candidates=CandidateOptions(refit=False, wall_lines=False))
 SIDE_TOL_PX = 1.5  # a selected line is right when its ends and middle lie this close to the true line
 
@@ -291,7 +292,8 @@ def main(argv=None) -> int:
     ap.add_argument("--terrain-filter", action="store_true", help="refine with seed 000's terrain-line filter")
     ap.add_argument("--paper", action="store_true",
                     help="seed 000 as written: terrain filter, image lines alone (no fusion, no common shift), "
-                         "ridge points on one plane, fixed LiDAR precision 0.48 m")
+                         "ridge points on one plane, fixed LiDAR precision 0.48 m, and none of the candidate "
+                         "refit, visible-wall step or per-roof shift in the energy")
     ap.add_argument("--json", type=Path, default=None, help="write all rows here")
     ap.add_argument("--summarise", type=Path, default=None, help="only summarise the cases of an earlier --json")
     args = ap.parse_args(argv)

@@ -44,3 +44,16 @@ def test_shift_is_weighed_by_the_camera_prior():
     np.testing.assert_allclose(est.shrunk(4.5).translation, [2.7, -0.9])
     moved = shift_references(SQUARE, est)
     np.testing.assert_allclose(moved - SQUARE, np.broadcast_to([3.0, -1.0], SQUARE.shape))
+
+
+def test_lines_at_the_expected_wall_foot_are_flagged():
+    from rooftrace.grouping.registration import beyond_wall
+
+    est = RoofShift(np.array([1.0, 0.0]), 1.0, 4, 0.3)
+    edge = SQUARE[1] + [1.0, 0.0] + OUT[1] * 1.0  # east side: roof edge where the estimate puts it
+    cands = [SQUARE[0][None], np.stack([edge, edge + OUT[1] * 3.0]), SQUARE[2][None], SQUARE[3][None]]
+    width = np.array([0.0, 3.0, 0.0, 0.0])  # only the east wall shows, 3 px wide
+    far = beyond_wall(SQUARE, cands, OUT, width, est, [np.ones(len(c), bool) for c in cands])
+    assert far[1].tolist() == [False, True] and not any(f.any() for f in far[::2])
+    none = beyond_wall(SQUARE, cands, OUT, width, RoofShift(np.zeros(2), 0.0, 0), [np.ones(len(c), bool) for c in cands])
+    assert not any(f.any() for f in none)

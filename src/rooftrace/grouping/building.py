@@ -23,7 +23,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.grouping.exact import exact_minimise
 from rooftrace.grouping.ga import GAOptions, genetic_minimise
 from rooftrace.grouping.mrf import MRFOptions, build_problem
-from rooftrace.grouping.registration import RoofShift, estimate_shift, shift_references
+from rooftrace.grouping.registration import RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
 from rooftrace.grouping.topology import roof_topology
 from rooftrace.image.walls import wall_strips
@@ -354,6 +354,13 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         usable = [image_line[s_] & (p == 0) for s_, p in enumerate(penalty)]
         radius = min(opt.max_shift_k * float(error.max(initial=0.0)) + 1.0, opt.register_max_px)
         roof_shift = estimate_shift(refs, cand_sets, outward, usable, radius=max(radius, 2.0))
+        if width is not None and opt.wall_penalty > 0:
+            # a side whose only image lines lie where its wall's foot is expected: the projection competes
+            far = beyond_wall(refs, cand_sets, outward, width, roof_shift, usable)
+            for s_ in np.flatnonzero([f.any() and not (u & ~f).any() for f, u in zip(far, usable)]):
+                cand_sets[s_] = np.concatenate([cand_sets[s_], refs[s_:s_ + 1]])
+                image_line[s_] = np.append(image_line[s_], False)
+                penalty[s_] = np.append(penalty[s_] + opt.wall_penalty * far[s_], 0.0)
         # the camera's share of the registration error (px², per axis) is the prior of a common shift
         centre = np.array([j.point for j in topo.junctions]).mean(axis=0, keepdims=True)
         sigma_c2 = float(np.asarray(camera.registration_error(centre, 0.0, 0.0)).ravel()[0]) ** 2 / 2.0
