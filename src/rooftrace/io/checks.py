@@ -63,8 +63,44 @@ def check_same_crs(a, b, what_a: str, what_b: str) -> None:
         # a vertical component (e.g. EPSG:28992+5709) does not change planimetry
         sa = a.sub_crs_list[0] if a.is_compound else a
         sb = b.sub_crs_list[0] if b.is_compound else b
-        if not sa.equals(sb, ignore_axis_order=True):
+        if not sa.equals(sb, ignore_axis_order=True) and not _same_coordinates(sa, sb):
             raise InputError(f"{what_a} ({a.name}) and {what_b} ({b.name}) have different CRSs; reproject one of them")
+
+
+def _same_coordinates(a, b, tolerance: float = 0.01) -> bool:
+    """Two CRSs written differently that give the same coordinates (within ``tolerance`` m) where they are used.
+
+    GeoTIFFs often carry a projection without its datum (GDAL's "unknown"
+    datum on the WGS84 ellipsoid, e.g. IGN orthophotos named "EPSG:2154"):
+    the projection parameters are those of the other CRS and no datum shift
+    applies, so the coordinates agree; a real difference (another datum with
+    a known shift, another projection) moves them by metres.
+    """
+    import pyproj
+
+    if not (a.is_projected and b.is_projected):
+        return False
+    try:
+        x, y = _a_point_of(a, b)
+        x2, y2 = pyproj.Transformer.from_crs(a, b, always_xy=True).transform(x, y)
+    except (pyproj.exceptions.ProjError, pyproj.exceptions.CRSError, TypeError, ValueError):
+        return False
+    return bool(np.isfinite([x2, y2]).all() and np.hypot(x2 - x, y2 - y) < tolerance)
+
+
+def _a_point_of(a, b) -> tuple[float, float]:
+    """Projected coordinates (in ``a``) of a place where the CRSs are used: their area, else ``a``'s origin."""
+    import pyproj
+
+    area = a.area_of_use or b.area_of_use
+    if area is not None:
+        lon, lat = (area.west + area.east) / 2, (area.south + area.north) / 2
+    else:
+        # WKT without an authority carries no area: use the projection's own origin (lon, lat parameters)
+        params = {p.name.lower(): p.value for p in a.coordinate_operation.params}
+        lon = next((v for k, v in params.items() if k.startswith("longitude of")), 0.0)
+        lat = next((v for k, v in params.items() if k.startswith("latitude of")), 0.0)
+    return pyproj.Transformer.from_crs(a.geodetic_crs, a, always_xy=True).transform(lon, lat)
 
 
 def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float = 0.01) -> float:
