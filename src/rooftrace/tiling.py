@@ -229,7 +229,7 @@ def sample_windows(bounds: Sequence[float], n_points: int, sample_points: int, o
 def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
     import laspy
 
-    from rooftrace.io.las import las_crs
+    from rooftrace.io.las import check_point_count, las_crs
 
     bounds, crss, counts = [], [], []
     for p in paths:
@@ -240,6 +240,7 @@ def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
         try:
             with laspy.open(p) as r:
                 h = r.header
+                check_point_count(p, h)
                 bounds.append([*h.mins[:2], *h.maxs[:2]])
                 crss.append(las_crs(h, str(p)))
                 counts.append(int(h.point_count))
@@ -290,7 +291,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     """
     import laspy
 
-    from rooftrace.io.las import _backend
+    from rooftrace.io.las import _backend, check_header_bounds
 
     index_path = run_dir / "tiles.json"
     if options.resume and index_path.exists():
@@ -313,7 +314,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     for f_index, p in enumerate(paths):
         try:
             reader_cm = laspy.open(p, laz_backend=_backend())
-        except laspy.errors.LaspyException as exc:
+        except (laspy.errors.LaspyException, OSError) as exc:
             raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
         with reader_cm as reader:
             try:
@@ -324,6 +325,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
                     xyz = np.column_stack([rec["x"], rec["y"], rec["z"]])
                     if not np.isfinite(xyz).all():
                         raise InputError(f"{p}: NaN or infinite coordinates; remove them and retry")
+                    check_header_bounds(p, reader.header, xyz)  # the tile grid comes from the header bounds
                     kx, ky = _cells(rec["x"], origin[0], cell), _cells(rec["y"], origin[1], cell)
                     i0, i1 = _members(kx, rx)
                     j0, j1 = _members(ky, ry)
@@ -354,8 +356,12 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
                     if in_sample.any():
                         np.save(run_dir / "sample" / name, rec[in_sample])
                         n_sample += int(in_sample.sum())
-            except laspy.errors.LaspyException as exc:
-                raise InputError(f"{p}: cannot read the point cloud, the file may be truncated ({exc})") from None
+            except InputError:
+                raise
+            except (laspy.errors.LaspyException, OSError, ValueError, RuntimeError, EOFError) as exc:
+                # lazrs reports a cut-off LAZ as a RuntimeError (LazrsError)
+                raise InputError(f"{p}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
+                                 "re-download or re-export it") from None
     if total == 0:
         raise InputError(f"{', '.join(map(str, paths))}: the point cloud is empty")
     index = {
@@ -724,7 +730,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             if (c is None) != (crs_obj is None):
                 raise InputError(f"{p}: CRS differs from {paths[0]}; assign one with --crs")
             check_same_crs(crs_obj, c, str(paths[0]), str(p))
-    require_metric_crs(crs_obj, str(paths[0]))
+    b = head["bounds"]  # without a CRS, header bounds within a fraction of a unit of (lon, lat) are degrees
+    require_metric_crs(crs_obj, str(paths[0]), np.array([[b[0], b[1]], [b[2], b[3]]]))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)

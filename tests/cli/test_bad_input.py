@@ -81,11 +81,20 @@ CASES = [
      ["truncated.laz", "truncated"]),
     ("refine truncated points", ["refine", "{outlines}", *CAM, "--points", "{truncated}", "-o", "{out_gpkg}"],
      ["truncated.laz", "truncated"]),
-    ("header announces more points", ["info", "{count_high}"], ["count_high.las", "announces 6900 points", "6400"]),
+    ("header announces more points", ["info", "{count_high}"], ["count_high.las", "truncated", "announces 6900 points", "only 6400"]),
     ("header announces fewer points", ["detect", "{count_low}", "-o", "{out_laz}"],
      ["count_low.las", "announces 5900 points", "holds 6400", "las2las"]),
     ("header bounds lie", ["run", "{bounds_lie}", "-o", "{out_gpkg}"], ["bounds_lie.las", "outside the header bounds"]),
+    ("tiled truncated LAZ", ["run", "{truncated}", "-o", "{out_gpkg}", "--tile-size", "20"],
+     ["truncated.laz", "truncated or corrupt"]),
+    ("tiled not LAS", ["run", "{not_las}", "-o", "{out_gpkg}", "--tile-size", "20"], ["zip.las", "not a readable LAS"]),
+    ("tiled text cloud", ["run", "{text}", "-o", "{out_gpkg}", "--tile-size", "20"], ["cloud.xyz", "LAS/LAZ only"]),
+    ("tiled header count lie", ["run", "{count_low}", "-o", "{out_gpkg}", "--tile-size", "20"],
+     ["count_low.las", "announces 5900 points"]),
+    ("tiled header bounds lie", ["run", "{bounds_lie}", "-o", "{out_gpkg}", "--workers", "1", "--tile-size", "20"],
+     ["bounds_lie.las", "outside the header bounds"]),
     # NaN / inf coordinates
+    ("tiled NaN", ["run", "{nan_scale}", "-o", "{out_gpkg}", "--tile-size", "20"], ["nan_scale.las", "NaN"]),
     ("NaN scale in LAS", ["detect", "{nan_scale}", "-o", "{out_laz}"], ["nan_scale.las", "NaN or infinite", "remove"]),
     ("NaN and inf in text", ["outline", "{text_nan}", "--single-building", "-o", "{out_gpkg}"],
      ["nan.xyz", "2 points have NaN or infinite"]),
@@ -105,6 +114,8 @@ CASES = [
     # no CRS where one is needed
     ("degrees without CRS", ["run", "{degrees_nocrs}", "-o", "{out_gpkg}"],
      ["degrees_nocrs.las", "no CRS", "look like degrees", "--crs"]),
+    ("tiled degrees without CRS", ["run", "{degrees_nocrs}", "-o", "{out_gpkg}", "--tile-size", "20"],
+     ["degrees_nocrs.las", "look like degrees"]),
     ("outline degrees without CRS", ["outline", "{degrees_nocrs}", "--single-building", "-o", "{out_gpkg}"],
      ["degrees_nocrs.las", "look like degrees"]),
     ("orthophoto without georeferencing", ["run", "{scene}", "--image", "{image}", "--camera", "{ortho}", "-o",
@@ -306,8 +317,9 @@ def test_bad_input_gives_one_error_line(files, tmp_path, capsys, name, args, exp
     for text in expect:
         assert text in errors[0], f"{text!r} not in {errors[0]!r}"
     assert "Traceback" not in err
-    # nothing written: neither a new output nor a changed input or earlier result
-    assert list(tmp_path.iterdir()) == []
+    # nothing written: neither a new output nor a changed input or earlier result (a tiled run
+    # keeps its OUTPUT.parts folder of finished tiles for --resume, never the output itself)
+    assert [p.name for p in tmp_path.iterdir() if not p.name.endswith(".parts")] == []
     assert _snapshot(files["tmp"]) == before
     assert files["existing"].read_text() == GOOD
 
@@ -330,6 +342,9 @@ EMPTY_CASES = [
     ("run empty cloud with image", ["run", "{empty}", *CAM, "-o", "{out_gpkg}", "--classified", "{out_laz}"],
      "no points", "out.gpkg"),
     ("run no buildings", ["run", "{ground}", "-o", "{out_gpkg}"], "no buildings found", "out.gpkg"),
+    ("run empty cloud tiled", ["run", "{empty}", "-o", "{out_gpkg}", "--tile-size", "20"], "no points", "out.gpkg"),
+    ("run no buildings tiled", ["run", "{ground}", "-o", "{out_gpkg}", "--tile-size", "20"], "no buildings found",
+     "out.gpkg"),
     ("detect empty cloud", ["detect", "{empty}", "-o", "{out_laz}"], "no points", "out.laz"),
     ("detect no buildings", ["detect", "{ground}", "-o", "{out_laz}"], "no buildings found", "out.laz"),
     ("outline empty cloud", ["outline", "{empty}", "-o", "{out_gpkg}"], "no points", "out.gpkg"),

@@ -59,7 +59,7 @@ def run(
         check_output(classified, overwrite)
     cfg = load_config(config)
 
-    if tile_size is not None or workers > 1 or scheduler is not None or resume:
+    if (tile_size is not None or workers > 1 or scheduler is not None or resume) and not _all_empty(inputs):
         from rooftrace.tiling import TileOptions, run_tiled
 
         if classified is not None:
@@ -69,6 +69,8 @@ def run(
                                                         scheduler=scheduler, resume=resume),
                             crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
                             seed=seed, overwrite=overwrite, quiet=quiet)
+        if not summary.get("buildings"):
+            log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
         if json_:
             emit_json(summary)
         return
@@ -136,3 +138,22 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
     if json_:
         emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})
+
+
+def _all_empty(inputs) -> bool:
+    """True when every input is a LAS/LAZ whose header announces no points.
+
+    Such an input fits in memory whatever the tiling options, so it takes
+    the untiled path, which writes empty layers and a warning (an empty
+    tile of a batch is data, not a mistake).
+    """
+    import laspy
+
+    try:
+        counts = []
+        for p in inputs:
+            with laspy.open(p) as reader:
+                counts.append(int(reader.header.point_count))
+    except Exception:  # unreadable: the tiled reader reports it with its own message
+        return False
+    return sum(counts) == 0

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import logging
 import os
+import struct
 from pathlib import Path
 
 import laspy
@@ -22,7 +23,7 @@ from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["read_las", "write_las", "las_crs", "LAS_SUFFIXES"]
+__all__ = ["read_las", "write_las", "las_crs", "check_point_count", "check_header_bounds", "LAS_SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +77,7 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
         with laspy.open(path, laz_backend=_backend()) as reader:
             header = reader.header
             n = int(header.point_count)
+            check_point_count(path, header)
             names = [d for d in header.point_format.dimension_names if d not in _COORDS]
             xyz = np.empty((n, 3), np.float64)
             fields: dict[str, np.ndarray] = {}
@@ -103,11 +105,10 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
             raise InputError(f"{path}: the file is empty (0 bytes); re-download or re-export it") from None
         raise InputError(f"{path}: not a readable LAS/LAZ file ({exc}); check that it is LAS/LAZ, "
                          "or re-export it") from None
-    except (OSError, ValueError, RuntimeError, EOFError) as exc:
+    except (OSError, ValueError, RuntimeError, EOFError, struct.error, IndexError, KeyError, OverflowError) as exc:
+        # laspy parses a damaged header or VLR with whatever exception the bytes lead to
         raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
                          "re-download or re-export it") from None
-    if not header.are_points_compressed:
-        _check_point_count(path, header)
     if start < n:
         raise InputError(
             f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
@@ -116,20 +117,39 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
         bad = int((~np.isfinite(xyz).all(axis=1)).sum())
         raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them (e.g. with a filter) and retry")
     if n:
-        _check_header_bounds(path, header, xyz)
+        check_header_bounds(path, header, xyz)
     tmpl = copy.deepcopy(header)
     return PointCloud(xyz, fields, crs=las_crs(header, str(path)), template=tmpl, sources=[str(path)])
 
 
-def _check_point_count(path: Path, header: laspy.LasHeader) -> None:
-    # laspy reads exactly the announced count, so a header that announces fewer
-    # points than an uncompressed file holds would silently drop the rest
+def check_point_count(path: str | os.PathLike, header: laspy.LasHeader) -> None:
+    """Refuse an uncompressed LAS file that holds more points than its header announces.
+
+    laspy reads exactly the announced count, so such a header would silently
+    drop the rest.  (A LAZ file's point data cannot be sized without
+    decompressing it; announcing more points than stored is caught as a
+    truncation by the readers.)
+
+    Raises
+    ------
+    InputError
+        The file size or the first EVLR's offset leave room for more points,
+        or for fewer (a truncated file).
+    """
+    path = Path(path)
+    if header.are_points_compressed:
+        return
     n = int(header.point_count)
     end = int(header.offset_to_point_data) + n * int(header.point_format.size)
     stop = path.stat().st_size
     if getattr(header, "number_of_evlrs", 0) and getattr(header, "start_of_first_evlr", 0):
         stop = int(header.start_of_first_evlr)
-    extra = (stop - end) // int(header.point_format.size)
+    size = int(header.point_format.size)
+    if stop < end:  # checked before allocating: a corrupt count can announce terabytes
+        held = max(0, (stop - int(header.offset_to_point_data)) // size)
+        raise InputError(f"{path}: truncated, the header announces {n} points but the file holds only {held}; "
+                         "re-download or re-export the file")
+    extra = (stop - end) // size
     if extra > 0:
         raise InputError(
             f"{path}: the header announces {n} points but the file holds {n + extra}; the header is wrong, "
@@ -137,8 +157,19 @@ def _check_point_count(path: Path, header: laspy.LasHeader) -> None:
         )
 
 
-def _check_header_bounds(path: Path, header: laspy.LasHeader, xyz: np.ndarray) -> None:
-    # tiling trusts header bounds; a file whose points lie outside them was edited without updating the header
+def check_header_bounds(path: str | os.PathLike, header: laspy.LasHeader, xyz: np.ndarray) -> None:
+    """Refuse points outside the header's bounds (tolerance: two scale steps).
+
+    Tiling trusts the header bounds; a file whose points lie outside them
+    was edited without updating its header.
+
+    Raises
+    ------
+    InputError
+        Some of ``xyz`` (N, 3) lie outside ``header.mins`` .. ``header.maxs``.
+    """
+    if not len(xyz):
+        return
     tol = 2 * np.abs(np.asarray(header.scales, float)) + 1e-6
     lo, hi = xyz.min(axis=0), xyz.max(axis=0)
     if np.any(lo < np.asarray(header.mins) - tol) or np.any(hi > np.asarray(header.maxs) + tol):

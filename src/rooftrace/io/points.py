@@ -66,7 +66,7 @@ def read_text(path: str | os.PathLike) -> PointCloud:
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror})") from None
     for line in text.splitlines():
-        line = line.strip().replace(",", " ").replace(";", " ")
+        line = line.replace(",", " ").replace(";", " ").strip()  # strip last: ";" alone is an empty line
         if not line or line[0] in "#/":
             continue
         rows.append(line)
