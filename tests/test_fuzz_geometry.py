@@ -157,3 +157,36 @@ def test_run_pipeline_never_aborts_on_a_degenerate_building(kind):
     result = run_pipeline(PointCloud(np.concatenate([xyz, extra]), sources=["scene.las"]))
     assert len(result.layers["roof_outlines"]) == len(result.outlines) >= 1
     assert all(result.layers["roof_outlines"].attributes["status"])
+
+
+def test_an_unexpected_stage_error_in_one_building_does_not_stop_the_others(monkeypatch):
+    """Qhull or LAPACK failing on one building gives it status 'failed: ...'; the others are outlined."""
+    import rooftrace.contour.outline as outline_mod
+    import rooftrace.roof as roof_mod
+    from rooftrace.pipeline import run_pipeline
+    from scipy.spatial import QhullError
+    from tests.cli.badfiles import scene_xyz
+
+    real = outline_mod.trace_outline
+
+    def flaky(xyz, *args, **kwargs):
+        if xyz[:, 0].min() > 50:
+            raise QhullError("QH6154 Qhull precision error: initial simplex is flat")
+        return real(xyz, *args, **kwargs)
+
+    monkeypatch.setattr(outline_mod, "trace_outline", flaky)
+    rng = np.random.default_rng(2)
+    a = np.column_stack([rng.uniform(0, 10, (300, 2)), np.full(300, 6.0)])
+    b = a + [60.0, 0.0, 0.0]
+    outlines = outline_buildings(np.concatenate([a, b]), np.repeat([1, 2], 300))
+    assert [o.status for o in outlines] == ["ok", "failed: QhullError"]
+    assert outlines[0].polygon is not None and outlines[1].polygon is None
+
+    monkeypatch.setattr(outline_mod, "trace_outline", real)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("QH6271 qhull topology error")
+
+    monkeypatch.setattr(roof_mod, "roof_structure", broken)
+    result = run_pipeline(PointCloud(scene_xyz(), sources=["scene.las"]))
+    assert [o.status for o in result.outlines] == ["ok"] and len(result.layers["ridges"]) == 0

@@ -102,6 +102,9 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                                                  mean_spacing=mean_spacing, building_id=outline.building_id))
             except GeometryError as exc:
                 log.debug("building %d: no roof planes (%s)", outline.building_id, exc)
+            except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+                # a bug in one building (Qhull raises RuntimeError) must not stop a city
+                log.warning("building %d: roof planes failed (%s: %s)", outline.building_id, type(exc).__name__, exc)
     return structures
 
 

@@ -138,7 +138,7 @@ def test_shapefile_reference(tmp_path, files):
     e, r, ext, ref = files
     import geopandas
 
-    # written directly: write_layers' atomic rename moves the .shp but not its sidecar files
+    # written with geopandas: write_layers refuses Shapefiles (several files, no atomic rename); evaluate reads them
     shp = tmp_path / "ref.shp"
     geopandas.GeoDataFrame({"bid": [10, 11, 12]}, geometry=ref, crs=RD).to_file(shp)
     out = tmp_path / "o"

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import shapely
+from scipy.spatial import QhullError
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
@@ -296,7 +297,7 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
             try:
                 outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
                 outline.building_id = int(bid)
-            except (GeometryError, ValueError, np.linalg.LinAlgError) as exc:
+            except (GeometryError, ValueError, np.linalg.LinAlgError, QhullError, MemoryError) as exc:
                 if not isinstance(exc, GeometryError):  # a bug, but one building must not stop a city
                     log.warning("building %d: outline failed (%s: %s)", bid, type(exc).__name__, exc)
                     exc = GeometryError(f"failed: {type(exc).__name__}")
