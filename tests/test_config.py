@@ -1,0 +1,56 @@
+"""Config files are checked whole when read: tables, keys, types and ranges, naming the file (issue 10)."""
+
+from __future__ import annotations
+
+import pytest
+
+from rooftrace.config import load_config, make_options
+from rooftrace.errors import InputError
+
+
+def _cfg(tmp_path, text):
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("text,match", [
+    ("[segmnet]\nmin_height = 2\n", r"c\.toml: unknown section\(s\) segmnet; known: .*segment"),
+    ("[alpha]\nstrategie = 'point'\n", r"c\.toml: \[alpha\] has unknown key\(s\) strategie; known: .*strategy"),
+    ("[ground]\niteration_distance = 'far'\n", r"c\.toml: \[ground\] iteration_distance must be a number, got 'far'"),
+    ("[surface]\nenabled = 1\n", r"c\.toml: \[surface\] enabled must be true or false"),
+    ("[alpha]\nstrategy = 'sideways'\n", r"c\.toml: \[alpha\] .*sideways"),
+    ("[mrf]\nbeta = -1\n", r"c\.toml: \[mrf\]"),
+    ("seed = 1\n", r"c\.toml: top-level key 'seed' must be a \[table\]"),
+    ("[ground\n", r"c\.toml: not valid TOML"),
+])
+def test_bad_config_is_refused_when_read(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        load_config(_cfg(tmp_path, text))
+
+
+def test_a_table_read_by_another_command_is_checked_too(tmp_path):
+    # detect never reads [snake], but a typo there must not wait for 'rooftrace snake' to surface
+    with pytest.raises(InputError, match=r"\[snake\] has unknown key\(s\) stepz"):
+        load_config(_cfg(tmp_path, "[segment]\nmin_height = 2.5\n[snake]\nstepz = 3\n"))
+
+
+def test_shared_corners_table_serves_both_stages(tmp_path):
+    """[corners] holds the contour corner options and the image's Harris options; neither is a typo for the other."""
+    from rooftrace.contour.corners import CornerOptions
+    from rooftrace.image.corners import HarrisOptions
+
+    cfg = load_config(_cfg(tmp_path, "[corners]\nt_dist = 0.5\nk = 0.05\n"))
+    assert make_options(CornerOptions, cfg).t_dist == 0.5
+    assert make_options(HarrisOptions, cfg).k == 0.05
+    with pytest.raises(InputError, match="unknown key"):
+        load_config(_cfg(tmp_path, "[corners]\nt_dsit = 0.5\n"))
+
+
+def test_good_config_and_overrides(tmp_path):
+    from rooftrace.lidar.segment import SegmentOptions
+
+    cfg = load_config(_cfg(tmp_path, "[segment]\nmin_height = 2.5\n[alpha]\nstrategy = 'building'\n"))
+    assert make_options(SegmentOptions, cfg).min_height == 2.5
+    assert make_options(SegmentOptions, cfg, min_height=3.0).min_height == 3.0  # a CLI flag wins
+    assert load_config(None) == {}
