@@ -327,8 +327,9 @@ def test_bad_input_gives_one_error_line(files, tmp_path, capsys, name, args, exp
 @pytest.mark.parametrize("name", SUBPROCESS)
 def test_bad_input_in_a_real_process_prints_only_the_error_line(files, tmp_path, name):
     args, expect = next((a, e) for n, a, e in CASES if n == name)
-    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
-    proc = subprocess.run(ROOFTRACE + _argv(args, files, tmp_path) + ["-q"], capture_output=True, text=True,
+    # the user's environment as it is: no warning filter, no --quiet
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONWARNINGS", "ROOFTRACE_DEBUG")}
+    proc = subprocess.run(ROOFTRACE + _argv(args, files, tmp_path), capture_output=True, text=True,
                           cwd=tmp_path, env=env, timeout=120)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.startswith("error:") and proc.stderr.count("\n") == 1, proc.stderr

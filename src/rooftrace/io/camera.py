@@ -124,7 +124,7 @@ def read_camera(path: str | os.PathLike, image: str | os.PathLike | None = None)
     try:
         return camera_from_dict(data, str(path), image)
     except InputError as exc:
-        if str(path) not in str(exc):  # an image error (orthophoto) names its own file
+        if not str(exc).startswith(str(path)):  # an image error (orthophoto) names its own file first
             raise
         raise InputError(f"{exc}; {_FORMAT_HINT}") from None
 
