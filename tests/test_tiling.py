@@ -76,14 +76,16 @@ def block(tmp_path_factory):
 @pytest.fixture(scope="module")
 def one_piece(block):
     out = block / "one.gpkg"
-    assert main(["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), "-q"]) == 0
+    assert main(["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"),
+                 "--classified", str(block / "one.laz"), "-q"]) == 0
     return out
 
 
 @pytest.fixture(scope="module")
 def tiled(block):
     out = block / "tiled.gpkg"
-    args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED, "-q"]
+    args = ["run", str(block / "points.laz"), "-o", str(out), "--config", str(block / "config.toml"), *TILED,
+            "--classified", str(block / "tiled.laz"), "-q"]
     assert main(args) == 0
     return out
 
@@ -293,10 +295,26 @@ def test_resume_refuses_other_options(block, tmp_path, capsys):
     assert "different inputs or options" in capsys.readouterr().err
 
 
-def test_tiled_runs_refuse_the_classified_points(block, tmp_path, capsys):
-    code = main(["run", str(block / "points.laz"), "-o", str(tmp_path / "a.gpkg"), "--classified",
-                 str(tmp_path / "a.laz"), *TILED, "-q"])
-    assert code == 2 and "--classified" in capsys.readouterr().err
+def test_tiled_classified_points_equal_one_piece(block, one_piece, tiled):
+    a, b, src = laspy.read(block / "one.laz"), laspy.read(block / "tiled.laz"), laspy.read(block / "points.laz")
+    assert len(a.points) == len(b.points) == len(src.points)
+    np.testing.assert_array_equal(np.asarray(b.classification), np.asarray(a.classification))
+    np.testing.assert_array_equal(np.asarray(b["building_id"]), np.asarray(a["building_id"]))
+    assert set(np.unique(b["building_id"])) - {0} == set(read_layer(tiled, "roof_outlines").attributes["building_id"])
+    kept = [d for d in src.point_format.dimension_names if d != "classification"]
+    assert {"X", "Y", "Z", "intensity", "gps_time", "return_number"} <= set(kept)
+    for name in kept:  # every input dimension, untouched
+        np.testing.assert_array_equal(np.asarray(b[name]), np.asarray(src[name]), err_msg=name)
+
+
+def test_tiled_classified_needs_one_point_format(block, tmp_path, capsys):
+    src = laspy.read(block / "points.laz")
+    other = laspy.convert(src, point_format_id=1 if src.point_format.id != 1 else 3)
+    other.write(tmp_path / "other.laz")
+    code = main(["run", str(block / "points.laz"), str(tmp_path / "other.laz"), "-o", str(tmp_path / "a.gpkg"),
+                 "--classified", str(tmp_path / "a.laz"), *TILED, "-q"])
+    assert code == 2 and "point format" in capsys.readouterr().err
+    assert not (tmp_path / "a.laz").exists()
 
 
 @pytest.mark.slow

@@ -66,7 +66,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 # one record per point in the tile files: what the detection reads from a LAS file
-POINT_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("return_number", "u1"), ("number_of_returns", "u1")])
+POINT_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("return_number", "u1"), ("number_of_returns", "u1"),
+                        ("gidx", "i8")])  # gidx: the point's index in the input files, for the classified points
 
 
 @dataclass(frozen=True)
@@ -251,8 +252,9 @@ def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
             "crs": crss, "points": int(sum(counts))}
 
 
-def _records(chunk) -> np.ndarray:
+def _records(chunk, start: int) -> np.ndarray:
     rec = np.empty(len(chunk), POINT_DTYPE)
+    rec["gidx"] = start + np.arange(len(chunk))
     rec["x"], rec["y"], rec["z"] = chunk.x, chunk.y, chunk.z
     rec["return_number"] = np.asarray(chunk.return_number)
     rec["number_of_returns"] = np.asarray(chunk.number_of_returns)
@@ -319,7 +321,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
         with reader_cm as reader:
             try:
                 for c_index, chunk in enumerate(reader.chunk_iterator(options.chunk_size)):
-                    rec = _records(chunk)
+                    rec = _records(chunk, total)
                     total += len(rec)
                     name = f"{f_index:05d}_{c_index:06d}.npy"
                     xyz = np.column_stack([rec["x"], rec["y"], rec["z"]])
@@ -388,7 +390,8 @@ def _load_cloud(folder: Path, crs) -> "Any":
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []
     rec = np.concatenate([np.load(p) for p in parts]) if parts else np.empty(0, POINT_DTYPE)
     xyz = np.column_stack([rec["x"], rec["y"], rec["z"]])
-    fields = {"return_number": rec["return_number"].copy(), "number_of_returns": rec["number_of_returns"].copy()}
+    fields = {"return_number": rec["return_number"].copy(), "number_of_returns": rec["number_of_returns"].copy(),
+              "gidx": rec["gidx"].copy()}
     return PointCloud(xyz, fields, crs=crs)
 
 
@@ -479,7 +482,7 @@ def owned_buildings(xyz: np.ndarray, building_id: np.ndarray, core: Sequence[flo
 
 def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | None,
                  config: dict | None, alpha: str | None, planes: bool, seed: int,
-                 derived: dict[str, Any], extent: Sequence[float] | None = None) -> str:
+                 derived: dict[str, Any], extent: Sequence[float] | None = None, classified: bool = False) -> str:
     """Run the pipeline on one buffered tile and keep the buildings whose centre is in its core.
 
     Parameters
@@ -502,6 +505,9 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
     extent : (xmin, ymin, xmax, ymax), optional
         The buffered tile clipped to the input's bounds: where the ground
         filter lays its border (see :class:`DerivedParams`).
+    classified : bool, default False
+        Also keep the labels of the core points (``results/<key>.labels.npz``,
+        :func:`rooftrace.tile_points.core_labels`) for the classified LAZ.
 
     Returns
     -------
@@ -526,6 +532,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         fixed = dataclasses.replace(fixed, extent=tuple(float(v) for v in extent))
     result: dict[str, Any] = {"key": key, "points": len(cloud), "layers": {}, "buildings": {}, "timings": {},
                               "edge_buildings": []}
+    labelled = None  # (classification, building_id, ids, keys) of the detection, when it ran
     if len(cloud) >= 3 and np.ptp(cloud.xyz[:, :2], axis=0).min() > 0:
         found: dict[str, np.ndarray] = {}
 
@@ -540,6 +547,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
                                buildings=owned_only)
         det = run_out.detection
         ids, owned, keys, box = found["ids"], found["owned"], found["keys"], found["box"]
+        labelled = (det.classification, det.building_id, ids, keys)
         keep_ids = ids[owned]
         # a building must be processed with all its points: one that reaches
         # the buffer's outer edge (where the tile stops but the data goes on)
@@ -569,10 +577,39 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
                                      & (cloud.xyz[:, 1] >= core[2]) & (cloud.xyz[:, 1] < core[3])).sum())
     result["seconds"] = time.perf_counter() - t0
     out.parent.mkdir(parents=True, exist_ok=True)
+    if classified:
+        # before the result: a result file means the tile is finished, labels included
+        _save_labels(out.with_suffix(".labels.npz"), cloud, core, labelled)
     tmp = out.with_suffix(f".{os.getpid()}.tmp")
     tmp.write_bytes(pickle.dumps(result))
     os.replace(tmp, out)
     return str(out)
+
+
+def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
+    from rooftrace.tile_points import merge_labels, write_classified
+
+    # the merge's numbering: buildings sorted by their key (see merge_tiles)
+    keys = sorted(tuple(k) for res in results for k in res["buildings"].get("key", []))
+    new_id = {k: n + 1 for n, k in enumerate(keys)}
+    parts = []
+    for r in result_paths:
+        with np.load(Path(r).with_suffix(".labels.npz")) as z:
+            parts.append({name: z[name] for name in z.files})
+    classes, building_id = merge_labels(parts, new_id, n_points)
+    write_classified(paths, out, classes, building_id, crs=crs, overwrite=overwrite)
+
+
+def _save_labels(path: Path, cloud, core: Sequence[float], labelled) -> None:
+    from rooftrace.tile_points import core_labels
+
+    if labelled is None:  # too few points to detect anything: unclassified
+        n = len(cloud)
+        labelled = (np.ones(n, np.uint8), np.zeros(n, np.int32), np.zeros(0, np.int64), np.zeros((0, 3)))
+    labels = core_labels(cloud.fields["gidx"], cloud.xyz[:, :2], core, *labelled)
+    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")
+    np.savez(tmp, **labels)
+    os.replace(tmp, path)
 
 
 def _core(index: dict, key: str) -> tuple[float, float, float, float]:
@@ -674,7 +711,8 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
 
 def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
               config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
-              seed: int = 0, overwrite: bool = False, quiet: bool = False) -> dict[str, Any]:
+              seed: int = 0, overwrite: bool = False, quiet: bool = False,
+              classified: os.PathLike | None = None) -> dict[str, Any]:
     """Tile, measure the parameters, process and merge.
 
     Parameters
@@ -688,6 +726,9 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         As ``rooftrace run``.
     image, camera
         Refused: image refinement runs untiled.
+    classified : path-like, optional
+        Also write the input points with the run's classes and building ids
+        (LAS/LAZ, every input dimension kept; inputs of one point format).
 
     Returns
     -------
@@ -722,6 +763,11 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     if not paths:
         raise InputError("no input files given")
     head = _scan_headers(paths)
+    if classified is not None:
+        from rooftrace.tile_points import check_point_formats
+
+        classified = check_output(classified, overwrite)
+        check_point_formats(paths)
     file_crss = head["crs"]
     user_crs = parse_crs(crs) if isinstance(crs, str) else crs
     crs_obj = user_crs or file_crss[0]
@@ -739,7 +785,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     meta = {"inputs": [str(p.resolve()) for p in paths],
             "options": {k: v for k, v in asdict(options).items() if k not in ("resume", "workers", "scheduler")},
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
-            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg}
+            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -769,8 +815,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                  derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
         keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
         wkt = crs_obj.to_wkt() if crs_obj is not None else None
-        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k))
-                 for k in keys]
+        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
+                  classified is not None) for k in keys]
         t0 = time.perf_counter()
         with reporter.stage("tiles", total=len(tasks)):
             result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
@@ -784,6 +830,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         layers.setdefault(name, Layer([], {"building_id": []}, gtype))
     write_layers(output, layers, crs_obj, overwrite=overwrite)
     timings["merge"] = time.perf_counter() - t0
+    if classified is not None:
+        t0 = time.perf_counter()
+        _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+        timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:
         for k, v in res["timings"].items():

@@ -62,13 +62,10 @@ def run(
     if (tile_size is not None or workers > 1 or scheduler is not None or resume) and not _all_empty(inputs):
         from rooftrace.tiling import TileOptions, run_tiled
 
-        if classified is not None:
-            raise InputError("--classified is not written by tiled runs (--tile-size, --workers, --scheduler, "
-                             "--resume); run 'rooftrace detect' for the classified points")
         summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
                                                         scheduler=scheduler, resume=resume),
                             crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet)
+                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified)
         if not summary.get("buildings"):
             log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
         if json_:
