@@ -1,0 +1,256 @@
+"""City-scale runs: square tiles with buffers, a local pool or Dask, resumable.
+
+Why not just ``dask.dataframe``?  The unit of work is a *tile with its
+buffer*, and the rule that keeps seams clean is about buildings, not points:
+every tile is processed with a buffer wide enough for the ground filter and
+the largest building, and a building belongs to the tile whose core holds
+its centre (the centre of its points' bounding box in plan), so nothing is
+duplicated and nothing is cut.
+
+A tile gives the same buildings as the whole cloud only if it detects them
+with the same numbers.  Every data-derived detection parameter (s_avg,
+d_avg, sigma_H, the k-means entropy threshold, the corner the outlier and
+ground grids are anchored at) is therefore measured once on the whole input
+(or, above ``sample_points``, on a fixed spatial sample of it) and passed to
+every tile (:class:`rooftrace.lidar.detect.DerivedParams`).  An input that
+fits the sample is measured whole, which is exactly what an untiled
+``rooftrace run`` does, so tiled and untiled runs agree.  The buffered
+extents follow the outlier filter's cell lines, so that the cells a tile
+judges are whole.
+
+Flow (each step restartable):
+
+1. ``split``: stream every input file once, in chunks, and append each
+   point to the buffered tiles it falls in (``RUN/tiles/<i>_<j>/*.npy``)
+   and, when it is in the sample, to ``RUN/sample``.  Peak memory is one
+   chunk plus the sample, not the input.
+2. ``estimate``: detect on the sample and keep its resolved parameters
+   (``RUN/derived.json``).
+3. ``process``: run :func:`rooftrace.pipeline.run_pipeline` per tile with
+   those parameters, keep the buildings whose centre lies in the tile core
+   and store them as ``RUN/results/<i>_<j>.pkl``.  Tiles run in-process
+   (``workers=1``), on a Dask LocalCluster or on a Dask cluster
+   (``--scheduler``; the run folder must be on a file system every worker
+   sees).
+4. ``merge``: join the tile results, number the buildings by their lowest
+   (x, y, z) point like the untiled detection does, and write the
+   GeoPackage atomically.
+
+Results do not depend on the number of workers: tiles are independent and
+merged in a fixed order.  ``--resume`` keeps the split, the parameters and
+every finished tile of an earlier run of the same inputs and options.
+"""
+
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import pickle
+import shutil
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from rooftrace.errors import InputError
+
+from rooftrace.tiling.split import (  # noqa: F401
+    POINT_DTYPE, TileOptions, _load_cloud, _scan_headers, _write_json, sample_windows, split_to_tiles,
+    tile_cell_ranges, tile_grid,
+)
+from rooftrace.tiling.tile import (  # noqa: F401
+    _core, _extent, _write_classified, estimate_parameters, merge_tiles, owned_buildings, process_tile,
+)
+
+__all__ = [
+    "TileOptions", "tile_grid", "tile_cell_ranges", "sample_windows", "split_to_tiles", "estimate_parameters",
+    "owned_buildings", "process_tile", "merge_tiles", "run_tiled",
+]
+
+log = logging.getLogger(__name__)
+
+
+def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporter) -> list[str]:
+    if options.scheduler is None and options.workers <= 1:
+        out = []
+        for t in tasks:
+            out.append(process_tile(*t))
+            reporter.advance()
+        return out
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if options.scheduler is None:
+        # one thread per worker process: the stages hold the GIL in places
+        # and the KD-tree queries already use every core of a process
+        cluster = LocalCluster(n_workers=options.workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(options.scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise InputError(f"--scheduler {options.scheduler}: cannot connect ({exc})") from None
+    try:
+        # the biggest tiles first, so that the last task to finish is a short
+        # one; the merge does not depend on the order results come back in
+        order = sorted(range(len(tasks)), key=lambda i: -sizes[i])
+        futures = [client.submit(process_tile, *tasks[i], key=f"rooftrace-tile-{tasks[i][1]}-{os.getpid()}",
+                                 pure=False) for i in order]
+        for _ in as_completed(futures):
+            reporter.advance()
+        done = client.gather(futures)
+        out = [""] * len(tasks)
+        for i, path in zip(order, done):
+            out[i] = path
+        return out
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
+              config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
+              seed: int = 0, overwrite: bool = False, quiet: bool = False,
+              classified: os.PathLike | None = None) -> dict[str, Any]:
+    """Tile, measure the parameters, process and merge.
+
+    Parameters
+    ----------
+    inputs : sequence of path-like
+        LAS/LAZ files, in any number and layout.
+    output : path-like
+        GeoPackage to write (atomically).
+    options : TileOptions
+    crs, config, alpha, planes, seed, overwrite, quiet
+        As ``rooftrace run``.
+    image, camera
+        Refused: image refinement runs untiled.
+    classified : path-like, optional
+        Also write the input points with the run's classes and building ids
+        (LAS/LAZ, every input dimension kept; inputs of one point format).
+
+    Returns
+    -------
+    dict
+        A JSON-serialisable summary: counts, the parameters used, and the
+        seconds and throughput of every step.
+
+    Notes
+    -----
+    The run folder ``OUTPUT.parts`` is kept when the run fails or is
+    killed, for ``--resume``; it is removed after a successful merge.
+    """
+    from rooftrace.cli.app import reporter_for
+    from rooftrace.io.atomic import check_output
+    from rooftrace.io.checks import check_same_crs, require_metric_crs
+    from rooftrace.io.points import parse_crs
+    from rooftrace.io.vector import Layer, write_layers
+    from rooftrace.lidar.detect import DerivedParams, DetectOptions
+    from rooftrace.pipeline import check_config
+
+    if image is not None or camera is not None:
+        raise InputError("image refinement runs per building on one image; run it without tiling "
+                         "(or use 'rooftrace refine' on the tiled result)")
+    output = check_output(output, overwrite)
+    cfg = {k: v for k, v in (config or {}).items() if k != "__path__"} or None
+    check_config(cfg)
+    try:
+        outlier_opts = DetectOptions.from_config(cfg).outliers
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"config: {exc}") from None
+    paths = [Path(p) for p in inputs]
+    if not paths:
+        raise InputError("no input files given")
+    head = _scan_headers(paths)
+    if classified is not None:
+        from rooftrace.tile_points import check_point_formats
+
+        classified = check_output(classified, overwrite)
+        check_point_formats(paths)
+    file_crss = head["crs"]
+    user_crs = parse_crs(crs) if isinstance(crs, str) else crs
+    crs_obj = user_crs or file_crss[0]
+    if user_crs is None:
+        for p, c in zip(paths[1:], file_crss[1:]):
+            if (c is None) != (crs_obj is None):
+                raise InputError(f"{p}: CRS differs from {paths[0]}; assign one with --crs")
+            check_same_crs(crs_obj, c, str(paths[0]), str(p))
+    b = head["bounds"]  # without a CRS, header bounds within a fraction of a unit of (lon, lat) are degrees
+    require_metric_crs(crs_obj, str(paths[0]), np.array([[b[0], b[1]], [b[2], b[3]]]))
+    run_dir = Path(str(output) + ".parts")
+    if run_dir.exists() and not options.resume:
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(exist_ok=True)
+    meta = {"inputs": [str(p.resolve()) for p in paths],
+            "options": {k: v for k, v in asdict(options).items() if k not in ("resume", "workers", "scheduler")},
+            "crs": crs_obj.to_wkt() if crs_obj is not None else None,
+            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None}
+    meta = json.loads(json.dumps(meta))
+    meta_path = run_dir / "run.json"
+    if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
+        raise InputError(f"{run_dir}: --resume with different inputs or options; rerun without --resume")
+    _write_json(meta_path, meta)
+
+    timings: dict[str, float] = {}
+    reporter = reporter_for(quiet)
+    try:
+        t0 = time.perf_counter()
+        with reporter.stage("split into tiles"):
+            index = split_to_tiles(paths, run_dir, options, cell=outlier_opts.cell)
+        timings["split"] = time.perf_counter() - t0
+        derived_path = run_dir / "derived.json"
+        t0 = time.perf_counter()
+        if options.resume and derived_path.exists():
+            derived = DerivedParams.from_dict(json.loads(derived_path.read_text()))
+        else:
+            with reporter.stage("parameters"):
+                sample = _load_cloud(run_dir / "sample", crs_obj)
+                sample.sources = [str(p) for p in paths]
+                derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
+                del sample
+            _write_json(derived_path, derived.to_dict())
+        timings["parameters"] = time.perf_counter() - t0
+        log.info("parameters of the whole run: s_avg %.3f m, d_avg %.2f pts/m², sigma_H %.3f m, entropy threshold %.3f",
+                 derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
+        keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
+        wkt = crs_obj.to_wkt() if crs_obj is not None else None
+        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
+                  classified is not None) for k in keys]
+        t0 = time.perf_counter()
+        with reporter.stage("tiles", total=len(tasks)):
+            result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
+        timings["tiles"] = time.perf_counter() - t0
+    finally:
+        reporter.close()
+    t0 = time.perf_counter()
+    results = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
+    layers = merge_tiles(results)
+    for name, gtype in (("roof_outlines", "PolygonZ"), ("ridges", "LineStringZ"), ("roof_faces", "PolygonZ")):
+        layers.setdefault(name, Layer([], {"building_id": []}, gtype))
+    write_layers(output, layers, crs_obj, overwrite=overwrite)
+    timings["merge"] = time.perf_counter() - t0
+    if classified is not None:
+        t0 = time.perf_counter()
+        _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+        timings["classified"] = time.perf_counter() - t0
+    stages: dict[str, float] = {}
+    for res in results:
+        for k, v in res["timings"].items():
+            stages[k] = stages.get(k, 0.0) + v
+    shutil.rmtree(run_dir, ignore_errors=True)
+    return {
+        "output": str(output), "points": index["points"], "tiles": len(keys),
+        "buildings": len(layers["roof_outlines"]), "ridges": len(layers["ridges"]),
+        "roof_faces": len(layers["roof_faces"]), "tile_size": index["tile_size"], "buffer": index["buffer"],
+        "tile_points": int(sum(r["points"] for r in results)),
+        "edge_buildings": int(sum(len(r["edge_buildings"]) for r in results)),
+        "parameters": derived.to_dict(), "sample_points": index["sample_points"],
+        "timings": {k: round(v, 3) for k, v in timings.items()},
+        "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
+    }

@@ -1,0 +1,346 @@
+"""Splitting the inputs into buffered tiles: the grid, the sample windows, one streaming pass over the files."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from rooftrace.errors import InputError
+
+log = logging.getLogger(__name__)
+
+# one record per point in the tile files: what the detection reads from a LAS file
+POINT_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("z", "f8"), ("return_number", "u1"), ("number_of_returns", "u1"),
+                        ("gidx", "i8")])  # gidx: the point's index in the input files, for the classified points
+
+
+@dataclass(frozen=True)
+class TileOptions:
+    """Tiling and execution options.
+
+    Attributes
+    ----------
+    tile_size : float or None
+        Side of the square tile cores, metres.  ``None``: 200 m.
+    buffer : float or None
+        Buffer around each core, metres, rounded up so that the buffered
+        tile follows the outlier filter's cell lines.  ``None``: 60 m, wider
+        than the ground filter's seed cell (30 m) and the largest buildings
+        of a historic centre; a building must fit in the buffer to be
+        processed with all its points (a warning names those that touch the
+        buffer's edge).
+    workers : int
+        Worker processes of the local Dask cluster; 1 runs in-process.
+    scheduler : str or None
+        Address of an existing Dask scheduler (``tcp://host:8786``).
+    resume : bool
+        Keep the split, the parameters and the tile results of an earlier run.
+    chunk_size : int
+        Points decoded at once while splitting.
+    sample_points : int
+        Largest number of points the data-derived parameters are measured
+        on.  Inputs up to this size are measured whole (the parameters of
+        an untiled run); larger ones on four square windows of about
+        ``sample_points / 4`` points each, centred in the quarters of the
+        input's extent.
+    """
+
+    section = "tiling"
+
+    tile_size: float | None = None
+    buffer: float | None = None
+    workers: int = 1
+    scheduler: str | None = None
+    resume: bool = False
+    chunk_size: int = 1_000_000
+    sample_points: int = 2_000_000
+
+    def __post_init__(self) -> None:
+        for name in ("tile_size", "buffer"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise InputError(f"--{name.replace('_', '-')} must be a number > 0 (metres), got {v}")
+        if self.workers < 1:
+            raise InputError(f"--workers must be >= 1, got {self.workers}")
+        if self.chunk_size < 1 or self.sample_points < 1000:
+            raise InputError(f"tiling: chunk_size must be >= 1 and sample_points >= 1000, got "
+                             f"{self.chunk_size}, {self.sample_points}")
+
+    @property
+    def resolved_tile_size(self) -> float:
+        return 200.0 if self.tile_size is None else float(self.tile_size)
+
+    @property
+    def resolved_buffer(self) -> float:
+        return 60.0 if self.buffer is None else float(self.buffer)
+
+
+def tile_grid(bounds: Sequence[float], tile_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Tile core origins covering ``bounds``.
+
+    Parameters
+    ----------
+    bounds : sequence of 4 floats
+        xmin, ymin, xmax, ymax (m).
+    tile_size : float
+        Side of the tile cores (m).
+
+    Returns
+    -------
+    xs, ys : ndarray of float64
+        Lower-left corners of the columns and rows.  The grid is anchored at
+        multiples of ``tile_size`` so that the same data always gives the
+        same tiles.
+
+    Examples
+    --------
+    >>> tile_grid([1030.0, 2010.0, 1190.0, 2100.0], 100.0)
+    (array([1000., 1100.]), array([2000., 2100.]))
+    """
+    xmin, ymin, xmax, ymax = bounds
+    x0 = np.floor(xmin / tile_size) * tile_size
+    y0 = np.floor(ymin / tile_size) * tile_size
+    nx = max(1, int(np.floor((xmax - x0) / tile_size)) + 1)
+    ny = max(1, int(np.floor((ymax - y0) / tile_size)) + 1)
+    return x0 + tile_size * np.arange(nx), y0 + tile_size * np.arange(ny)
+
+
+def _cells(v: np.ndarray, origin: float, cell: float) -> np.ndarray:
+    # the same expression as the outlier filter's cell index, so that a tile
+    # and the filter agree on every point, rounding included
+    return np.floor((v - origin) / cell).astype(np.int64)
+
+
+def tile_cell_ranges(starts: np.ndarray, size: float, buffer: float, origin: float, cell: float) -> np.ndarray:
+    """First and last cell (inclusive) of each buffered tile along one axis.
+
+    Parameters
+    ----------
+    starts : ndarray of shape (T,)
+        Core starts along the axis (m), from :func:`tile_grid`.
+    size, buffer : float
+        Core side and buffer (m).
+    origin, cell : float
+        Anchor and side (m) of the outlier filter's cells.
+
+    Returns
+    -------
+    ndarray of shape (T, 2), int64
+        The buffered tile ``[start - buffer, start + size + buffer)`` widened
+        to whole cells.  Both columns increase with the tile index.
+    """
+    starts = np.asarray(starts, np.float64)
+    lo = np.floor((starts - buffer - origin) / cell).astype(np.int64)
+    hi = np.ceil((starts + size + buffer - origin) / cell).astype(np.int64) - 1
+    return np.column_stack([lo, hi])
+
+
+def _members(k: np.ndarray, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """First and last tile (inclusive) whose cell range holds each cell index ``k``."""
+    first = np.searchsorted(ranges[:, 1], k, side="left")
+    last = np.searchsorted(ranges[:, 0], k, side="right") - 1
+    return first, last
+
+
+def sample_windows(bounds: Sequence[float], n_points: int, sample_points: int, origin: Sequence[float],
+                   cell: float) -> np.ndarray | None:
+    """Cell ranges of the windows the parameters are measured on; ``None``: the whole input.
+
+    Four square windows of about ``sample_points / 4`` points each (at the
+    mean density of the extent), centred in the quarters of the extent and
+    made of whole outlier cells.  Fixed by the headers only, so a resumed
+    or re-run job samples the same points.
+
+    Returns
+    -------
+    ndarray of shape (W, 4), int64 or None
+        Per window the first and last cell in x, then in y (inclusive).
+    """
+    if n_points <= sample_points:
+        return None
+    xmin, ymin, xmax, ymax = bounds
+    area = max((xmax - xmin) * (ymax - ymin), 1.0)
+    side = np.sqrt(area * (sample_points / 4) / n_points)
+    half = max(1, int(np.ceil(side / cell / 2)))
+    out = []
+    for fx in (0.25, 0.75):
+        for fy in (0.25, 0.75):
+            cx = int(np.floor((xmin + fx * (xmax - xmin) - origin[0]) / cell))
+            cy = int(np.floor((ymin + fy * (ymax - ymin) - origin[1]) / cell))
+            out.append([cx - half + 1, cx + half, cy - half + 1, cy + half])
+    return np.asarray(out, np.int64)
+
+
+def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
+    import laspy
+
+    from rooftrace.io.las import check_point_count, las_crs
+
+    bounds, crss, counts = [], [], []
+    for p in paths:
+        if not p.is_file():
+            raise InputError(f"{p}: no such file")
+        if p.suffix.lower() not in (".las", ".laz"):
+            raise InputError(f"{p}: tiled runs read LAS/LAZ only")
+        try:
+            with laspy.open(p) as r:
+                h = r.header
+                check_point_count(p, h)
+                bounds.append([*h.mins[:2], *h.maxs[:2]])
+                crss.append(las_crs(h, str(p)))
+                counts.append(int(h.point_count))
+        except laspy.errors.LaspyException as exc:
+            raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
+    b = np.asarray(bounds, float)
+    return {"bounds": [float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())],
+            "crs": crss, "points": int(sum(counts))}
+
+
+def _records(chunk, start: int) -> np.ndarray:
+    rec = np.empty(len(chunk), POINT_DTYPE)
+    rec["gidx"] = start + np.arange(len(chunk))
+    rec["x"], rec["y"], rec["z"] = chunk.x, chunk.y, chunk.z
+    rec["return_number"] = np.asarray(chunk.return_number)
+    rec["number_of_returns"] = np.asarray(chunk.number_of_returns)
+    return rec
+
+
+def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *,
+                   origin: Sequence[float] | None = None, cell: float = 50.0) -> dict[str, Any]:
+    """Stream the inputs once into buffered tiles (and the parameter sample) under ``run_dir``.
+
+    Parameters
+    ----------
+    paths : sequence of Path
+        LAS/LAZ files.
+    run_dir : Path
+        Run folder; ``tiles/<i>_<j>/<file>_<chunk>.npy`` and
+        ``sample/<file>_<chunk>.npy`` are written there, then ``tiles.json``.
+    options : TileOptions
+    origin : (float, float), optional
+        Anchor of the cells the buffered tiles are made of; default the
+        lower-left corner of the headers' bounds.
+    cell : float, default 50.0
+        The outlier filter's cell side (m).
+
+    Returns
+    -------
+    dict
+        The tile index: ``tile_size``, ``buffer``, ``bounds``, ``origin``,
+        ``cell``, ``points`` and per tile its ``origin`` (core corner),
+        ``cells`` (x and y cell ranges) and ``points``.
+
+    Notes
+    -----
+    Points keep their file and chunk order inside every tile and in the
+    sample, so a tile holds its points in the order of the whole cloud.
+    """
+    import laspy
+
+    from rooftrace.io.las import _backend, check_header_bounds
+
+    index_path = run_dir / "tiles.json"
+    if options.resume and index_path.exists():
+        return json.loads(index_path.read_text())
+    for sub in ("tiles", "sample"):
+        if (run_dir / sub).exists():
+            shutil.rmtree(run_dir / sub)
+    head = _scan_headers(paths)
+    bounds = head["bounds"]
+    origin = (bounds[0], bounds[1]) if origin is None else (float(origin[0]), float(origin[1]))
+    size, buf = options.resolved_tile_size, options.resolved_buffer
+    xs, ys = tile_grid(bounds, size)
+    rx = tile_cell_ranges(xs, size, buf, origin[0], cell)
+    ry = tile_cell_ranges(ys, size, buf, origin[1], cell)
+    windows = sample_windows(bounds, head["points"], options.sample_points, origin, cell)
+    counts = np.zeros((len(xs), len(ys)), np.int64)
+    n_sample = 0
+    total = 0
+    (run_dir / "sample").mkdir(parents=True, exist_ok=True)
+    for f_index, p in enumerate(paths):
+        try:
+            reader_cm = laspy.open(p, laz_backend=_backend())
+        except (laspy.errors.LaspyException, OSError) as exc:
+            raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
+        with reader_cm as reader:
+            try:
+                for c_index, chunk in enumerate(reader.chunk_iterator(options.chunk_size)):
+                    rec = _records(chunk, total)
+                    total += len(rec)
+                    name = f"{f_index:05d}_{c_index:06d}.npy"
+                    xyz = np.column_stack([rec["x"], rec["y"], rec["z"]])
+                    if not np.isfinite(xyz).all():
+                        raise InputError(f"{p}: NaN or infinite coordinates; remove them and retry")
+                    check_header_bounds(p, reader.header, xyz)  # the tile grid comes from the header bounds
+                    kx, ky = _cells(rec["x"], origin[0], cell), _cells(rec["y"], origin[1], cell)
+                    i0, i1 = _members(kx, rx)
+                    j0, j1 = _members(ky, ry)
+                    # a point lies in up to a few buffered tiles: repeat it once per
+                    # tile, then one stable sort groups the chunk by tile, in point order
+                    ni, nj = np.maximum(i1 - i0 + 1, 0), np.maximum(j1 - j0 + 1, 0)
+                    reps = ni * nj
+                    point = np.repeat(np.arange(len(rec)), reps)
+                    within = np.arange(len(point)) - np.repeat(np.cumsum(reps) - reps, reps)
+                    ti = i0[point] + within // np.maximum(nj[point], 1)
+                    tj = j0[point] + within % np.maximum(nj[point], 1)
+                    tile_id = ti * len(ys) + tj
+                    order = np.argsort(tile_id, kind="stable")
+                    tile_id, point = tile_id[order], point[order]
+                    uniq, starts = np.unique(tile_id, return_index=True)
+                    for t, part in zip(uniq, np.split(point, starts[1:])):
+                        i, j = divmod(int(t), len(ys))
+                        d = run_dir / "tiles" / f"{i}_{j}"
+                        d.mkdir(parents=True, exist_ok=True)
+                        np.save(d / name, rec[part])
+                        counts[i, j] += len(part)
+                    if windows is None:
+                        in_sample = np.ones(len(rec), bool)
+                    else:
+                        in_sample = np.zeros(len(rec), bool)
+                        for wx0, wx1, wy0, wy1 in windows:
+                            in_sample |= (kx >= wx0) & (kx <= wx1) & (ky >= wy0) & (ky <= wy1)
+                    if in_sample.any():
+                        np.save(run_dir / "sample" / name, rec[in_sample])
+                        n_sample += int(in_sample.sum())
+            except InputError:
+                raise
+            except (laspy.errors.LaspyException, OSError, ValueError, RuntimeError, EOFError) as exc:
+                # lazrs reports a cut-off LAZ as a RuntimeError (LazrsError)
+                raise InputError(f"{p}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
+                                 "re-download or re-export it") from None
+    if total == 0:
+        raise InputError(f"{', '.join(map(str, paths))}: the point cloud is empty")
+    index = {
+        "tile_size": size, "buffer": buf, "bounds": bounds, "origin": list(origin), "cell": cell,
+        "points": total, "sample_points": n_sample,
+        "tiles": {f"{i}_{j}": {"origin": [float(xs[i]), float(ys[j])],
+                               "cells": [int(rx[i, 0]), int(rx[i, 1]), int(ry[j, 0]), int(ry[j, 1])],
+                               "points": int(counts[i, j])}
+                  for i in range(len(xs)) for j in range(len(ys)) if counts[i, j] > 0},
+    }
+    _write_json(index_path, index)
+    return index
+
+
+def _write_json(path: Path, data: Any) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
+
+
+def _load_cloud(folder: Path, crs) -> "Any":
+    from rooftrace.cloud import PointCloud
+
+    parts = sorted(folder.glob("*.npy")) if folder.exists() else []
+    rec = np.concatenate([np.load(p) for p in parts]) if parts else np.empty(0, POINT_DTYPE)
+    xyz = np.column_stack([rec["x"], rec["y"], rec["z"]])
+    fields = {"return_number": rec["return_number"].copy(), "number_of_returns": rec["number_of_returns"].copy(),
+              "gidx": rec["gidx"].copy()}
+    return PointCloud(xyz, fields, crs=crs)
