@@ -261,24 +261,14 @@ def make_files(tmp: Path) -> dict[str, Path]:
                                    "3,85030,447010,0,283.3,283.3\n4,85040,447010,0,366.7,283.3\n")
 
     # configs
-    f["cfg_section"] = tmp / "section.toml"
-    f["cfg_section"].write_text("[segmnet]\nmin_height = 2\n")
-    f["cfg_key"] = tmp / "key.toml"
-    f["cfg_key"].write_text("[alpha]\nstrategie = 'point'\n")
-    f["cfg_value"] = tmp / "value.toml"
-    f["cfg_value"].write_text("[alpha]\nstrategy = 'sideways'\n")
-    f["cfg_type"] = tmp / "type.toml"
-    f["cfg_type"].write_text("[ground]\niteration_distance = 'far'\n")
-    f["cfg_syntax"] = tmp / "syntax.toml"
-    f["cfg_syntax"].write_text("[ground\niteration_distance = 1\n")
-    f["cfg_toplevel"] = tmp / "toplevel.toml"
-    f["cfg_toplevel"].write_text("seed = 3\n")
-    f["cfg_sim_key"] = tmp / "sim_key.toml"
-    f["cfg_sim_key"].write_text("[simulate]\ndensiti = 3\n")
-    f["cfg_snake_key"] = tmp / "snake_key.toml"
-    f["cfg_snake_key"].write_text("[snake]\nstepz = 3\n")
-    f["cfg_resection_key"] = tmp / "resection_key.toml"
-    f["cfg_resection_key"].write_text("[resection]\nsigma = 3\n")
+    for name, text in {"cfg_section": "[segmnet]\nmin_height = 2\n", "cfg_key": "[alpha]\nstrategie = 'point'\n",
+                       "cfg_value": "[alpha]\nstrategy = 'sideways'\n",
+                       "cfg_type": "[ground]\niteration_distance = 'far'\n",
+                       "cfg_syntax": "[ground\niteration_distance = 1\n", "cfg_toplevel": "seed = 3\n",
+                       "cfg_sim_key": "[simulate]\ndensiti = 3\n", "cfg_snake_key": "[snake]\nstepz = 3\n",
+                       "cfg_resection_key": "[resection]\nsigma = 3\n"}.items():
+        f[name] = tmp / f"{name[4:]}.toml"
+        f[name].write_text(text)
 
     # an earlier result an output must not replace
     f["existing"] = tmp / "existing.gpkg"
