@@ -20,7 +20,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
-__all__ = ["RunResult", "run_pipeline", "check_config", "points_by_building", "building_layers"]
+__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -137,21 +137,6 @@ def building_layers(outlines: list, structures: list, refined: Any = None) -> di
     return {"roof_outlines": roof_outlines, "ridges": ridges, "roof_faces": faces_layer(structures)}
 
 
-def check_config(config: dict | None) -> None:
-    """Refuse config tables that no stage of a run reads (a typo must not silently do nothing)."""
-    # importing the stage packages registers their sections in KNOWN_SECTIONS; one config file
-    # may serve every command, so the [simulate] and [snake] tables are accepted too
-    import rooftrace.contour.outline  # noqa: F401
-    import rooftrace.lidar.detect  # noqa: F401
-    import rooftrace.refine  # noqa: F401
-    import rooftrace.roof  # noqa: F401
-    import rooftrace.snake  # noqa: F401
-    import rooftrace.synth  # noqa: F401
-    from rooftrace.config import KNOWN_SECTIONS, check_sections
-
-    check_sections(config or {}, KNOWN_SECTIONS)
-
-
 def run_pipeline(
     cloud: PointCloud,
     *,
@@ -199,12 +184,14 @@ def run_pipeline(
     -------
     RunResult
     """
+    from rooftrace.config import validate_config
     from rooftrace.contour.outline import OutlineOptions, outline_buildings
     from rooftrace.lidar.detect import detect_buildings
 
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    check_config(config)
+    if config:
+        validate_config(config)  # a config not read by load_config (library use) gets the same checks
 
     detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
     building_id = detection.building_id

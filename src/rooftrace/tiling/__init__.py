@@ -152,14 +152,15 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
-    from rooftrace.pipeline import check_config
+    from rooftrace.config import validate_config
 
     if image is not None or camera is not None:
         raise InputError("image refinement runs per building on one image; run it without tiling "
                          "(or use 'rooftrace refine' on the tiled result)")
     output = check_output(output, overwrite)
+    if config:
+        validate_config(config)
     cfg = {k: v for k, v in (config or {}).items() if k != "__path__"} or None
-    check_config(cfg)
     try:
         outlier_opts = DetectOptions.from_config(cfg).outliers
     except (TypeError, ValueError) as exc:

@@ -211,9 +211,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
 def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
     from rooftrace.tile_points import merge_labels, write_classified
 
-    # the merge's numbering: buildings sorted by their key (see merge_tiles)
-    keys = sorted(tuple(k) for res in results for k in res["buildings"].get("key", []))
-    new_id = {k: n + 1 for n, k in enumerate(keys)}
+    new_id = {key: n for key, _, _, n in building_numbers(results)}
     parts = []
     for r in result_paths:
         with np.load(Path(r).with_suffix(".labels.npz")) as z:
@@ -251,6 +249,18 @@ def _extent(index: dict, key: str) -> list[float]:
             min(ox + (cx1 + 1) * cell, b[2]), min(oy + (cy1 + 1) * cell, b[3])]
 
 
+def building_numbers(results: Sequence[dict]) -> list[tuple[tuple, int, int, int]]:
+    """The merged numbering: ``(key, tile position, id in the tile, new id)`` of every owned building.
+
+    Buildings are numbered 1..B by their sort key (lowest local x, then y,
+    then z), the rule of the untiled detection; the layers and the
+    classified points both use it.
+    """
+    entries = sorted((tuple(k), t, old) for t, res in enumerate(results)
+                     for old, k in zip(res["buildings"].get("id", []), res["buildings"].get("key", [])))
+    return [(k, t, old, n + 1) for n, (k, t, old) in enumerate(entries)]
+
+
 def merge_tiles(results: Sequence[dict]) -> dict:
     """Join tile results into the output layers.
 
@@ -264,12 +274,7 @@ def merge_tiles(results: Sequence[dict]) -> dict:
 
     from rooftrace.io.vector import Layer
 
-    entries = []  # (key..., tile position, old id)
-    for t, res in enumerate(results):
-        for old, k in zip(res["buildings"].get("id", []), res["buildings"].get("key", [])):
-            entries.append((*k, t, old))
-    entries.sort()
-    new_id = {(e[3], e[4]): n + 1 for n, e in enumerate(entries)}
+    new_id = {(t, old): n for _, t, old, n in building_numbers(results)}
     merged: dict[str, dict] = {}
     for t, res in enumerate(results):
         for name, layer in res["layers"].items():
