@@ -6,8 +6,9 @@ distance to the plane of the TIN facet below it and the angles from the point
 to the facet's three vertices are both under the iteration thresholds; the
 TIN is rebuilt and the test repeated until nothing is added.
 
-Two choices keep this fast on city blocks (850k points in a few seconds):
-the densification runs on the lowest point of each small cell (about
+Three choices keep this fast on city blocks (850k points in a few seconds):
+the TIN is Shewchuk's Triangle with our own point location
+(:mod:`rooftrace.lidar.tin`, 10-30 x faster than Qhull here), the densification runs on the lowest point of each small cell (about
 ``max(1 m, 3·s_avg)`` wide; the ground is never above the lowest point of
 its cell), and
 every accepted point of a round is added at once.  Every point of the cloud is
@@ -25,10 +26,11 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError, cKDTree
+from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
+from rooftrace.lidar.tin import locate, serpentine_order, triangulate
 
 __all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
 
@@ -112,24 +114,6 @@ def _lowest_per_cell(xyz: np.ndarray, origin: np.ndarray, cell: float) -> np.nda
     return order[first]
 
 
-def _spatial_order(xy: np.ndarray, width: float, start: float | None = None) -> np.ndarray:
-    """Serpentine strip order: consecutive queries are neighbours, so Qhull's walk is short.
-
-    Strips start at ``start`` (default: the lowest x); a fixed start gives a
-    tile's points the same relative order as in the whole cloud.
-    """
-    strip = np.floor((xy[:, 0] - (xy[:, 0].min() if start is None else start)) / width).astype(np.int64)
-    y = np.where(strip % 2 == 0, xy[:, 1], -xy[:, 1])
-    return np.lexsort((y, strip))
-
-
-def _triangulate(xy: np.ndarray) -> Delaunay:
-    try:
-        return Delaunay(xy)
-    except QhullError as exc:
-        raise GeometryError(f"ground TIN: cannot triangulate {len(xy)} points ({exc.__class__.__name__})") from None
-
-
 def _border(lo: np.ndarray, hi: np.ndarray, step: float) -> np.ndarray:
     """Border vertices of the TIN: the corners of ``[lo, hi]`` and the multiples of ``step`` along its sides.
 
@@ -161,36 +145,40 @@ def _corner_heights(corners: np.ndarray, ground: np.ndarray, k: int = 12) -> np.
     return z
 
 
-def tin_height(tin_xyz: np.ndarray, query_xy: np.ndarray, *, tri: Delaunay | None = None) -> np.ndarray:
+def tin_height(tin_xyz: np.ndarray, query_xy: np.ndarray) -> np.ndarray:
     """Height of a TIN below query points (linear in each triangle).
 
     Parameters
     ----------
     tin_xyz : ndarray of shape (M, 3), float64
-        TIN vertices, in a local frame (coordinates near zero, for Qhull).
+        TIN vertices (m), distinct in (x, y), in a local frame.
     query_xy : ndarray of shape (N, 2), float64
         Query positions in the same frame.
-    tri : scipy.spatial.Delaunay, optional
-        The triangulation of ``tin_xyz[:, :2]`` when already built.
 
     Returns
     -------
     ndarray of shape (N,), float64
         Interpolated height; NaN outside the TIN's convex hull.
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 1.0], [10, 0, 2.0], [0, 10, 3.0], [10, 10, 4.0]])
+    >>> tin_height(v, np.array([[5.0, 5.0], [20.0, 20.0]])).tolist()
+    [2.5, nan]
     """
-    if tri is None:
-        tri = _triangulate(tin_xyz[:, :2])
-    order = _spatial_order(query_xy, 10.0)
+    order, tris, nbrs = triangulate(tin_xyz[:, :2])
+    v = tin_xyz[order]
+    walk = serpentine_order(query_xy, 10.0)
     simplex = np.empty(len(query_xy), np.int64)
-    with threadpool_limits(limits=1, user_api="blas"):
-        simplex[order] = tri.find_simplex(query_xy[order])
-    inside = simplex >= 0
-    s = simplex[inside]
-    t = tri.transform[s]
-    b = np.einsum("nij,nj->ni", t[:, :2], query_xy[inside] - t[:, 2])
-    bary = np.column_stack([b, 1 - b.sum(axis=1)])
+    simplex[walk] = locate(v[:, :2], tris, nbrs, query_xy[walk])
+    inside = np.flatnonzero(simplex >= 0)
+    a, b, c = (v[tris[simplex[inside], k]] for k in range(3))
+    q = query_xy[inside]
+    det = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    l0 = ((b[:, 1] - c[:, 1]) * (q[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (q[:, 1] - c[:, 1])) / det
+    l1 = ((c[:, 1] - a[:, 1]) * (q[:, 0] - c[:, 0]) + (a[:, 0] - c[:, 0]) * (q[:, 1] - c[:, 1])) / det
     z = np.full(len(query_xy), np.nan)
-    z[inside] = np.einsum("ni,ni->n", bary, tin_xyz[tri.simplices[s], 2])
+    z[inside] = l0 * a[:, 2] + l1 * b[:, 2] + (1.0 - l0 - l1) * c[:, 2]
     return z
 
 
@@ -254,9 +242,8 @@ def progressive_tin(
     Axelsson, P. (2000). DEM generation from laser scanner data using
     adaptive TIN models. IAPRS 33(B4), 110-117.
     """
-    # Qhull's barycentric transforms make one small LAPACK call per facet;
-    # a multi-threaded BLAS turns each into a thread rendezvous, 100x slower
-    # on a busy machine
+    # the border refit makes one small LAPACK call per border vertex; a
+    # multi-threaded BLAS turns each into a thread rendezvous
     with threadpool_limits(limits=1, user_api="blas"):
         return _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bounds)
 
@@ -274,14 +261,14 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     cand_cell = opt.candidate_cell or max(1.0, 3.0 * mean_spacing)
     tol = opt.ground_tolerance or max(0.2, 5.0 * sigma_h)
     anchor = xyz[idx_usable, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
-    # Qhull needs coordinates near zero.  Heights are left as they are: a
+    # the TIN works in a frame near zero (small rounding).  Heights are left as they are: a
     # shift that depends on the data (the lowest z of a tile) would round
     # differently in a tile and in the whole cloud
     local = xyz - np.array([anchor[0], anchor[1], 0.0])
     pts = local[idx_usable]
 
     cand = _lowest_per_cell(pts, np.zeros(2), cand_cell)
-    cand = cand[_spatial_order(pts[cand, :2], 10.0, start=0.0)]
+    cand = cand[serpentine_order(pts[cand, :2], 10.0, start=0.0)]
     cxyz = pts[cand]
     seeds = np.unique(_lowest_per_cell(cxyz, np.zeros(2), opt.seed_cell))
     if bounds is None:
@@ -307,15 +294,16 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     rounds = 0
     for rounds in range(1, opt.max_iterations + 1):
         tin = np.concatenate([corner_xyz, cxyz[is_ground]])
-        tri = _triangulate(tin[:, :2])
+        order, tris, nbrs = triangulate(tin[:, :2])
+        tin = tin[order]
         todo = np.flatnonzero(~is_ground)
         if len(todo) == 0:
             break
-        p = cxyz[todo]
-        simplex = tri.find_simplex(p[:, :2])
+        p = cxyz[todo]  # in serpentine order: short walks
+        simplex = locate(tin[:, :2], tris, nbrs, p[:, :2])
         ok = simplex >= 0
         todo, p, simplex = todo[ok], p[ok], simplex[ok]
-        v = tin[tri.simplices[simplex]]  # (k, 3, 3)
+        v = tin[tris[simplex]]  # (k, 3, 3)
         normal = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         normal /= np.linalg.norm(normal, axis=1, keepdims=True)
         dist = np.abs(np.einsum("ij,ij->i", normal, p - v[:, 0]))
@@ -350,8 +338,7 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
             break
 
     tin = np.concatenate([corner_xyz, cxyz[is_ground]])
-    tri = _triangulate(tin[:, :2])
-    hag = local[:, 2] - tin_height(tin, local[:, :2], tri=tri)
+    hag = local[:, 2] - tin_height(tin, local[:, :2])
     # outside the padded hull cannot happen for usable points; excluded ones may lie outside
     hag = np.where(np.isfinite(hag), hag, local[:, 2] - np.nanmin(tin[:, 2]))
     ground = usable & (hag <= tol)
