@@ -81,14 +81,23 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
             out.append(process_tile(*t))
             reporter.advance()
         return out
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
     if options.scheduler is None:
+        # Dask starts its workers with MALLOC_TRIM_THRESHOLD_ set; setting it
+        # at all switches off glibc's adaptive mmap threshold, so every numpy
+        # temporary above 128 KiB is mapped and unmapped again: on a 1.2 M-point
+        # scene in 4 tiles that was 2.8 M page faults and 10.6 s of system time
+        # against 0.28 M and 3.7 s without it (total CPU 52 -> 41 s)
+        environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+                   if k != "MALLOC_TRIM_THRESHOLD_"}
         # one thread per worker process: the stages hold the GIL in places
         # and the KD-tree queries already use every core of a process
-        cluster = LocalCluster(n_workers=options.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = LocalCluster(n_workers=options.workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
         try:
