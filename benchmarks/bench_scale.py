@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -53,7 +55,13 @@ def decode_seconds(files: list[Path], repeat: int = 3) -> tuple[float, int]:
 
 
 def run(args: list[str]) -> tuple[dict, float, float]:
-    """Run ``rooftrace`` with ``args``; returns its JSON summary, wall seconds and peak tree RSS (bytes)."""
+    """Run ``rooftrace`` with ``args``; returns its JSON summary, wall seconds and peak tree RSS (bytes).
+
+    The summary gains ``cpu_seconds``: user + system time of the run and of
+    every process it started (Dask workers included), which unlike the wall
+    time does not grow with the load of other users of the machine.
+    """
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.Popen([RT, *args, "--json", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     peak = [0]
@@ -75,7 +83,10 @@ def run(args: list[str]) -> tuple[dict, float, float]:
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise SystemExit(f"rooftrace {' '.join(args)} failed:\n{err[-3000:]}")
-    return json.loads(out.strip().splitlines()[-1]), wall, peak[0]
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    summary = json.loads(out.strip().splitlines()[-1])
+    summary["cpu_seconds"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return summary, wall, peak[0]
 
 
 def same_buildings(a: Path, b: Path, tol: float = 1e-6) -> str:
@@ -97,9 +108,18 @@ def same_buildings(a: Path, b: Path, tol: float = 1e-6) -> str:
     return "identical"
 
 
+HEADER = ("| run | points | wall s | points/s | / decode | CPU s (user + sys) | peak GiB (all processes) | buildings |\n"
+          "|---|---|---|---|---|---|---|---|")
+
+
 def row(name: str, n: int, wall: float, peak: float, floor: float, summary: dict) -> str:
-    return (f"| {name} | {n:,} | {wall:.1f} | {n / wall:,.0f} | {wall / floor:.0f}x | {peak / 2**30:.2f} | "
-            f"{summary['buildings']} |")
+    return (f"| {name} | {n:,} | {wall:.1f} | {n / wall:,.0f} | {wall / floor:.0f}x | {summary['cpu_seconds']:.0f} | "
+            f"{peak / 2**30:.2f} | {summary['buildings']} |")
+
+
+def load() -> str:
+    """The machine's load averages (1, 5, 15 min) and core count: wall times depend on them."""
+    return f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())} on {os.cpu_count()} cores"
 
 
 def stage_table(n: int, summary: dict) -> str:
@@ -115,9 +135,9 @@ def stage_table(n: int, summary: dict) -> str:
 
 def delft(data: Path) -> None:
     files = [data / "3dfier_delft_ahn3_bgt" / f"ahn3_cropped_{i}.laz" for i in (1, 2)]
+    print(load())
     floor, n = decode_seconds(files)
     print(f"decode floor: {floor:.2f} s for {n:,} points ({n / floor:,.0f} points/s)")
-    header = "| run | points | wall s | points/s | / decode | peak GiB (all processes) | buildings |\n|---|---|---|---|---|---|---|"
     rows, outs, sums = [], {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         cases = {
@@ -130,8 +150,9 @@ def delft(data: Path) -> None:
             summary, wall, peak = run(["run", *map(str, files), "--crs", "EPSG:28992", "-o", str(out), *extra])
             rows.append(row(name, n, wall, peak, floor, summary))
             outs[name], sums[name] = out, summary
-        print(header)
+        print(HEADER)
         print("\n".join(rows))
+        print(load())
         for name in list(cases)[1:]:
             print(f"{name} vs one piece: {same_buildings(outs['one piece'], outs[name])}")
         for name in cases:
@@ -159,13 +180,15 @@ def make_block(folder: Path, side: int = 3, size: float = 310.0, density: float 
 def block(folder: Path, tile_size: float, workers: int, buffer: float) -> None:
     make_block(folder)
     files = sorted(folder.glob("*/points.laz"))
+    print(load())
     floor, n = decode_seconds(files)
     print(f"{len(files)} files, decode floor: {floor:.2f} s for {n:,} points ({n / floor:,.0f} points/s)")
     out = folder / "roofs.gpkg"
     summary, wall, peak = run(["run", *map(str, files), "-o", str(out), "--overwrite", "--tile-size", str(tile_size),
                                "--buffer", str(buffer), "--workers", str(workers)])
-    print("| run | points | wall s | points/s | / decode | peak GiB (all processes) | buildings |\n|---|---|---|---|---|---|---|")
+    print(HEADER)
     print(row(f"{summary['tiles']} tiles of {tile_size:g} m, {workers} workers", n, wall, peak, floor, summary))
+    print(load())
     print(f"\nstages:\n{stage_table(n, summary)}")
     print(f"\ntile points (with buffers): {summary['tile_points']:,}; parameter sample: {summary['sample_points']:,} "
           f"points; buildings reaching a buffer edge: {summary['edge_buildings']}")
