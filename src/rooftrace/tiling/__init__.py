@@ -44,6 +44,7 @@ every finished tile of an earlier run of the same inputs and options.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import os
@@ -74,11 +75,27 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+def _process_and_release(*args) -> str:
+    """:func:`process_tile`, then give the heap pages it freed back to the OS.
+
+    Without Dask's MALLOC_TRIM_THRESHOLD_ (see :func:`_execute`) glibc keeps
+    a worker's freed heap after a tile, so two workers would sit at their
+    largest tile's size together: the 11 M-point block peaked at 3.96 GiB.
+    ``malloc_trim`` once per tile costs nothing next to a tile.
+    """
+    out = process_tile(*args)
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+    return out
+
+
 def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporter) -> list[str]:
     if options.scheduler is None and options.workers <= 1:
         out = []
         for t in tasks:
-            out.append(process_tile(*t))
+            out.append(_process_and_release(*t))
             reporter.advance()
         return out
     import dask
@@ -108,7 +125,7 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
         # the biggest tiles first, so that the last task to finish is a short
         # one; the merge does not depend on the order results come back in
         order = sorted(range(len(tasks)), key=lambda i: -sizes[i])
-        futures = [client.submit(process_tile, *tasks[i], key=f"rooftrace-tile-{tasks[i][1]}-{os.getpid()}",
+        futures = [client.submit(_process_and_release, *tasks[i], key=f"rooftrace-tile-{tasks[i][1]}-{os.getpid()}",
                                  pure=False) for i in order]
         for _ in as_completed(futures):
             reporter.advance()
