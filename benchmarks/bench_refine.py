@@ -38,7 +38,7 @@ from rooftrace.refine import RefineOptions, refine_buildings
 from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
 PAPER = RefineOptions(terrain_filter=True, fuse=False, ridges_on_planes=False, derive_sigma=False, wall_penalty=0.0,
-                      register=False,
+                      register=False, grow=False,
                       candidates=CandidateOptions(refit=False, wall_lines=False))
 SIDE_TOL_PX = 1.5  # a selected line is right when its ends and middle lie this close to the true line
 

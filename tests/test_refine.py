@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
+import shapely
 from shapely import LineString, Polygon
 
 from rooftrace.evaluate.metrics import polis
@@ -179,3 +180,32 @@ def test_common_image_shift_is_estimated_only_for_an_uncertain_camera(scene):
     assert all(b.image_shift[:2] == (0.0, 0.0) for b in exact.buildings)  # a camera known exactly moves nothing
     plain = refine_buildings(truth, ridges, img, off, planes=planes, seed=1, options=RefineOptions(register=False))
     assert all(b.image_shift[3] == 0 for b in plain.buildings)
+
+
+def test_sides_without_an_image_line_follow_the_roofs_growth(scene):
+    # issue 7: a LiDAR outline shrunk by 0.35 m (1.75 px); one side has no image line.  With the growth
+    # measured on the other five sides, that side moves outward too instead of staying inside
+    from rooftrace.image.candidates import LineCandidates
+    from rooftrace.refine import refine_building
+
+    cam, img, truth, _, planes = scene
+    flat = truth[0]
+    v = np.asarray(flat.exterior.coords)[:-1]
+    d = np.roll(v, -1, axis=0) - v
+    n = np.column_stack([d[:, 1], -d[:, 0], np.zeros(len(d))]) / np.linalg.norm(d, axis=1)[:, None]
+    n *= 1 if flat.exterior.is_ccw else -1  # outward normals of the sides (all at right angles)
+    lidar = Polygon(v - 0.35 * (n + np.roll(n, 1, axis=0)))
+    cands = _given_candidates(cam, lidar, flat)
+    c = cands[2]
+    cands[2] = LineCandidates(c.reference, c.registration_error, c.window, c.reference[None], ["projected"],
+                              projected_only=True)
+    corners = cam.project(np.array(flat.exterior.coords)[:-1])
+    kw = dict(planes=planes[0], candidates=cands, corners=corners, seed=0)
+    grown = refine_building(lidar, [], img, cam, **kw)
+    kept = refine_building(lidar, [], img, cam, options=RefineOptions(grow=False), **kw)
+    assert grown.image_shift[2] == pytest.approx(1.75, abs=0.3)
+    side = LineString(np.array(flat.exterior.coords)[2:4, :2])
+    mid = [np.asarray(r.outline.exterior.coords)[2:4, :2].mean(axis=0) for r in (grown, kept)]
+    d_grown, d_kept = (side.distance(shapely.Point(m)) for m in mid)
+    assert d_kept > 0.3 and d_grown < 0.12
+    assert polis(grown.outline, flat) < polis(kept.outline, flat)

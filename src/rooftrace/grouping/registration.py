@@ -26,11 +26,14 @@ against the camera's own orientation error.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RoofShift", "estimate_shift", "shift_references", "beyond_wall"]
+__all__ = ["RoofShift", "estimate_shift", "shift_references", "beyond_wall", "GROWTH_RANGE"]
+
+#: growth ``b`` searched (px): a LiDAR outline lies up to a few pixels inside the roof edge, rarely outside
+GROWTH_RANGE = (-1.0, 3.0)
 
 
 @dataclass(frozen=True)
@@ -54,6 +57,8 @@ class RoofShift:
     growth: float
     n_sides: int
     variance: float = np.inf
+    offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def shrunk(self, prior_variance: float) -> "RoofShift":
         """The translation weighted against a prior of zero with ``prior_variance`` (px², per axis).
@@ -62,10 +67,14 @@ class RoofShift:
         known exactly (σ_C = 0) the roof does not move; with one off by
         pixels the estimate is used nearly as is.
         """
-        if not np.isfinite(self.variance) or not prior_variance > 0:
-            return RoofShift(np.zeros(2), self.growth, self.n_sides, self.variance)
-        k = prior_variance / (prior_variance + self.variance)
-        return RoofShift(k * self.translation, self.growth, self.n_sides, self.variance)
+        k = 0.0
+        if np.isfinite(self.variance) and prior_variance > 0:
+            k = prior_variance / (prior_variance + self.variance)
+        t = k * self.translation
+        # the growth that goes with the shrunk translation (least squares with t fixed: a mean), far
+        # better determined than the joint estimate when few sides face few directions
+        b = float(np.mean(self.offsets - self.normals @ t)) if len(self.offsets) else self.growth
+        return RoofShift(t, b, self.n_sides, self.variance, self.offsets, self.normals)
 
 
 def _offsets(references: np.ndarray, candidates: np.ndarray, outward: np.ndarray) -> np.ndarray:
@@ -74,7 +83,7 @@ def _offsets(references: np.ndarray, candidates: np.ndarray, outward: np.ndarray
 
 
 def estimate_shift(references: np.ndarray, candidates, outward: np.ndarray, usable, *, radius: float = 8.0,
-                   growth_range: tuple[float, float] = (-1.0, 3.0), step: float = 0.5, sigma: float = 1.0,
+                   growth_range: tuple[float, float] = GROWTH_RANGE, step: float = 0.5, sigma: float = 1.0,
                    inlier_px: float = 1.0, min_sides: int = 3) -> RoofShift:
     """Common translation and outward growth of a roof's candidate lines (see the module notes).
 
@@ -158,7 +167,7 @@ def estimate_shift(references: np.ndarray, candidates, outward: np.ndarray, usab
     dof = max(len(rows) - 3, 1)
     s2 = max(float(np.sum((a @ sol - off[rows]) ** 2)) / dof, 0.25)
     var = s2 * float(np.trace(np.linalg.pinv(a.T @ a)[:2, :2])) / 2.0
-    return RoofShift(sol[:2], float(sol[2]), int(len(rows)), var)
+    return RoofShift(sol[:2], float(sol[2]), int(len(rows)), var, off[rows], n[rows])
 
 
 def shift_references(references: np.ndarray, shift: RoofShift) -> np.ndarray:
