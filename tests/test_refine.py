@@ -209,3 +209,30 @@ def test_sides_without_an_image_line_follow_the_roofs_growth(scene):
     d_grown, d_kept = (side.distance(shapely.Point(m)) for m in mid)
     assert d_kept > 0.3 and d_grown < 0.12
     assert polis(grown.outline, flat) < polis(kept.outline, flat)
+
+
+def test_orientation_is_corrected_from_the_matched_lines_for_an_uncertain_camera(scene):
+    # issue 7 (optional): a camera off by 3 px whose covariance says so; the matched lines correct it and
+    # the second pass puts the outlines back in place in object space
+    cam, img, truth, ridges, planes = scene
+    eo = np.asarray(cam.exterior, float).copy()
+    eo[0] += 0.6
+    off = cam.with_exterior(eo, np.diag([0.36, 0.36, 0.36, 1e-8, 1e-8, 1e-8]))
+    xyz = np.vstack([np.array(t.exterior.coords) for t in truth])
+
+    def disp(c):
+        return float(np.mean(np.hypot(*(c.project(xyz) - cam.project(xyz)).T)))
+
+    kw = dict(planes=planes, seed=1)
+    plain = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation=False), **kw)
+    fixed = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation_min_lines=8), **kw)
+    assert plain.orientation is None and plain.camera is off
+    assert disp(off) == pytest.approx(3.0, abs=0.3) and disp(fixed.camera) < 0.5
+    assert fixed.orientation.n_inliers >= 8 and "orientation" in fixed.summary()
+    before = np.mean([polis(o, t) for o, t in zip(plain.outlines, truth)])
+    after = np.mean([polis(o, t) for o, t in zip(fixed.outlines, truth)])
+    assert before > 0.25 and after < 0.1
+    # a camera without covariance is taken as exact; too few lines keep the camera (a warning, no error)
+    assert refine_buildings(truth, ridges, img, cam, **kw).orientation is None
+    few = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation_min_lines=50), **kw)
+    assert few.orientation is None and few.camera is off

@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
 from rooftrace.grouping.building import BuildingRefinement, RefineOptions, keep_input, refine_building
+from rooftrace.grouping.orientation import OrientationCorrection, correct_from_matches, orientation_summary
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
            "assign_ridges"]
@@ -56,6 +57,11 @@ class RefineResult:
     ridge_attributes : dict of str to list
         Per ridge: ``building_id``, ``kind``, ``refined`` (0/1).
     buildings : list of BuildingRefinement
+    camera : FrameCamera or OrthoCamera or None
+        The camera of the last pass: the input one, or the corrected one.
+    orientation : OrientationCorrection or None
+        The exterior orientation correction (``RefineOptions.orientation``);
+        ``delta`` is the total over the rounds.
     """
 
     outlines: list
@@ -63,6 +69,8 @@ class RefineResult:
     attributes: dict
     ridge_attributes: dict
     buildings: list
+    camera: object = None
+    orientation: OrientationCorrection | None = None
 
     @property
     def ridge_building_ids(self) -> list:
@@ -76,7 +84,8 @@ class RefineResult:
         ran = np.isfinite(gaps)
         return {"buildings": len(self.outlines), "status": statuses, "ridges": len(self.ridges),
                 "sides": int(sum(self.attributes["n_sides"])), "sides_refined": int(sum(self.attributes["n_refined"])),
-                "exact_checked": int(ran.sum()), "ga_reached_exact": int((gaps[ran] <= 1e-9).sum())}
+                "exact_checked": int(ran.sum()), "ga_reached_exact": int((gaps[ran] <= 1e-9).sum()),
+                **({"orientation": orientation_summary(self.orientation)} if self.orientation is not None else {})}
 
 
 def assign_ridges(outlines: Sequence, ridges: Sequence) -> list[int]:
@@ -155,12 +164,9 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
 
     pts = None if points_xyz is None or not len(points_xyz) else np.asarray(points_xyz, float).reshape(-1, 3)
     tree = cKDTree(pts[:, :2]) if pts is not None else None
-    buildings: list[BuildingRefinement] = []
-    new_ridges = list(ridges)
-    ridge_refined = [False] * len(ridges)
+    jobs = []
     for i, (poly, bid) in enumerate(zip(outlines, ids)):
-        mine = by_building.get(bid, [])
-        local = inside = sigma = ground = None
+        local = sigma = ground = None
         if poly is not None and not poly.is_empty and tree is not None:
             x0, y0, x1, y1 = poly.bounds
             near = tree.query_ball_point([(x0 + x1) / 2, (y0 + y1) / 2], np.hypot(x1 - x0, y1 - y0) / 2 + opt.context)
@@ -170,11 +176,6 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             n_in = int(shapely.contains_xy(shapely.force_2d(poly), local[:, 0], local[:, 1]).sum())
             # a fraction of the mean point spacing 1/sqrt(density) (boundary points sit within a spacing of the edge)
             sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
-            # the building's own points would mark the true edges, which lie outside a LiDAR outline
-            # shrunk by half a point spacing, as "off the building": the projected lines stand for it
-            inside = None
-        if not opt.terrain_filter:
-            local = None
         b_opt = opt
         if sigma is not None and opt.derive_sigma:
             # windows and registration errors follow this roof's LiDAR precision, not seed 000's 0.48 m
@@ -182,17 +183,46 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
 
             b_opt = dataclasses.replace(opt, candidates=dataclasses.replace(opt.candidates or CandidateOptions(),
                                                                             sigma_xy=sigma))
-        try:
-            res = refine_building(poly, [ridges[r] for r in mine], img, camera, points_xyz=local, building_xyz=inside,
-                                  planes=None if planes is None else planes[i], options=b_opt, seed=seed + i,
-                                  lidar_sigma=sigma, ground_z=ground)
-        except (GeometryError, np.linalg.LinAlgError) as exc:
-            log.warning("building %d: not refined (%s)", bid, exc)
-            res = keep_input(poly, [ridges[r] for r in mine], f"kept: {exc}")
-        if res.status != "refined":
-            log.info("building %d: %s", bid, res.status)
-        buildings.append(res)
-        for r, geom, flag in zip(mine, res.ridges, res.ridge_refined):
+        # the building's own points would mark the true edges, which lie outside a LiDAR outline
+        # shrunk by half a point spacing, as "off the building": the projected lines stand for it
+        jobs.append(dict(points_xyz=local if opt.terrain_filter else None, building_xyz=None,
+                         planes=None if planes is None else planes[i], options=b_opt, seed=seed + i,
+                         lidar_sigma=sigma, ground_z=ground))
+
+    def one_pass(cam) -> list:
+        out = []
+        for i, (poly, bid) in enumerate(zip(outlines, ids)):
+            mine = [ridges[r] for r in by_building.get(bid, [])]
+            try:
+                res = refine_building(poly, mine, img, cam, **jobs[i])
+            except (GeometryError, np.linalg.LinAlgError) as exc:
+                log.warning("building %d: not refined (%s)", bid, exc)
+                res = keep_input(poly, mine, f"kept: {exc}")
+            if res.status != "refined":
+                log.info("building %d: %s", bid, res.status)
+            out.append(res)
+        return out
+
+    buildings = one_pass(camera)
+    correction, used = None, camera
+    uncertain = getattr(camera, "exterior_covariance", None) is not None
+    if (opt.orientation and getattr(camera, "kind", None) == "frame"
+            and (uncertain or opt.orientation_parameters != "auto")):
+        for _ in range(opt.orientation_rounds):
+            try:
+                # each round starts from the last correction; the prior stays the input camera's
+                correction = correct_from_matches(camera, buildings, start=used.exterior,
+                                                  parameters=opt.orientation_parameters,
+                                                  min_lines=opt.orientation_min_lines)
+            except GeometryError as exc:
+                log.warning("exterior orientation not corrected: %s", exc)
+                break
+            used = correction.camera
+            buildings = one_pass(used)
+    new_ridges = list(ridges)
+    ridge_refined = [False] * len(ridges)
+    for bid, res in zip(ids, buildings):
+        for r, geom, flag in zip(by_building.get(bid, []), res.ridges, res.ridge_refined):
             new_ridges[r], ridge_refined[r] = geom, flag
 
     attributes = {
@@ -208,4 +238,5 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     }
     ridge_attributes = {"building_id": ridge_ids, "kind": kinds,
                         "refined": [int(f) for f in ridge_refined]}
-    return RefineResult([b.outline for b in buildings], new_ridges, attributes, ridge_attributes, buildings)
+    return RefineResult([b.outline for b in buildings], new_ridges, attributes, ridge_attributes, buildings,
+                        used, correction)

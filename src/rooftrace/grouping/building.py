@@ -271,4 +271,5 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         choice=choice, image_outline=np.where(moved[:, None], pixels, ref_points)[:n_out], kinds=topo.kinds,
         ring_sizes=topo.ring_sizes, references=refs, selected=selected,
         candidate_sets=cand_sets, seconds=time.perf_counter() - t0,
-        image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides))
+        image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides),
+        lines3d=np.asarray(topo.lines, float), outward=outward, image_chosen=chosen_image & ~short)

@@ -105,6 +105,23 @@ class RefineOptions:
         half a point spacing; without it those sides stay there (mean PoLiS
         0.1228 m instead of 0.0964 m at 2 pts/m², seeds 1-5 of
         benchmarks/bench_refine.py; ours).
+    orientation : bool, default True
+        Correct the camera's exterior orientation from the lines the
+        grouping matched (:func:`rooftrace.grouping.orientation.correct_orientation`,
+        over all buildings at once), then refine again with the corrected
+        camera (ours; frame cameras only).  With ``orientation_parameters``
+        'auto' only a camera with an ``exterior_covariance`` is corrected:
+        one without is taken as exact, as everywhere else in the refinement.
+    orientation_rounds : int, default 1
+        Rounds of matching, correction and refinement.
+    orientation_parameters : {'auto', 'full', 'reduced'}, default 'auto'
+        Parameters corrected: all six (its covariance as the prior), or
+        forced, even for a camera without covariance: ``'full'`` all six,
+        ``'reduced'`` ``X0, Y0, Z0, kappa`` (see
+        :func:`~rooftrace.grouping.orientation.correct_orientation`).
+    orientation_min_lines : int, default 12
+        Fewest matched image lines (and inliers) to correct the orientation;
+        with fewer the camera is kept (a warning says so).
     register_max_px : float, default 12.0
         Largest shift searched (px); the search radius is otherwise
         ``max_shift_k · e + 1`` with ``e`` the largest registration error.
@@ -142,6 +159,10 @@ class RefineOptions:
     wall_penalty: float = 5.0
     register: bool = True
     grow: bool = True
+    orientation: bool = True
+    orientation_rounds: int = 1
+    orientation_parameters: str = "auto"
+    orientation_min_lines: int = 12
     register_max_px: float = 12.0
     mrf: MRFOptions = field(default_factory=MRFOptions)
     ga: GAOptions = field(default_factory=GAOptions)
@@ -164,6 +185,12 @@ class RefineOptions:
             raise ValueError(f"refine.simplify_tolerance must be >= 0, got {self.simplify_tolerance!r}")
         if not self.wall_penalty >= 0:
             raise ValueError(f"refine.wall_penalty must be >= 0, got {self.wall_penalty!r}")
+        if self.orientation_parameters not in ("auto", "full", "reduced"):
+            raise ValueError("refine.orientation_parameters must be 'auto', 'full' or 'reduced', "
+                             f"got {self.orientation_parameters!r}")
+        if self.orientation_rounds < 1 or self.orientation_min_lines < 3:
+            raise ValueError("refine.orientation_rounds must be >= 1 and refine.orientation_min_lines >= 3, got "
+                             f"{self.orientation_rounds!r} and {self.orientation_min_lines!r}")
         if self.max_shift_k < 0 or self.max_shift_margin_px < 0 or self.exact_max_table < 0:
             raise ValueError("refine.max_shift_k, max_shift_margin_px and exact_max_table must be >= 0")
 
@@ -187,7 +214,11 @@ class BuildingRefinement:
     ``outline`` and ``ridges`` are in object space; ``image_outline`` (V, 2),
     ``references`` (M, 2, 2), ``selected`` (M, 2, 2) and ``candidate_sets``
     (M arrays (K_s, 2, 2)) are pixels, one per topology line (``kinds``),
-    kept for diagnostics and evaluation.
+    kept for diagnostics and evaluation.  ``lines3d`` (M, 2, 3) are the
+    LiDAR lines (m), ``outward`` (M, 2) the outward image normals of the
+    outline sides (NaN for ridges) and ``image_chosen`` (M,) bool tells the
+    lines whose selected line is an image line: the matches the orientation
+    correction uses.
     """
 
     outline: Polygon
@@ -208,6 +239,9 @@ class BuildingRefinement:
     candidate_sets: list = field(default_factory=list)
     seconds: float = float("nan")
     image_shift: tuple = ()
+    lines3d: np.ndarray | None = None
+    outward: np.ndarray | None = None
+    image_chosen: np.ndarray | None = None
 
 
 def keep_input(outline, ridges, status: str) -> BuildingRefinement:
