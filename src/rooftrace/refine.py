@@ -213,7 +213,8 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
                 # each round starts from the last correction; the prior stays the input camera's
                 correction = correct_from_matches(camera, buildings, start=used.exterior,
                                                   parameters=opt.orientation_parameters,
-                                                  min_lines=opt.orientation_min_lines)
+                                                  min_lines=opt.orientation_min_lines,
+                                                  image_sigma_px=opt.image_sigma_px)
             except GeometryError as exc:
                 log.warning("exterior orientation not corrected: %s", exc)
                 break

@@ -272,4 +272,5 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         ring_sizes=topo.ring_sizes, references=refs, selected=selected,
         candidate_sets=cand_sets, seconds=time.perf_counter() - t0,
         image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides),
-        lines3d=np.asarray(topo.lines, float), outward=outward, image_chosen=chosen_image & ~short)
+        lines3d=np.asarray(topo.lines, float), outward=outward, image_chosen=chosen_image & ~short,
+        lidar_sigma_px=(lidar_sigma if lidar_sigma is not None else opt.lidar_sigma) / camera.ground_sample_distance)

@@ -218,7 +218,8 @@ class BuildingRefinement:
     LiDAR lines (m), ``outward`` (M, 2) the outward image normals of the
     outline sides (NaN for ridges) and ``image_chosen`` (M,) bool tells the
     lines whose selected line is an image line: the matches the orientation
-    correction uses.
+    correction uses, with ``lidar_sigma_px`` the LiDAR outline's planimetric
+    precision in pixels.
     """
 
     outline: Polygon
@@ -242,6 +243,7 @@ class BuildingRefinement:
     lines3d: np.ndarray | None = None
     outward: np.ndarray | None = None
     image_chosen: np.ndarray | None = None
+    lidar_sigma_px: float = float("nan")
 
 
 def keep_input(outline, ridges, status: str) -> BuildingRefinement:

@@ -166,8 +166,9 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     start : ndarray of shape (6,), optional
         Starting EO (e.g. an earlier correction); the prior stays centred on
         the camera's own EO.  Default: the camera's EO.
-    sigma_px : float, default 1.0
-        A-priori precision of an image line (px).
+    sigma_px : float or ndarray of shape (M,), default 1.0
+        A-priori precision (px) of each match: the image line's and the
+        projected object line's errors together.
     growth_sigma_px : float, default 3.0
         Prior standard deviation of a roof's growth around 0 (px).
     min_lines : int, default 8
@@ -229,6 +230,9 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     if not (np.isfinite(l3).all() and np.isfinite(l2).all()):
         raise InputError("line coordinates must be finite numbers")
     m = len(l3)
+    sig = np.broadcast_to(np.asarray(sigma_px, float), (m,)).copy() if m else np.zeros(0)
+    if not np.all(sig > 0):
+        raise InputError("sigma_px must be positive")
     if m < min_lines:
         raise GeometryError(f"orientation correction needs at least {min_lines} matched lines, got {m}")
     out = np.full((m, 2), np.nan) if outward is None else np.asarray(outward, float).reshape(m, 2)
@@ -264,12 +268,12 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
         if has_prior:
             free = tuple(range(6))
         else:
-            a_el = _eliminate(a0, gg, n_groups, np.ones(2 * m), sigma_px**2 / growth_sigma_px**2)
+            a_el = _eliminate(a0, gg, n_groups, np.repeat(sig, 2) ** -2.0, 1.0 / growth_sigma_px**2)
             free = tuple(range(6)) if _rcond(a_el) >= min_rcond else _REDUCED
     else:
         free = tuple(range(6)) if parameters == "full" else _REDUCED
     if not has_prior:
-        a_el = _eliminate(a0[:, list(free)], gg, n_groups, np.ones(2 * m), sigma_px**2 / growth_sigma_px**2)
+        a_el = _eliminate(a0[:, list(free)], gg, n_groups, np.repeat(sig, 2) ** -2.0, 1.0 / growth_sigma_px**2)
         if _rcond(a_el) < min_rcond:
             raise GeometryError(
                 f"the {m} matched lines do not determine the orientation ({', '.join(EO_NAMES[i] for i in free)}): "
@@ -285,7 +289,7 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
         if n_groups:
             rows = np.flatnonzero(gg >= 0)
             a[rows, nf + gg[rows]] = 1.0
-        sw = np.sqrt(w_obs) / sigma_px
+        sw = np.sqrt(w_obs) / np.repeat(sig, 2)
         blocks_a, blocks_r = [a * sw[:, None]], [model(eo, b) * sw]
         if n_groups:
             blocks_a.append(np.hstack([np.zeros((n_groups, nf)), np.eye(n_groups) / growth_sigma_px]))
@@ -320,8 +324,8 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
             break
         eo, b, its = out_
         iterations += its
-        r_line = np.sqrt(np.mean(model(eo, b).reshape(m, 2) ** 2, axis=1))
-        w_line = 1.0 / np.sqrt(r_line**2 + min_scale_px**2)
+        r_line = np.sqrt(np.mean(model(eo, b).reshape(m, 2) ** 2, axis=1)) / sig
+        w_line = 1.0 / np.sqrt(r_line**2 + (min_scale_px / sig) ** 2)
         w_line /= w_line.max()
     w_line = np.ones(m)
     # then reject the lines beyond k robust sigmas and solve again until the kept set is stable (data
@@ -333,8 +337,9 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
                 raise GeometryError(f"orientation correction did not converge in {max_iterations} iterations")
             eo, b, its = out_
             iterations += its
-        r_line = np.sqrt(np.mean(model(eo, b).reshape(m, 2) ** 2, axis=1))
-        sigma = max(1.4826 * float(np.median(r_line[w_line > 0])), min_scale_px)
+        # residuals in units of each line's sigma
+        r_line = np.sqrt(np.mean(model(eo, b).reshape(m, 2) ** 2, axis=1)) / sig
+        sigma = max(1.4826 * float(np.median(r_line[w_line > 0])), min_scale_px / float(np.median(sig)))
         keep = (r_line <= reject_k * sigma).astype(float)
         if np.array_equal(keep, w_line) and k_round:
             break
@@ -370,8 +375,8 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
                                  int(inliers.sum()), iterations)
 
 
-def correct_from_matches(camera, buildings, *, start=None, parameters: str = "auto",
-                         min_lines: int = 12) -> OrientationCorrection:
+def correct_from_matches(camera, buildings, *, start=None, parameters: str = "auto", min_lines: int = 12,
+                         image_sigma_px: float = 0.7) -> OrientationCorrection:
     """:func:`correct_orientation` from the lines the grouping matched in refined buildings.
 
     Parameters
@@ -379,13 +384,19 @@ def correct_from_matches(camera, buildings, *, start=None, parameters: str = "au
     camera : FrameCamera
         The camera the buildings were refined with (prior and start).
     buildings : sequence of BuildingRefinement
-        Refined buildings; their ``lines3d``, ``selected``, ``outward`` and
-        ``image_chosen`` give the matches (lines whose selected line is an
+        Refined buildings; their ``lines3d``, ``selected``, ``outward``,
+        ``image_chosen`` and ``lidar_sigma_px`` give the matches (lines whose selected line is an
         image line), one growth per building.
     start : ndarray of shape (6,), optional
         Starting EO; default the camera's.
     parameters : {'auto', 'full', 'reduced'}, default 'auto'
     min_lines : int, default 12
+    image_sigma_px : float, default 0.7
+        Precision of an image line (px).  A ridge match gets this sigma, an
+        outline side ``hypot(image_sigma_px, lidar_sigma_px)`` with its
+        building's LiDAR planimetric precision in pixels (the end points of
+        a LiDAR outline side scatter by about that much; a ridge from two
+        fitted planes far less).
 
     Returns
     -------
@@ -396,7 +407,7 @@ def correct_from_matches(camera, buildings, *, start=None, parameters: str = "au
     GeometryError
         Too few matches, or matches that do not determine the orientation.
     """
-    l3, l2, out, grp = [], [], [], []
+    l3, l2, out, grp, sig = [], [], [], [], []
     for k, b in enumerate(buildings):
         if b.status != "refined" or b.image_chosen is None or not np.any(b.image_chosen):
             continue
@@ -405,11 +416,15 @@ def correct_from_matches(camera, buildings, *, start=None, parameters: str = "au
         l2.append(np.asarray(b.selected, float)[use])
         out.append(np.asarray(b.outward, float)[use])
         grp.append(np.full(len(use), k))
+        # an outline side's end points carry the LiDAR outline's error too; a ridge (two planes) hardly any
+        side = np.isfinite(np.asarray(b.outward, float)[use]).all(axis=1)
+        sig.append(np.where(side, np.hypot(image_sigma_px, b.lidar_sigma_px), image_sigma_px))
     if not l3:
         raise GeometryError("no image line was matched: nothing to correct the orientation with")
     l3, l2 = np.concatenate(l3), np.concatenate(l2)
     keep = np.linalg.norm(l2[:, 1] - l2[:, 0], axis=1) > 1e-6
-    return correct_orientation(camera, l3[keep], l2[keep], outward=np.concatenate(out)[keep],
+    out = np.concatenate(out)[keep]
+    return correct_orientation(camera, l3[keep], l2[keep], outward=out, sigma_px=np.concatenate(sig)[keep],
                                groups=np.concatenate(grp)[keep], start=start, parameters=parameters,
                                min_lines=min_lines)
 
