@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rooftrace.errors import GeometryError, InputError
+from rooftrace.image.resection import check_line_matches
 
 __all__ = ["OrientationCorrection", "correct_orientation", "correct_from_matches", "orientation_summary",
            "EO_NAMES"]
@@ -219,16 +220,9 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     >>> bool(np.abs(res.camera.project(lines.reshape(-1, 3)) - px.reshape(-1, 2)).max() < 1e-3)
     True
     """
-    if getattr(camera, "kind", None) != "frame":
-        raise InputError("orientation correction needs a frame camera (an orthophoto has no exterior orientation)")
+    l3, l2 = check_line_matches(camera, lines3d, image_lines, "orientation correction")
     if parameters not in ("auto", "full", "reduced"):
         raise InputError(f"parameters must be 'auto', 'full' or 'reduced', got {parameters!r}")
-    l3 = np.asarray(lines3d, float)
-    l2 = np.asarray(image_lines, float)
-    if l3.ndim != 3 or l3.shape[1:] != (2, 3) or l2.shape != (len(l3), 2, 2):
-        raise InputError(f"need (M, 2, 3) object lines and (M, 2, 2) image lines, got {l3.shape} and {l2.shape}")
-    if not (np.isfinite(l3).all() and np.isfinite(l2).all()):
-        raise InputError("line coordinates must be finite numbers")
     m = len(l3)
     sig = np.broadcast_to(np.asarray(sigma_px, float), (m,)).copy() if m else np.zeros(0)
     if not np.all(sig > 0):
