@@ -151,8 +151,12 @@ def test_refine_building_with_given_candidates_picks_the_true_lines(scene):
     assert res.ga_exact_gap == pytest.approx(0.0)
     # sides shorter than min_side_px keep their projected line: nothing moves
     res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
-                          options=RefineOptions(min_side_px=1e6))
+                          options=RefineOptions(min_side_px=1e6, grow=False))
     assert res.status == "kept: no vertex moved" and res.outline is lidar and res.refined_sides == [0] * 6
+    # ...but their image lines still measure the roof's common shift, which the vertices follow
+    res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
+                          options=RefineOptions(min_side_px=1e6))
+    assert res.image_shift[3] >= 4 and res.refined_sides == [0] * 6
 
 
 def test_ridge_kinds_are_carried(scene):

@@ -159,6 +159,10 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
                             for k in range(len(cs))]) for c, cs in zip(candidates, cand_sets)]
     # a side a few pixels long has no trustworthy image line: it keeps its projection
     short = np.linalg.norm(refs[:, 1] - refs[:, 0], axis=1) < opt.min_side_px
+    # ...but its image lines still vote for the roof's common shift (a curved wall is all short sides)
+    vote_sets = list(cand_sets)
+    vote_usable = [il & (opt.wall_penalty * _wall_flags(c, len(cs)) == 0)
+                   for il, c, cs in zip(image_line, candidates, cand_sets)]
     for s_ in np.flatnonzero(short):
         cand_sets[s_], image_line[s_] = refs[s_:s_ + 1], np.zeros(1, bool)
     # a wall foot (or a shadow beyond it) with the roof edge found inward of it is the wrong line
@@ -169,7 +173,7 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     if opt.register:
         usable = [image_line[s_] & (p == 0) for s_, p in enumerate(penalty)]
         radius = min(opt.max_shift_k * float(error.max(initial=0.0)) + 1.0, opt.register_max_px)
-        roof_shift = estimate_shift(refs, cand_sets, outward, usable, radius=max(radius, 2.0))
+        roof_shift = estimate_shift(refs, vote_sets, outward, vote_usable, radius=max(radius, 2.0))
         if width is not None and opt.wall_penalty > 0:
             # a side whose only image lines lie where its wall's foot is expected: the projection competes
             far = beyond_wall(refs, cand_sets, outward, width, roof_shift, usable)
