@@ -11,7 +11,12 @@ For each building:
    between the two is reported (``ga_exact_gap``);
 4. reconstruction of the selected lines along the projected topology (§2.4);
 5. back to object space: each refined pixel's ray meets the roof plane of its
-   vertex (or a horizontal plane through the LiDAR vertex).
+   vertex (or a horizontal plane through the LiDAR vertex);
+6. (ours, ``RefineOptions.orientation``) for a frame camera with an EO
+   covariance: the exterior orientation corrected from the lines matched in
+   all buildings (:func:`rooftrace.grouping.orientation.correct_orientation`)
+   and steps 2-5 run again with the corrected camera, so that the camera's
+   registration error leaves the object-space result too.
 
 A building that cannot be refined keeps its input geometry; ``refine_status``
 says why.  No I/O here: the CLI and the pipeline read and write.
@@ -30,10 +35,10 @@ from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
 from rooftrace.grouping.building import BuildingRefinement, RefineOptions, keep_input, refine_building
-from rooftrace.grouping.orientation import OrientationCorrection, correct_from_matches, orientation_summary
+from rooftrace.grouping.orientation import EO_NAMES, OrientationCorrection, correct_orientation
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
-           "assign_ridges"]
+           "assign_ridges", "correct_from_matches", "orientation_summary"]
 
 log = logging.getLogger(__name__)
 
@@ -241,3 +246,66 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
                         "refined": [int(f) for f in ridge_refined]}
     return RefineResult([b.outline for b in buildings], new_ridges, attributes, ridge_attributes, buildings,
                         used, correction)
+
+
+def correct_from_matches(camera, buildings, *, start=None, parameters: str = "auto", min_lines: int = 12,
+                         image_sigma_px: float = 0.7) -> OrientationCorrection:
+    """:func:`correct_orientation` from the lines the grouping matched in refined buildings.
+
+    Parameters
+    ----------
+    camera : FrameCamera
+        The camera the buildings were refined with (prior and start).
+    buildings : sequence of BuildingRefinement
+        Refined buildings; their ``lines3d``, ``selected``, ``outward``,
+        ``image_chosen`` and ``lidar_sigma_px`` give the matches (lines whose selected line is an
+        image line), one growth per building.
+    start : ndarray of shape (6,), optional
+        Starting EO; default the camera's.
+    parameters : {'auto', 'full', 'reduced'}, default 'auto'
+    min_lines : int, default 12
+    image_sigma_px : float, default 0.7
+        Precision of an image line (px).  A ridge match gets this sigma, an
+        outline side ``hypot(image_sigma_px, lidar_sigma_px)`` with its
+        building's LiDAR planimetric precision in pixels (the end points of
+        a LiDAR outline side scatter by about that much; a ridge from two
+        fitted planes far less).
+
+    Returns
+    -------
+    OrientationCorrection
+
+    Raises
+    ------
+    GeometryError
+        Too few matches, or matches that do not determine the orientation.
+    """
+    l3, l2, out, grp, sig = [], [], [], [], []
+    for k, b in enumerate(buildings):
+        if b.status != "refined" or b.image_chosen is None or not np.any(b.image_chosen):
+            continue
+        use = np.flatnonzero(b.image_chosen)
+        l3.append(np.asarray(b.lines3d, float)[use])
+        l2.append(np.asarray(b.selected, float)[use])
+        out.append(np.asarray(b.outward, float)[use])
+        grp.append(np.full(len(use), k))
+        # an outline side's end points carry the LiDAR outline's error too; a ridge (two planes) hardly any
+        side = np.isfinite(np.asarray(b.outward, float)[use]).all(axis=1)
+        sig.append(np.where(side, np.hypot(image_sigma_px, b.lidar_sigma_px), image_sigma_px))
+    if not l3:
+        raise GeometryError("no image line was matched: nothing to correct the orientation with")
+    l3, l2 = np.concatenate(l3), np.concatenate(l2)
+    keep = np.linalg.norm(l2[:, 1] - l2[:, 0], axis=1) > 1e-6
+    out = np.concatenate(out)[keep]
+    return correct_orientation(camera, l3[keep], l2[keep], outward=out, sigma_px=np.concatenate(sig)[keep],
+                               groups=np.concatenate(grp)[keep], start=start, parameters=parameters,
+                               min_lines=min_lines)
+
+
+def orientation_summary(correction: OrientationCorrection) -> dict:
+    """A JSON-ready summary: parameters, EO change (m, deg) and its standard deviations, lines, RMS (px)."""
+    deg = np.array([1.0, 1.0, 1.0, *(3 * [180.0 / np.pi])])
+    return {"parameters": list(correction.parameters),
+            "delta": {k: float(v) for k, v in zip(EO_NAMES, correction.delta * deg)},
+            "std": {k: float(v) for k, v in zip(EO_NAMES, correction.std() * deg)},
+            "lines": correction.n_lines, "inliers": correction.n_inliers, "rms_px": correction.rms}
