@@ -321,6 +321,7 @@ def main(argv=None) -> int:
                     help="correct the exterior orientation from the matched lines (RefineOptions.orientation; "
                          "only the perturbed camera has a covariance, so only its run is corrected)")
     ap.add_argument("--orientation-rounds", type=int, default=None, help="RefineOptions.orientation_rounds")
+    ap.add_argument("--perturb-px", type=float, default=3.0, help="mean error of the perturbed camera (px)")
     ap.add_argument("--json", type=Path, default=None, help="write all rows here")
     ap.add_argument("--summarise", type=Path, default=None, help="only summarise the cases of an earlier --json")
     args = ap.parse_args(argv)
@@ -335,7 +336,7 @@ def main(argv=None) -> int:
                 opts = dataclasses.replace(opts, orientation=args.orientation == "on")
             if args.orientation_rounds:
                 opts = dataclasses.replace(opts, orientation_rounds=args.orientation_rounds)
-            case = run_case(seed, density, mode=args.mode, options=opts)
+            case = run_case(seed, density, perturb_px=args.perturb_px, mode=args.mode, options=opts)
             cases.append(case)
             print(f"seed {seed} density {density}: {case['buildings']} buildings, refine {case['t_refine']:.1f} s",
                   file=sys.stderr)

@@ -113,6 +113,19 @@ def test_options_from_config_and_errors():
     assert RefineOptions(mrf={"w_corner": 0.5}).mrf.w_corner == 0.5
     with pytest.raises(ValueError, match="refine.solver"):
         RefineOptions(solver="annealing")
+    opt = RefineOptions.from_config({"refine": {"orientation": False, "orientation_parameters": "reduced"}})
+    assert opt.orientation is False and opt.orientation_parameters == "reduced"
+    with pytest.raises(ValueError, match="refine.orientation_parameters"):
+        RefineOptions(orientation_parameters="tilts")
+    with pytest.raises(ValueError, match="orientation_rounds"):
+        RefineOptions(orientation_rounds=0)
+    from rooftrace.config import validate_config
+    from rooftrace.errors import InputError
+
+    with pytest.raises(InputError, match=r"\[refine\] orientation must be true or false"):
+        validate_config({"refine": {"orientation": "yes"}})
+    with pytest.raises(InputError, match="orientation_parameters"):
+        validate_config({"refine": {"orientation_parameters": "tilts"}})
     with pytest.raises(ValueError, match="building_ids"):
         refine_buildings([Polygon([(0, 0), (1, 0), (1, 1)])], [], np.zeros((5, 5)), _camera(), building_ids=[1, 2])
 
