@@ -200,9 +200,10 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
     t1 = time.perf_counter()
     true_run = refine_buildings(polys, ridges, grey, scene.camera, **kw)
     t_refine = time.perf_counter() - t1
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), time.process_time()
     pert_run = refine_buildings(polys, ridges, grey, cam_perturbed, **kw)
-    t_pert = time.perf_counter() - t2  # both passes and the orientation correction when it runs
+    # both passes and the orientation correction when it runs; CPU time too (the machine is shared)
+    t_pert, c_pert = time.perf_counter() - t2, time.process_time() - c2
 
     truth = scene.truth["roof_outlines"].geometries
     truth_ids = scene.truth["roof_outlines"].attributes["building_id"]
@@ -261,7 +262,8 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
                                                       "std": corr.std().tolist()},
             "t_simulate_and_lidar": time.perf_counter() - t0 - t_refine, "t_refine": t_refine,
             "t_per_building": t_refine / max(len(polys), 1),
-            "t_per_building_perturbed": t_pert / max(len(polys), 1), "rows": rows}
+            "t_per_building_perturbed": t_pert / max(len(polys), 1),
+            "cpu_per_building_perturbed": c_pert / max(len(polys), 1), "rows": rows}
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -301,6 +303,8 @@ def summarise(cases: list[dict]) -> dict:
             "n_8_12": len(s812),
             "sec_per_building_perturbed_run": float(np.mean([c["t_per_building_perturbed"] for c in cases
                                                             if c["density"] == density])),
+            "cpu_per_building_perturbed_run": float(np.mean([c.get("cpu_per_building_perturbed", np.nan)
+                                                            for c in cases if c["density"] == density])),
         }
     return out
 
