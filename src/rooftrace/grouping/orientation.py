@@ -130,14 +130,23 @@ def _rcond(a: np.ndarray) -> float:
 
 
 def _eliminate(a_eo: np.ndarray, groups: np.ndarray, n_groups: int, w: np.ndarray, prior_b: float) -> np.ndarray:
-    """The orientation's design matrix with the growth columns projected out (weighted), for the rank test."""
-    a = a_eo * np.sqrt(w)[:, None]
+    """The orientation's weighted design matrix with the growth columns projected out, for the rank test.
+
+    Each roof's growth is a column of ones on its rows: eliminating it takes
+    from each of those rows its weighted mean over the roof (damped by the
+    growth prior ``prior_b``, in the same weighted units).
+    """
+    g = np.sqrt(w)
+    a = a_eo * g[:, None]
+    rows = np.flatnonzero(groups >= 0)
+    if not len(rows) or not n_groups:
+        return a
+    k = groups[rows]
+    sums = np.zeros((n_groups, a.shape[1]))
+    np.add.at(sums, k, g[rows, None] * a[rows])
+    norm = np.bincount(k, weights=g[rows] ** 2, minlength=n_groups) + prior_b
     out = a.copy()
-    for k in range(n_groups):
-        rows = groups == k
-        if rows.any():
-            g = np.sqrt(w[rows])
-            out[rows] -= np.outer(g, g @ a[rows]) / (g @ g + prior_b)
+    out[rows] -= g[rows, None] * sums[k] / norm[k, None]
     return out
 
 
@@ -323,22 +332,22 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     w_line = np.ones(m)
     # then reject the lines beyond k robust sigmas and solve again until the kept set is stable (data
     # snooping): deterministic and convergent, where reweighting every step can oscillate
-    for k_round in range(max_rounds):
+    for k_round in range(max_rounds + 1):
         if k_round:
             out_ = solve(eo, b, w_line)
             if out_ is None:
                 raise GeometryError(f"orientation correction did not converge in {max_iterations} iterations")
             eo, b, its = out_
             iterations += its
+        if w_line.sum() < min_lines or k_round == max_rounds:
+            break  # too few left (refused below), or the last solve of a set that kept changing
         # residuals in units of each line's sigma
         r_line = np.sqrt(np.mean(model(eo, b).reshape(m, 2) ** 2, axis=1)) / sig
         sigma = max(1.4826 * float(np.median(r_line[w_line > 0])), min_scale_px / float(np.median(sig)))
         keep = (r_line <= reject_k * sigma).astype(float)
-        if np.array_equal(keep, w_line) and k_round:
+        if k_round and np.array_equal(keep, w_line):
             break
         w_line = keep
-        if w_line.sum() < min_lines:
-            break
     inliers = w_line > 0.5
     if inliers.sum() < min_lines:
         raise GeometryError(f"orientation correction: only {int(inliers.sum())} of {m} matched lines agree "
