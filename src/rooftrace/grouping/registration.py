@@ -21,7 +21,10 @@ offsets carry no growth term and they are few).
 
 :func:`shift_references` moves the projected lines by the estimate, for
 the energy only, after :meth:`RoofShift.shrunk` has weighed the estimate
-against the camera's own orientation error.
+against the camera's own orientation error (and re-estimated ``b`` for the
+weighed ``t``).  The refinement then moves the sides that keep their
+projection, and the vertices without image support, outward by ``b``
+(``RefineOptions.grow``).
 """
 
 from __future__ import annotations
@@ -51,6 +54,9 @@ class RoofShift:
     variance : float
         Variance (px², per axis) of ``translation``, from the least-squares
         residuals (at least ``0.25`` px²: the model's own error).
+    offsets, normals : ndarray of shape (n_sides,), (n_sides, 2)
+        Outward offset (px) of each inlier side's candidate and the side's
+        outward normal: :meth:`shrunk` re-estimates the growth from them.
     """
 
     translation: np.ndarray
@@ -173,9 +179,10 @@ def estimate_shift(references: np.ndarray, candidates, outward: np.ndarray, usab
 def shift_references(references: np.ndarray, shift: RoofShift) -> np.ndarray:
     """References (M, 2, 2) moved by the translation ``t``.
 
-    The growth ``b`` only keeps ``t`` unbiased: moving the lines outward by
-    it too made the proximity term prefer wall feet over roof edges
-    (correctness 94.0 % instead of 94.2 % in benchmarks/bench_refine.py).
+    In the energy the growth ``b`` only keeps ``t`` unbiased: moving the
+    lines outward by it too made the proximity term prefer wall feet over
+    roof edges (correctness 94.0 % instead of 94.2 % in
+    benchmarks/bench_refine.py).  The geometry uses it (``RefineOptions.grow``).
     """
     return np.asarray(references, float) + shift.translation
 
