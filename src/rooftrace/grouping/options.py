@@ -1,7 +1,7 @@
 """Options and result of the image refinement of one roof (section ``[refine]``; seed 000).
 
 :class:`RefineOptions` holds every option of the refinement (``[mrf]``,
-``[ga]``, ``[candidates]`` and ``[corners]`` nest in it);
+``[ga]``, ``[candidates]`` and ``[harris]`` nest in it);
 :class:`BuildingRefinement` is what :func:`rooftrace.grouping.building.refine_building`
 returns for one building.
 """
@@ -196,7 +196,7 @@ class RefineOptions:
 
     @classmethod
     def from_config(cls, config: dict | None = None, **overrides) -> "RefineOptions":
-        """Options from a parsed TOML config: ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[corners]``."""
+        """Options from a parsed TOML config: ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[harris]``."""
         from rooftrace.image.candidates import CandidateOptions
         from rooftrace.image.corners import HarrisOptions
 
