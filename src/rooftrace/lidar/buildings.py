@@ -11,8 +11,9 @@ roof levels (:mod:`rooftrace.lidar.classify`):
    ``segment.min_width``;
 3. it takes in the non-ground points next to it whose own entropy is on the
    building side (walls, roof edges, dormers cut off by the height test),
-   then any point touching it and the points under its roof edge; points of
-   no roof level lower than ``segment.absorb_min_height`` stay out.
+   then any point touching it and the points under its roof edge; with
+   ``segment.absorb_min_height`` set, points of no roof level lower than
+   that stay out.
 """
 
 from __future__ import annotations

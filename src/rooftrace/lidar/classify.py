@@ -79,7 +79,7 @@ class ClassifyOptions:
         file has return numbers; ``None`` disables it.  0.5 before the
         adaptive neighbourhood, which lets the flat tops of some crowns and
         hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gives
-        Delft area F 0.921 -> 0.924 and IGN building F1 0.898 -> 0.911, the
+        IGN building F1 0.898 -> 0.911 and Delft area F 0.915 -> 0.918, the
         rest unchanged (benchmarks/RESULTS.md).
     building_penetration : float, default 0.6
         A whole building (its roof levels merged) is dropped when its
