@@ -264,9 +264,11 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     high = np.flatnonzero(hag[above] >= so.min_height)
     with clock("features"):
         adaptive = co.neighbourhood == "adaptive"
-        feats = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours,
-                               min_neighbours=min(co.min_neighbours, k_nb) if adaptive else None,
-                               neighbour_step=co.neighbour_step)
+        # the linear-object guard looks at N points: at the smallest adaptive
+        # sizes a roof scanned in lines looks linear too (low entropy either way)
+        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours,
+                                      min_neighbours=min(co.min_neighbours, k_nb) if adaptive else None,
+                                      neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
         normals = feats[high, 4:] if so.height_test == "normal" else None
@@ -281,7 +283,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     with clock("classify"):
         big = sizes >= min_pts
         ent = cluster_means(levels, feats[high, 3], len(sizes))
-        lin = cluster_means(levels, feats[high, 0], len(sizes))
+        lin = cluster_means(levels, lin_n[high], len(sizes))
         if fixed.entropy_threshold is None:
             _, cparams = separate_buildings(ent[big], lin[big], co)
         else:

@@ -106,9 +106,9 @@ def _features(xyz: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:  # pra
 
 
 @numba.njit(cache=True)
-def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray,
-                          out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy; idx sorted by distance."""
+def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray, out: np.ndarray,
+                          lin_n: np.ndarray) -> None:  # pragma: no cover - compiled
+    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy, and L at the last k; idx sorted by distance."""
     n, kmax = idx.shape
     for i in range(n):
         # moments about the nearest point (the point itself; small numbers),
@@ -136,6 +136,7 @@ def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray,
                 lin, pla, sph = _dimensionality(sxx - sx * sx / m, syy - sy * sy / m, szz - sz * sz / m,
                                                 sxy - sx * sy / m, sxz - sx * sz / m, syz - sy * sz / m)
                 e = _entropy(lin, pla, sph)
+                lin_n[i] = lin
                 if e < best:
                     best = e
                     out[i, 0] = lin
@@ -188,8 +189,9 @@ def eigen_features(
     min_neighbours: int | None = None,
     neighbour_step: int = 5,
     normal_neighbours: int | None = None,
+    return_linearity: bool = False,
     chunk: int = 100_000,
-) -> np.ndarray:
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Linearity, planarity, sphericity and entropy of each point's neighbourhood.
 
     Parameters
@@ -211,6 +213,12 @@ def eigen_features(
         When given, the unit normal (upward) of the plane fitted to the
         ``normal_neighbours`` nearest points is returned too (a smaller
         neighbourhood than N keeps roof ridges sharp).
+    return_linearity : bool, default False
+        Also return the linearity of the N-point neighbourhood.  With the
+        adaptive size it differs: where the sampling is anisotropic (scan
+        lines farther apart than the points along them) the smallest sizes
+        look linear, so a roof's points may take a linear size (low entropy
+        either way), while a wire is linear at N too.
     chunk : int, default 100000
         Points per KD-tree query, to bound memory.
 
@@ -219,6 +227,8 @@ def eigen_features(
     ndarray of shape (N, 4) or (N, 7), float64
         Columns L, P, S (each in [0, 1], summing to 1), E (in [0, ln 3]),
         then nx, ny, nz when ``normal_neighbours`` is given.
+    linearity : ndarray of shape (N,), float64
+        With ``return_linearity``: L of the N-point neighbourhood.
 
     Examples
     --------
@@ -238,7 +248,7 @@ def eigen_features(
     n = len(xyz)
     out = np.zeros((n, 4 if normal_neighbours is None else 7))
     if n == 0:
-        return out
+        return (out, np.zeros(0)) if return_linearity else out
     k = int(min(neighbours, n))
     ks = None
     if min_neighbours is not None:
@@ -247,14 +257,16 @@ def eigen_features(
     local = xyz - xyz.mean(axis=0)
     tree = cKDTree(local)
     lps = np.empty((n, 3))
+    lin_n = np.empty(n)
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         _, idx = tree.query(local[start:stop], k=k, workers=-1)
         idx = np.ascontiguousarray(np.asarray(idx, np.int64).reshape(stop - start, k))
         if ks is None:
             _features(local, idx, lps[start:stop])
+            lin_n[start:stop] = lps[start:stop, 0]
         else:
-            _min_entropy_features(local, idx, ks, lps[start:stop])
+            _min_entropy_features(local, idx, ks, lps[start:stop], lin_n[start:stop])
         if normal_neighbours is not None:
             kn = int(min(max(normal_neighbours, 3), k))
             normals = np.empty((stop - start, 3))
@@ -264,4 +276,4 @@ def eigen_features(
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(lps > 0, -lps * np.log(lps), 0.0)
     out[:, 3] = terms.sum(axis=1)
-    return out
+    return (out, lin_n) if return_linearity else out
