@@ -72,3 +72,16 @@ def test_bad_adaptive_sizes_raise():
         eigen_features(pts, 20, min_neighbours=30)
     with pytest.raises(ValueError, match="neighbour_step"):
         eigen_features(pts, 20, min_neighbours=10, neighbour_step=0)
+
+
+def test_a_roof_scanned_in_lines_is_linear_only_at_small_sizes(rng):
+    # scan lines 1 m apart, points 0.15 m apart along them (about 7 pts/m²):
+    # the 10 nearest points lie on one line, the 40 nearest span several
+    x, y = np.meshgrid(np.arange(0, 12, 0.15), np.arange(0, 12, 1.0))
+    pts = np.column_stack([x.ravel(), y.ravel(), rng.normal(0, 0.02, x.size)])
+    f, lin = eigen_features(pts, 40, min_neighbours=10, return_linearity=True)
+    inner = (np.abs(pts[:, :2] - 6) < 4).all(axis=1)
+    assert np.median(f[inner, 0]) > 0.9  # the lowest-entropy size is a piece of one line
+    assert np.median(lin[inner]) < 0.7  # the N-point neighbourhood is a plane
+    fixed, lin_fixed = eigen_features(pts, 40, return_linearity=True)
+    assert np.array_equal(lin_fixed, fixed[:, 0])

@@ -16,7 +16,7 @@ Two neighbourhoods:
   extension) into the wall above it and the crown beside it, so its points
   look volumetric; at a smaller k they are planar.  A crown is scattered at
   every scale and stays volumetric.  On Delft (AHN3) this moved the per-point
-  building F1 from 0.933 to 0.947 (benchmarks/RESULTS.md).
+  building F1 from 0.933 to 0.950 (benchmarks/RESULTS.md).
 
 References
 ----------
@@ -78,30 +78,37 @@ def _entropy(lin: float, pla: float, sph: float) -> float:  # pragma: no cover -
 
 
 @numba.njit(cache=True)
+def _scatter(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no cover - compiled
+    """Scatter matrix entries (a, b, c, d, e, f) = (xx, yy, zz, xy, xz, yz) of the points ``row[:k]`` about their mean."""
+    mx = my = mz = 0.0
+    for j in range(k):
+        p = row[j]
+        mx += xyz[p, 0]
+        my += xyz[p, 1]
+        mz += xyz[p, 2]
+    mx /= k
+    my /= k
+    mz /= k
+    a = b = c = d = e = f = 0.0
+    for j in range(k):
+        p = row[j]
+        dx = xyz[p, 0] - mx
+        dy = xyz[p, 1] - my
+        dz = xyz[p, 2] - mz
+        a += dx * dx
+        b += dy * dy
+        c += dz * dz
+        d += dx * dy
+        e += dx * dz
+        f += dy * dz
+    return a, b, c, d, e, f
+
+
+@numba.njit(cache=True)
 def _features(xyz: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
     n, k = idx.shape
     for i in range(n):
-        mx = my = mz = 0.0
-        for j in range(k):
-            p = idx[i, j]
-            mx += xyz[p, 0]
-            my += xyz[p, 1]
-            mz += xyz[p, 2]
-        mx /= k
-        my /= k
-        mz /= k
-        a = b = c = d = e = f = 0.0
-        for j in range(k):
-            p = idx[i, j]
-            dx = xyz[p, 0] - mx
-            dy = xyz[p, 1] - my
-            dz = xyz[p, 2] - mz
-            a += dx * dx
-            b += dy * dy
-            c += dz * dz
-            d += dx * dy
-            e += dx * dz
-            f += dy * dz
+        a, b, c, d, e, f = _scatter(xyz, idx[i], k)
         out[i, 0], out[i, 1], out[i, 2] = _dimensionality(a, b, c, d, e, f)
 
 
@@ -149,31 +156,8 @@ def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray, out:
 def _normals(xyz: np.ndarray, idx: np.ndarray, kn: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
     n = idx.shape[0]
     for i in range(n):
-        mx = my = mz = 0.0
-        for j in range(kn):
-            p = idx[i, j]
-            mx += xyz[p, 0]
-            my += xyz[p, 1]
-            mz += xyz[p, 2]
-        mx /= kn
-        my /= kn
-        mz /= kn
-        c = np.zeros((3, 3))
-        for j in range(kn):
-            p = idx[i, j]
-            v0 = xyz[p, 0] - mx
-            v1 = xyz[p, 1] - my
-            v2 = xyz[p, 2] - mz
-            c[0, 0] += v0 * v0
-            c[1, 1] += v1 * v1
-            c[2, 2] += v2 * v2
-            c[0, 1] += v0 * v1
-            c[0, 2] += v0 * v2
-            c[1, 2] += v1 * v2
-        c[1, 0] = c[0, 1]
-        c[2, 0] = c[0, 2]
-        c[2, 1] = c[1, 2]
-        w, v = np.linalg.eigh(c)
+        a, b, c, d, e, f = _scatter(xyz, idx[i], kn)
+        w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
         nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
         if nz < 0:
             nx, ny, nz = -nx, -ny, -nz
