@@ -51,7 +51,8 @@ class ClassifyOptions:
         et al. 2015; :mod:`rooftrace.lidar.features`), so that small low
         roofs next to walls and crowns keep their planar look.  The k-means
         on the clusters' mean entropy is the same either way.  Delft (AHN3)
-        building F1 0.933 -> 0.947; see benchmarks/RESULTS.md.
+        building F1 0.933 -> 0.950, IGN 0.897 -> 0.917 (with
+        ``max_penetration`` 0.3); see benchmarks/RESULTS.md.
     min_neighbours : int, default 10
         Smallest adaptive neighbourhood.
     neighbour_step : int, default 5
@@ -78,9 +79,10 @@ class ClassifyOptions:
         went through them: hedges, crowns trimmed flat).  Used only when the
         file has return numbers; ``None`` disables it.  0.5 before the
         adaptive neighbourhood, which lets the flat tops of some crowns and
-        hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gives
+        hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gave
         IGN building F1 0.898 -> 0.911 and Delft area F 0.915 -> 0.918, the
-        rest unchanged (benchmarks/RESULTS.md).
+        rest unchanged (benchmarks/RESULTS.md, measured with the linear
+        guard on the adaptive size).
     building_penetration : float, default 0.6
         A whole building (its roof levels merged) is dropped when its
         fraction of non-last returns exceeds

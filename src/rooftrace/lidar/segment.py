@@ -115,7 +115,7 @@ class SegmentOptions:
         shrubs by a wall would otherwise join the building through the wall
         and, in a narrow yard, close it over for the alpha shape.  ``None``:
         no limit.  Not on by default: 1.0 gives Delft (AHN3) area F
-        0.918 -> 0.924 (a 130 m² yard no longer filled) but the synthetic
+        0.915 -> 0.921 (a 130 m² yard no longer filled) but the synthetic
         demo's PoLiS 0.080 -> 0.097 m (one building's outline flips to a
         jagged one, median 0.073 -> 0.077 m); see benchmarks/RESULTS.md.
     absorb_touching : bool, default True
