@@ -19,6 +19,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import tempfile
@@ -38,7 +39,7 @@ from rooftrace.refine import RefineOptions, refine_buildings
 from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
 PAPER = RefineOptions(terrain_filter=True, fuse=False, ridges_on_planes=False, derive_sigma=False, wall_penalty=0.0,
-                      register=False,
+                      register=False, grow=False, orientation=False,
                       candidates=CandidateOptions(refit=False, wall_lines=False))
 SIDE_TOL_PX = 1.5  # a selected line is right when its ends and middle lie this close to the true line
 
@@ -199,7 +200,10 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
     t1 = time.perf_counter()
     true_run = refine_buildings(polys, ridges, grey, scene.camera, **kw)
     t_refine = time.perf_counter() - t1
+    t2, c2 = time.perf_counter(), time.process_time()
     pert_run = refine_buildings(polys, ridges, grey, cam_perturbed, **kw)
+    # both passes and the orientation correction when it runs; CPU time too (the machine is shared)
+    t_pert, c_pert = time.perf_counter() - t2, time.process_time() - c2
 
     truth = scene.truth["roof_outlines"].geometries
     truth_ids = scene.truth["roof_outlines"].attributes["building_id"]
@@ -217,6 +221,7 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
         bt, bp = true_run.buildings[e], pert_run.buildings[e]
         row = {"building": ids[e], "sides": len(bt.refined_sides), "status": bt.status,
                "polis_lidar": polis(polys[e], truth[r]), "polis_refined": polis(true_run.outlines[e], truth[r]),
+               "polis_refined_perturbed": polis(pert_run.outlines[e], truth[r]),
                "ridge_err_lidar": _ridge_errors([ridges[i] for i in my_ridges], t_ridges),
                "ridge_err_refined": _ridge_errors([true_run.ridges[i] for i in my_ridges], t_ridges),
                "gap": [bt.ga_exact_gap, bp.ga_exact_gap], "seconds": bt.seconds}
@@ -241,9 +246,24 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
                 correct += is_image and _line_correct(bp.selected[s], segs)
             row.update(lines=total, lines_image=chosen, lines_correct=correct, lines_with_correct=has_correct)
         rows.append(row)
+    # the camera: mean displacement (px) of the true roof vertices, perturbed / corrected vs true
+    tv = np.vstack([shapely.get_coordinates(g, include_z=True) for g in truth])
+    base = scene.camera.project(tv)
+    disp = {name: float(np.mean(np.hypot(*(cam.project(tv) - base).T)))
+            for name, cam in (("perturbed", cam_perturbed), ("corrected", pert_run.camera),
+                              ("true_corrected", true_run.camera))}
+    eo_err = {name: (np.asarray(cam.exterior, float) - np.asarray(scene.camera.exterior, float)).tolist()
+              for name, cam in (("perturbed", cam_perturbed), ("corrected", pert_run.camera))}
+    corr = pert_run.orientation
     return {"seed": seed, "density": density, "mode": mode, "buildings": len(polys), "matched": len(rows),
+            "camera_disp_px": disp, "eo_error": eo_err,
+            "orientation": None if corr is None else {"parameters": list(corr.parameters), "lines": corr.n_lines,
+                                                      "inliers": corr.n_inliers, "rms_px": corr.rms,
+                                                      "std": corr.std().tolist()},
             "t_simulate_and_lidar": time.perf_counter() - t0 - t_refine, "t_refine": t_refine,
-            "t_per_building": t_refine / max(len(polys), 1), "rows": rows}
+            "t_per_building": t_refine / max(len(polys), 1),
+            "t_per_building_perturbed": t_pert / max(len(polys), 1),
+            "cpu_per_building_perturbed": c_pert / max(len(polys), 1), "rows": rows}
 
 
 def summarise(cases: list[dict]) -> dict:
@@ -264,6 +284,9 @@ def summarise(cases: list[dict]) -> dict:
             "buildings": len(rows), "refined": len(ok),
             "polis_lidar": float(np.mean(before)),
             "polis_refined": float(np.mean(after)),
+            "polis_refined_perturbed": float(np.mean([r["polis_refined_perturbed"] for r in rows])),
+            "camera_disp_px": {k: float(np.mean([c["camera_disp_px"][k] for c in cases if c["density"] == density]))
+                               for k in ("perturbed", "corrected", "true_corrected")},
             "polis_lidar_sane": float(np.mean(before[sane])), "polis_refined_sane": float(np.mean(after[sane])),
             "n_sane": int(sane.sum()), "improved": int((after < before).sum()), "worse": int((after > before).sum()),
             "ridge_err_lidar": float(np.mean([e for r in rows for e in r["ridge_err_lidar"]] or [np.nan])),
@@ -278,6 +301,10 @@ def summarise(cases: list[dict]) -> dict:
             "sec_8_12_sides_max": float(np.max(s812)) if s812 else float("nan"),
             "sec_8_12_sides_mean": float(np.mean(s812)) if s812 else float("nan"),
             "n_8_12": len(s812),
+            "sec_per_building_perturbed_run": float(np.mean([c["t_per_building_perturbed"] for c in cases
+                                                            if c["density"] == density])),
+            "cpu_per_building_perturbed_run": float(np.mean([c.get("cpu_per_building_perturbed", np.nan)
+                                                            for c in cases if c["density"] == density])),
         }
     return out
 
@@ -294,6 +321,11 @@ def main(argv=None) -> int:
                     help="seed 000 as written: terrain filter, image lines alone (no fusion, no common shift), "
                          "ridge points on one plane, fixed LiDAR precision 0.48 m, and none of the candidate "
                          "refit, visible-wall step or per-roof shift in the energy")
+    ap.add_argument("--orientation", choices=["default", "on", "off"], default="default",
+                    help="correct the exterior orientation from the matched lines (RefineOptions.orientation; "
+                         "only the perturbed camera has a covariance, so only its run is corrected)")
+    ap.add_argument("--orientation-rounds", type=int, default=None, help="RefineOptions.orientation_rounds")
+    ap.add_argument("--perturb-px", type=float, default=3.0, help="mean error of the perturbed camera (px)")
     ap.add_argument("--json", type=Path, default=None, help="write all rows here")
     ap.add_argument("--summarise", type=Path, default=None, help="only summarise the cases of an earlier --json")
     args = ap.parse_args(argv)
@@ -303,8 +335,12 @@ def main(argv=None) -> int:
     cases = []
     for density in args.densities:
         for seed in args.seeds:
-            case = run_case(seed, density, mode=args.mode,
-                            options=PAPER if args.paper else RefineOptions(terrain_filter=args.terrain_filter))
+            opts = PAPER if args.paper else RefineOptions(terrain_filter=args.terrain_filter)
+            if args.orientation != "default":
+                opts = dataclasses.replace(opts, orientation=args.orientation == "on")
+            if args.orientation_rounds:
+                opts = dataclasses.replace(opts, orientation_rounds=args.orientation_rounds)
+            case = run_case(seed, density, perturb_px=args.perturb_px, mode=args.mode, options=opts)
             cases.append(case)
             print(f"seed {seed} density {density}: {case['buildings']} buildings, refine {case['t_refine']:.1f} s",
                   file=sys.stderr)

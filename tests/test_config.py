@@ -35,16 +35,21 @@ def test_a_table_read_by_another_command_is_checked_too(tmp_path):
         load_config(_cfg(tmp_path, "[segment]\nmin_height = 2.5\n[snake]\nstepz = 3\n"))
 
 
-def test_shared_corners_table_serves_both_stages(tmp_path):
-    """[corners] holds the contour corner options and the image's Harris options; neither is a typo for the other."""
+def test_contour_corners_and_harris_have_their_own_tables(tmp_path):
+    """[corners] is the outline's Douglas-Peucker/angle filter, [harris] the image corner detector."""
+    from rooftrace.config import _section_classes
     from rooftrace.contour.corners import CornerOptions
     from rooftrace.image.corners import HarrisOptions
 
-    cfg = load_config(_cfg(tmp_path, "[corners]\nt_dist = 0.5\nk = 0.05\n"))
+    cfg = load_config(_cfg(tmp_path, "[corners]\nt_dist = 0.5\n[harris]\nk = 0.05\n"))
     assert make_options(CornerOptions, cfg).t_dist == 0.5
     assert make_options(HarrisOptions, cfg).k == 0.05
-    with pytest.raises(InputError, match="unknown key"):
-        load_config(_cfg(tmp_path, "[corners]\nt_dsit = 0.5\n"))
+    with pytest.raises(InputError, match=r"\[corners\] has unknown key\(s\) k;"):
+        load_config(_cfg(tmp_path, "[corners]\nk = 0.05\n"))
+    with pytest.raises(InputError, match=r"\[harris\] (harris\.)?k must be in"):
+        load_config(_cfg(tmp_path, "[harris]\nk = 0.5\n"))
+    # no two stages read one table: a key could otherwise set both or hide a typo
+    assert all(len(owners) == 1 for owners in _section_classes().values())
 
 
 def test_good_config_and_overrides(tmp_path):

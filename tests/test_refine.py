@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
+import shapely
 from shapely import LineString, Polygon
 
 from rooftrace.evaluate.metrics import polis
@@ -112,6 +113,19 @@ def test_options_from_config_and_errors():
     assert RefineOptions(mrf={"w_corner": 0.5}).mrf.w_corner == 0.5
     with pytest.raises(ValueError, match="refine.solver"):
         RefineOptions(solver="annealing")
+    opt = RefineOptions.from_config({"refine": {"orientation": False, "orientation_parameters": "reduced"}})
+    assert opt.orientation is False and opt.orientation_parameters == "reduced"
+    with pytest.raises(ValueError, match="refine.orientation_parameters"):
+        RefineOptions(orientation_parameters="tilts")
+    with pytest.raises(ValueError, match="orientation_rounds"):
+        RefineOptions(orientation_rounds=0)
+    from rooftrace.config import validate_config
+    from rooftrace.errors import InputError
+
+    with pytest.raises(InputError, match=r"\[refine\] orientation must be true or false"):
+        validate_config({"refine": {"orientation": "yes"}})
+    with pytest.raises(InputError, match="orientation_parameters"):
+        validate_config({"refine": {"orientation_parameters": "tilts"}})
     with pytest.raises(ValueError, match="building_ids"):
         refine_buildings([Polygon([(0, 0), (1, 0), (1, 1)])], [], np.zeros((5, 5)), _camera(), building_ids=[1, 2])
 
@@ -150,8 +164,12 @@ def test_refine_building_with_given_candidates_picks_the_true_lines(scene):
     assert res.ga_exact_gap == pytest.approx(0.0)
     # sides shorter than min_side_px keep their projected line: nothing moves
     res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
-                          options=RefineOptions(min_side_px=1e6))
+                          options=RefineOptions(min_side_px=1e6, grow=False))
     assert res.status == "kept: no vertex moved" and res.outline is lidar and res.refined_sides == [0] * 6
+    # ...but their image lines still measure the roof's common shift, which the vertices follow
+    res = refine_building(lidar, [], img, cam, planes=planes[0], candidates=cands, corners=corners,
+                          options=RefineOptions(min_side_px=1e6))
+    assert res.image_shift[3] >= 4 and res.refined_sides == [0] * 6
 
 
 def test_ridge_kinds_are_carried(scene):
@@ -179,3 +197,59 @@ def test_common_image_shift_is_estimated_only_for_an_uncertain_camera(scene):
     assert all(b.image_shift[:2] == (0.0, 0.0) for b in exact.buildings)  # a camera known exactly moves nothing
     plain = refine_buildings(truth, ridges, img, off, planes=planes, seed=1, options=RefineOptions(register=False))
     assert all(b.image_shift[3] == 0 for b in plain.buildings)
+
+
+def test_sides_without_an_image_line_follow_the_roofs_growth(scene):
+    # issue 7: a LiDAR outline shrunk by 0.35 m (1.75 px); one side has no image line.  With the growth
+    # measured on the other five sides, that side moves outward too instead of staying inside
+    from rooftrace.image.candidates import LineCandidates
+    from rooftrace.refine import refine_building
+
+    cam, img, truth, _, planes = scene
+    flat = truth[0]
+    v = np.asarray(flat.exterior.coords)[:-1]
+    d = np.roll(v, -1, axis=0) - v
+    n = np.column_stack([d[:, 1], -d[:, 0], np.zeros(len(d))]) / np.linalg.norm(d, axis=1)[:, None]
+    n *= 1 if flat.exterior.is_ccw else -1  # outward normals of the sides (all at right angles)
+    lidar = Polygon(v - 0.35 * (n + np.roll(n, 1, axis=0)))
+    cands = _given_candidates(cam, lidar, flat)
+    c = cands[2]
+    cands[2] = LineCandidates(c.reference, c.registration_error, c.window, c.reference[None], ["projected"],
+                              projected_only=True)
+    corners = cam.project(np.array(flat.exterior.coords)[:-1])
+    kw = dict(planes=planes[0], candidates=cands, corners=corners, seed=0)
+    grown = refine_building(lidar, [], img, cam, **kw)
+    kept = refine_building(lidar, [], img, cam, options=RefineOptions(grow=False), **kw)
+    assert grown.image_shift[2] == pytest.approx(1.75, abs=0.3)
+    side = LineString(np.array(flat.exterior.coords)[2:4, :2])
+    mid = [np.asarray(r.outline.exterior.coords)[2:4, :2].mean(axis=0) for r in (grown, kept)]
+    d_grown, d_kept = (side.distance(shapely.Point(m)) for m in mid)
+    assert d_kept > 0.3 and d_grown < 0.12
+    assert polis(grown.outline, flat) < polis(kept.outline, flat)
+
+
+def test_orientation_is_corrected_from_the_matched_lines_for_an_uncertain_camera(scene):
+    # issue 7 (optional): a camera off by 3 px whose covariance says so; the matched lines correct it and
+    # the second pass puts the outlines back in place in object space
+    cam, img, truth, ridges, planes = scene
+    eo = np.asarray(cam.exterior, float).copy()
+    eo[0] += 0.6
+    off = cam.with_exterior(eo, np.diag([0.36, 0.36, 0.36, 1e-8, 1e-8, 1e-8]))
+    xyz = np.vstack([np.array(t.exterior.coords) for t in truth])
+
+    def disp(c):
+        return float(np.mean(np.hypot(*(c.project(xyz) - cam.project(xyz)).T)))
+
+    kw = dict(planes=planes, seed=1)
+    plain = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation=False), **kw)
+    fixed = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation_min_lines=8), **kw)
+    assert plain.orientation is None and plain.camera is off
+    assert disp(off) == pytest.approx(3.0, abs=0.3) and disp(fixed.camera) < 0.5
+    assert fixed.orientation.n_inliers >= 8 and "orientation" in fixed.summary()
+    before = np.mean([polis(o, t) for o, t in zip(plain.outlines, truth)])
+    after = np.mean([polis(o, t) for o, t in zip(fixed.outlines, truth)])
+    assert before > 0.25 and after < 0.1
+    # a camera without covariance is taken as exact; too few lines keep the camera (a warning, no error)
+    assert refine_buildings(truth, ridges, img, cam, **kw).orientation is None
+    few = refine_buildings(truth, ridges, img, off, options=RefineOptions(orientation_min_lines=50), **kw)
+    assert few.orientation is None and few.camera is off

@@ -83,8 +83,9 @@ def load_config(path: str | os.PathLike | None, *, validate: bool = True) -> dic
 def _section_classes() -> dict[str, list[type]]:
     """Options dataclasses by config section, found in the imported stage modules.
 
-    A section may be shared by several dataclasses (``[corners]`` holds the
-    contour corner options and the image's Harris options).
+    One dataclass per section; a list, so that two stages claiming one table
+    are reported by :func:`validate_config`'s checks instead of one hiding
+    the other.
     """
     for name in _STAGE_MODULES:
         importlib.import_module(name)
@@ -192,11 +193,6 @@ def make_options(cls: type[T], config: dict[str, Any] | None = None, **overrides
     table = dict((config or {}).get(section, {}))
     names = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(table) - set(names))
-    if unknown:
-        # keys of another dataclass sharing the section ([corners]) are theirs, not typos
-        siblings = {f.name for c in _section_classes().get(section, []) if c is not cls for f in dataclasses.fields(c)}
-        table = {k: v for k, v in table.items() if k not in siblings}
-        unknown = sorted(set(unknown) - siblings)
     if unknown:
         raise InputError(f"{where}: [{section}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
     table.update({k: v for k, v in overrides.items() if v is not None})

@@ -73,6 +73,9 @@ class RunResult:
             "sigma_h": float(det.sigma_h),
             "parameters": det.params,
             "timings": {k: round(v, 3) for k, v in {**det.timings, **self.timings}.items()},
+            # the camera's exterior orientation corrected from the refinement's line matches
+            **({"orientation": self.refined.summary()["orientation"]}
+               if self.refined is not None and getattr(self.refined, "orientation", None) is not None else {}),
         }
 
 

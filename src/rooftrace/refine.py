@@ -11,7 +11,12 @@ For each building:
    between the two is reported (``ga_exact_gap``);
 4. reconstruction of the selected lines along the projected topology (§2.4);
 5. back to object space: each refined pixel's ray meets the roof plane of its
-   vertex (or a horizontal plane through the LiDAR vertex).
+   vertex (or a horizontal plane through the LiDAR vertex);
+6. (ours, ``RefineOptions.orientation``) for a frame camera with an EO
+   covariance: the exterior orientation corrected from the lines matched in
+   all buildings (:func:`rooftrace.grouping.orientation.correct_orientation`)
+   and steps 2-5 run again with the corrected camera, so that the camera's
+   registration error leaves the object-space result too.
 
 A building that cannot be refined keeps its input geometry; ``refine_status``
 says why.  No I/O here: the CLI and the pipeline read and write.
@@ -30,9 +35,10 @@ from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
 from rooftrace.grouping.building import BuildingRefinement, RefineOptions, keep_input, refine_building
+from rooftrace.grouping.orientation import EO_NAMES, OrientationCorrection, correct_orientation
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
-           "assign_ridges"]
+           "assign_ridges", "correct_from_matches", "orientation_summary"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +62,11 @@ class RefineResult:
     ridge_attributes : dict of str to list
         Per ridge: ``building_id``, ``kind``, ``refined`` (0/1).
     buildings : list of BuildingRefinement
+    camera : FrameCamera or OrthoCamera or None
+        The camera of the last pass: the input one, or the corrected one.
+    orientation : OrientationCorrection or None
+        The exterior orientation correction (``RefineOptions.orientation``);
+        ``delta`` is the total over the rounds.
     """
 
     outlines: list
@@ -63,6 +74,8 @@ class RefineResult:
     attributes: dict
     ridge_attributes: dict
     buildings: list
+    camera: object = None
+    orientation: OrientationCorrection | None = None
 
     @property
     def ridge_building_ids(self) -> list:
@@ -76,7 +89,8 @@ class RefineResult:
         ran = np.isfinite(gaps)
         return {"buildings": len(self.outlines), "status": statuses, "ridges": len(self.ridges),
                 "sides": int(sum(self.attributes["n_sides"])), "sides_refined": int(sum(self.attributes["n_refined"])),
-                "exact_checked": int(ran.sum()), "ga_reached_exact": int((gaps[ran] <= 1e-9).sum())}
+                "exact_checked": int(ran.sum()), "ga_reached_exact": int((gaps[ran] <= 1e-9).sum()),
+                **({"orientation": orientation_summary(self.orientation)} if self.orientation is not None else {})}
 
 
 def assign_ridges(outlines: Sequence, ridges: Sequence) -> list[int]:
@@ -155,12 +169,9 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
 
     pts = None if points_xyz is None or not len(points_xyz) else np.asarray(points_xyz, float).reshape(-1, 3)
     tree = cKDTree(pts[:, :2]) if pts is not None else None
-    buildings: list[BuildingRefinement] = []
-    new_ridges = list(ridges)
-    ridge_refined = [False] * len(ridges)
+    jobs = []
     for i, (poly, bid) in enumerate(zip(outlines, ids)):
-        mine = by_building.get(bid, [])
-        local = inside = sigma = ground = None
+        local = sigma = ground = None
         if poly is not None and not poly.is_empty and tree is not None:
             x0, y0, x1, y1 = poly.bounds
             near = tree.query_ball_point([(x0 + x1) / 2, (y0 + y1) / 2], np.hypot(x1 - x0, y1 - y0) / 2 + opt.context)
@@ -170,11 +181,6 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             n_in = int(shapely.contains_xy(shapely.force_2d(poly), local[:, 0], local[:, 1]).sum())
             # a fraction of the mean point spacing 1/sqrt(density) (boundary points sit within a spacing of the edge)
             sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
-            # the building's own points would mark the true edges, which lie outside a LiDAR outline
-            # shrunk by half a point spacing, as "off the building": the projected lines stand for it
-            inside = None
-        if not opt.terrain_filter:
-            local = None
         b_opt = opt
         if sigma is not None and opt.derive_sigma:
             # windows and registration errors follow this roof's LiDAR precision, not seed 000's 0.48 m
@@ -182,17 +188,47 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
 
             b_opt = dataclasses.replace(opt, candidates=dataclasses.replace(opt.candidates or CandidateOptions(),
                                                                             sigma_xy=sigma))
-        try:
-            res = refine_building(poly, [ridges[r] for r in mine], img, camera, points_xyz=local, building_xyz=inside,
-                                  planes=None if planes is None else planes[i], options=b_opt, seed=seed + i,
-                                  lidar_sigma=sigma, ground_z=ground)
-        except (GeometryError, np.linalg.LinAlgError) as exc:
-            log.warning("building %d: not refined (%s)", bid, exc)
-            res = keep_input(poly, [ridges[r] for r in mine], f"kept: {exc}")
-        if res.status != "refined":
-            log.info("building %d: %s", bid, res.status)
-        buildings.append(res)
-        for r, geom, flag in zip(mine, res.ridges, res.ridge_refined):
+        # the building's own points would mark the true edges, which lie outside a LiDAR outline
+        # shrunk by half a point spacing, as "off the building": the projected lines stand for it
+        jobs.append(dict(points_xyz=local if opt.terrain_filter else None, building_xyz=None,
+                         planes=None if planes is None else planes[i], options=b_opt, seed=seed + i,
+                         lidar_sigma=sigma, ground_z=ground))
+
+    def one_pass(cam) -> list:
+        out = []
+        for i, (poly, bid) in enumerate(zip(outlines, ids)):
+            mine = [ridges[r] for r in by_building.get(bid, [])]
+            try:
+                res = refine_building(poly, mine, img, cam, **jobs[i])
+            except (GeometryError, np.linalg.LinAlgError) as exc:
+                log.warning("building %d: not refined (%s)", bid, exc)
+                res = keep_input(poly, mine, f"kept: {exc}")
+            if res.status != "refined":
+                log.info("building %d: %s", bid, res.status)
+            out.append(res)
+        return out
+
+    buildings = one_pass(camera)
+    correction, used = None, camera
+    uncertain = getattr(camera, "exterior_covariance", None) is not None
+    if (opt.orientation and getattr(camera, "kind", None) == "frame"
+            and (uncertain or opt.orientation_parameters != "auto")):
+        for _ in range(opt.orientation_rounds):
+            try:
+                # each round starts from the last correction; the prior stays the input camera's
+                correction = correct_from_matches(camera, buildings, start=used.exterior,
+                                                  parameters=opt.orientation_parameters,
+                                                  min_lines=opt.orientation_min_lines,
+                                                  image_sigma_px=opt.image_sigma_px)
+            except GeometryError as exc:
+                log.warning("exterior orientation not corrected: %s", exc)
+                break
+            used = correction.camera
+            buildings = one_pass(used)
+    new_ridges = list(ridges)
+    ridge_refined = [False] * len(ridges)
+    for bid, res in zip(ids, buildings):
+        for r, geom, flag in zip(by_building.get(bid, []), res.ridges, res.ridge_refined):
             new_ridges[r], ridge_refined[r] = geom, flag
 
     attributes = {
@@ -208,4 +244,68 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     }
     ridge_attributes = {"building_id": ridge_ids, "kind": kinds,
                         "refined": [int(f) for f in ridge_refined]}
-    return RefineResult([b.outline for b in buildings], new_ridges, attributes, ridge_attributes, buildings)
+    return RefineResult([b.outline for b in buildings], new_ridges, attributes, ridge_attributes, buildings,
+                        used, correction)
+
+
+def correct_from_matches(camera, buildings, *, start=None, parameters: str = "auto", min_lines: int = 12,
+                         image_sigma_px: float = 0.7) -> OrientationCorrection:
+    """:func:`correct_orientation` from the lines the grouping matched in refined buildings.
+
+    Parameters
+    ----------
+    camera : FrameCamera
+        The camera the buildings were refined with (prior and start).
+    buildings : sequence of BuildingRefinement
+        Refined buildings; their ``lines3d``, ``selected``, ``outward``,
+        ``image_chosen`` and ``lidar_sigma_px`` give the matches (lines whose selected line is an
+        image line), one growth per building.
+    start : ndarray of shape (6,), optional
+        Starting EO; default the camera's.
+    parameters : {'auto', 'full', 'reduced'}, default 'auto'
+    min_lines : int, default 12
+    image_sigma_px : float, default 0.7
+        Precision of an image line (px).  A ridge match gets this sigma, an
+        outline side ``hypot(image_sigma_px, lidar_sigma_px)`` with its
+        building's LiDAR planimetric precision in pixels (the end points of
+        a LiDAR outline side scatter by about that much; a ridge from two
+        fitted planes far less).
+
+    Returns
+    -------
+    OrientationCorrection
+
+    Raises
+    ------
+    GeometryError
+        Too few matches, or matches that do not determine the orientation.
+    """
+    l3, l2, out, grp, sig = [], [], [], [], []
+    for k, b in enumerate(buildings):
+        if b.status != "refined" or b.image_chosen is None or not np.any(b.image_chosen):
+            continue
+        use = np.flatnonzero(b.image_chosen)
+        l3.append(np.asarray(b.lines3d, float)[use])
+        l2.append(np.asarray(b.selected, float)[use])
+        out.append(np.asarray(b.outward, float)[use])
+        grp.append(np.full(len(use), k))
+        # an outline side's end points carry the LiDAR outline's error too; a ridge (two planes) hardly any
+        side = np.isfinite(np.asarray(b.outward, float)[use]).all(axis=1)
+        sig.append(np.where(side, np.hypot(image_sigma_px, b.lidar_sigma_px), image_sigma_px))
+    if not l3:
+        raise GeometryError("no image line was matched: nothing to correct the orientation with")
+    l3, l2 = np.concatenate(l3), np.concatenate(l2)
+    keep = np.linalg.norm(l2[:, 1] - l2[:, 0], axis=1) > 1e-6
+    out = np.concatenate(out)[keep]
+    return correct_orientation(camera, l3[keep], l2[keep], outward=out, sigma_px=np.concatenate(sig)[keep],
+                               groups=np.concatenate(grp)[keep], start=start, parameters=parameters,
+                               min_lines=min_lines)
+
+
+def orientation_summary(correction: OrientationCorrection) -> dict:
+    """A JSON-ready summary: parameters, EO change (m, deg) and its standard deviations, lines, RMS (px)."""
+    deg = np.array([1.0, 1.0, 1.0, *(3 * [180.0 / np.pi])])
+    return {"parameters": list(correction.parameters),
+            "delta": {k: float(v) for k, v in zip(EO_NAMES, correction.delta * deg)},
+            "std": {k: float(v) for k, v in zip(EO_NAMES, correction.std() * deg)},
+            "lines": correction.n_lines, "inliers": correction.n_inliers, "rms_px": correction.rms}

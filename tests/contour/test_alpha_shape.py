@@ -3,7 +3,7 @@ import pytest
 import shapely
 from scipy.spatial import Delaunay
 
-from rooftrace.contour.alpha_shape import (AlphaOptions, alpha_shape, boundary_edges, building_alpha,
+from rooftrace.contour.alpha_shape import (AlphaOptions, alpha_shape, boundary_edges, building_alpha, trace_rings,
                                            delaunay_edges, point_spacing)
 from rooftrace.errors import GeometryError
 from tests.contour.shapes import COURTYARD, L_SHAPE, RECT, sample
@@ -120,3 +120,15 @@ def test_degenerate_input_raises_geometry_error():
 def test_bad_option_names_value():
     with pytest.raises(ValueError, match="strategy"):
         AlphaOptions(strategy="triangle")
+
+
+def test_trace_rings_keeps_a_ring_whose_walk_starts_on_a_doubled_stretch():
+    # square 1-2-3-4 (counter-clockwise) with a second chain 2 -> 0 -> 3 beside its east side;
+    # the walk starts at vertex 0, comes round to 2, takes 2 -> 3 and is stuck at 3
+    # (its edge used): it used to drop the whole square (a Delft block lost its outer ring)
+    xy = np.array([[11.0, 5.0], [0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
+    directed = np.array([[1, 2], [2, 3], [3, 4], [4, 1], [2, 0], [0, 3]])
+    rings = trace_rings(xy, directed)
+    assert len(rings) == 1
+    assert sorted(rings[0].tolist()) == [0, 1, 2, 3, 4]
+    assert abs(_signed_area(xy[rings[0]])) >= 100.0

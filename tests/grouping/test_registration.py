@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from rooftrace.grouping.registration import RoofShift, estimate_shift, shift_references
 
@@ -57,3 +58,16 @@ def test_lines_at_the_expected_wall_foot_are_flagged():
     assert far[1].tolist() == [False, True] and not any(f.any() for f in far[::2])
     none = beyond_wall(SQUARE, cands, OUT, width, RoofShift(np.zeros(2), 0.0, 0), [np.ones(len(c), bool) for c in cands])
     assert not any(f.any() for f in none)
+
+
+def test_growth_is_re_estimated_with_the_shrunk_translation():
+    # the roof's lines lie 1.5 px outside the projections and the camera is exact: t = 0 and b = 1.5,
+    # whatever the joint estimate made of the two (three sides facing two directions barely separate them)
+    cands = _candidates([0.0, 0.0], 1.5, seed=4, noise=0.1)
+    usable = [np.ones(2, bool), np.ones(2, bool), np.zeros(2, bool), np.ones(2, bool)]
+    est = estimate_shift(SQUARE, cands, OUT, usable)
+    fixed = est.shrunk(0.0)
+    np.testing.assert_array_equal(fixed.translation, [0.0, 0.0])
+    assert fixed.growth == pytest.approx(1.5, abs=0.15)
+    assert len(fixed.offsets) == est.n_sides == 3
+    assert RoofShift(np.zeros(2), 0.7, 0).shrunk(1.0).growth == 0.7  # no inliers kept: the growth as it was

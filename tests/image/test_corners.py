@@ -46,7 +46,7 @@ def test_harris_flat_image_and_options():
     assert harris_corners(np.full((30, 30), 0.5)).shape == (0, 2)
     with pytest.raises(ValueError, match="subpixel"):
         HarrisOptions(subpixel="none")
-    with pytest.raises(ValueError, match="corners.k"):
+    with pytest.raises(ValueError, match="harris.k"):
         HarrisOptions(k=0.3)
     with pytest.raises(ValueError, match="2-D"):
         harris_corners(np.zeros(10))

@@ -1,31 +1,7 @@
 import numpy as np
 import pytest
 
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, eigen_features, kmeans_1d, separate_buildings
-
-
-def test_features_of_a_plane_a_line_and_a_volume(rng):
-    plane = np.column_stack([rng.uniform(0, 10, (2000, 2)), np.zeros(2000)]) + [0, 0, 0]
-    line = np.column_stack([np.linspace(0, 50, 500), np.zeros(500), np.zeros(500)]) + [100, 0, 0]
-    ball = rng.normal(0, 1, (2000, 3)) + [300, 0, 0]
-    f = eigen_features(np.vstack([plane, line, ball]), 30, normal_neighbours=10)
-    p, ln, b = f[:2000], f[2000:2500], f[2500:]
-    assert np.allclose(f[:, :3].sum(axis=1), 1.0)
-    assert np.median(p[:, 1]) > 0.5 and np.median(p[:, 2]) < 1e-9
-    assert np.median(ln[:, 0]) > 0.99
-    assert np.median(b[:, 3]) > 0.9 > 0.75 > np.median(p[:, 3])
-    assert np.allclose(np.abs(p[:, 6]), 1.0)  # normals of the horizontal plane are vertical
-
-
-def test_features_match_numpy_eigenvalues(rng):
-    pts = rng.normal(0, [3, 2, 0.5], (300, 3))
-    f = eigen_features(pts, 20)
-    from scipy.spatial import cKDTree
-
-    _, idx = cKDTree(pts).query(pts[:5], k=20)
-    for i in range(5):
-        w = np.linalg.eigvalsh(np.cov(pts[idx[i]].T, bias=True))[::-1]
-        assert f[i, :3] == pytest.approx([(w[0] - w[1]) / w[0], (w[1] - w[2]) / w[0], w[2] / w[0]], abs=1e-9)
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, kmeans_1d, separate_buildings
 
 
 def test_cluster_means():
@@ -67,3 +43,7 @@ def test_options_are_checked():
         ClassifyOptions(entropy_floor=0.9, fallback_entropy=0.8)
     with pytest.raises(ValueError, match="boundary"):
         ClassifyOptions(boundary="median")
+    with pytest.raises(ValueError, match="neighbourhood"):
+        ClassifyOptions(neighbourhood="optimal")
+    with pytest.raises(ValueError, match="neighbour_step"):
+        ClassifyOptions(neighbour_step=0)

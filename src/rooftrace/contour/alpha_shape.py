@@ -334,6 +334,11 @@ def trace_rings(xy: np.ndarray, directed: np.ndarray) -> list[np.ndarray]:
     At a vertex with several outgoing edges the walk takes the first one
     clockwise from the edge it came along, which keeps the roof on the left
     and splits rings that touch at a vertex instead of crossing them.
+    The repair can leave two chains from one vertex to another; a walk that
+    took the wrong one comes back to a vertex it has left already and finds
+    no free edge there.  It then goes back to the last vertex of the walk
+    with a free edge and goes on from there, leaving that chain out (before,
+    the whole ring was dropped: the outer ring of a 2 000 m² Delft block).
     Chains that cannot close are dropped.
     """
     if len(directed) == 0:
@@ -353,8 +358,16 @@ def trace_rings(xy: np.ndarray, directed: np.ndarray) -> list[np.ndarray]:
             lo, hi = starts[cur], starts[cur + 1]
             free = [k for k in range(lo, hi) if not used[k]]
             if not free:
-                ring = None
-                break
+                # back at a vertex this walk left already: the walk took the
+                # wrong one of two chains leaving an earlier vertex; go back
+                # to the last vertex with a free edge and leave that chain out
+                j = _last_free(ring, starts, used) if cur in ring else 0
+                if j < 1:
+                    ring = None
+                    break
+                prev, cur = ring[j - 1], ring[j]
+                del ring[j:]
+                continue
             if len(free) == 1:
                 k = free[0]
             else:
@@ -369,6 +382,15 @@ def trace_rings(xy: np.ndarray, directed: np.ndarray) -> list[np.ndarray]:
         if ring is not None and len(ring) >= 3:
             rings.append(np.asarray(ring, dtype=np.int64))
     return rings
+
+
+def _last_free(ring: list, starts: np.ndarray, used: np.ndarray) -> int:
+    """Index of the last vertex of ``ring`` that still has an unused outgoing edge; 0 if none."""
+    for j in range(len(ring) - 1, 0, -1):
+        v = ring[j]
+        if not used[starts[v]:starts[v + 1]].all():
+            return j
+    return 0
 
 
 def _signed_area(xy: np.ndarray) -> float:

@@ -1,29 +1,29 @@
-"""One roof refined with the image: options, result, and :func:`refine_building` (seed 000).
+"""One roof refined with the image: :func:`refine_building` (seed 000).
 
 The steps (see :mod:`rooftrace.refine` for the many-building entry point):
 topology of the LiDAR roof; candidate image lines and Harris corners in
 windows around its projected lines; the MRF energy minimised by the genetic
 algorithm (and, when small enough, exactly, to report the gap); the
 selected lines put back together along the projected topology; the refined
-pixels brought back onto the LiDAR roof planes.
+pixels brought back onto the LiDAR roof planes.  The options and the result
+type are in :mod:`rooftrace.grouping.options`.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
-from rooftrace import config as _config
 from rooftrace.errors import GeometryError
 from rooftrace.grouping.exact import exact_minimise
-from rooftrace.grouping.ga import GAOptions, genetic_minimise
-from rooftrace.grouping.mrf import MRFOptions, build_problem
-from rooftrace.grouping.registration import RoofShift, beyond_wall, estimate_shift, shift_references
+from rooftrace.grouping.ga import genetic_minimise
+from rooftrace.grouping.mrf import build_problem
+from rooftrace.grouping.options import BuildingRefinement, RefineOptions, keep_input
+from rooftrace.grouping.registration import GROWTH_RANGE, RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
 from rooftrace.grouping.topology import roof_topology
 from rooftrace.image.walls import wall_strips
@@ -31,185 +31,6 @@ from rooftrace.image.walls import wall_strips
 __all__ = ["RefineOptions", "BuildingRefinement", "refine_building", "fuse_positions", "keep_input"]
 
 log = logging.getLogger(__name__)
-
-_config.KNOWN_SECTIONS.update({"refine", "mrf", "ga"})
-
-@dataclass(frozen=True)
-class RefineOptions:
-    """Options of the image refinement (section ``[refine]``; ``[mrf]`` and ``[ga]`` nest here).
-
-    Attributes
-    ----------
-    junction_tolerance : float, default 1.0
-        Plan distance (m) joining ridge ends to outline vertices, sides and
-        each other (topology; ours).
-    simplify_tolerance : float or None, default 0
-        Douglas-Peucker tolerance (m, plan) applied to the LiDAR outline
-        first, so that vertices that hardly change its shape do not become
-        sides of their own; None: half the image GSD.  Off by default: on
-        the pipeline's outlines it cost accuracy (mean PoLiS 0.107 m with
-        None, 0.099 m without, 12 pts/m², benchmarks/bench_refine.py).
-    min_side_px : float, default 6
-        Sides projecting shorter than this (px) keep their projected line
-        as their only candidate (ours: a few pixels of edge fix no direction).
-    ridges_on_planes : bool, default True
-        Move ridge points only along the intersection of their two LiDAR
-        roof planes (ours; see :func:`rooftrace.grouping.ridge_lines`).
-    fuse : bool, default True
-        Fuse each refined vertex with its projected LiDAR vertex by least
-        squares (:func:`fuse_positions`; ours).  False: the image alone, as
-        in seed 000.
-    derive_sigma : bool, default True
-        With LiDAR points, take each roof's planimetric precision as half
-        its mean point spacing (for the candidate windows, registration
-        errors and the fusion) instead of a fixed ``candidates.sigma_xy``.
-    lidar_sigma_spacing : float, default 0.5
-        That precision as a fraction of the mean point spacing.
-    image_sigma_px : float, default 0.7
-        Precision of a vertex from image lines (px), measured on the
-        simulated scenes of benchmarks/bench_refine.py.
-    carry_shift_px : float, default 1.0
-        When the median shift of the image-supported vertices from their
-        projections exceeds this (px) and twice their median deviation from
-        it (a camera or LiDAR offset, not edge noise), the vertices without
-        image support move by it too.
-    lidar_sigma : float, default 0.48
-        Planimetric precision (m) of LiDAR outline vertices when it cannot
-        be derived (seed 000 §3); :func:`rooftrace.refine.refine_buildings`
-        derives half the mean point spacing of each roof from its points.
-    plane_tolerance : float, default 0.5
-        Largest vertical distance (m) of a LiDAR vertex to the roof plane it
-        is re-projected onto; beyond it, a horizontal plane (ours).
-    max_shift_k, max_shift_margin_px : float, default 3.0, 3.0
-        A reconstructed vertex may move at most ``k · e + margin`` px from its
-        projection, e the largest registration error of its lines (the
-        candidate windows' own size, so a vertex cannot leave them).
-    max_move : float, default 5.0
-        Largest planimetric move (m) of a vertex in object space.
-    solver : {'ga', 'exact'}, default 'ga'
-        Whose labelling is used: the seed's genetic algorithm, or the exact
-        minimum when it could be computed.
-    exact_max_table : int, default 4194304
-        Largest table of the exact minimiser (entries); 0 switches it off.
-    context : float, default 10.0
-        Margin (m) around a building within which LiDAR points are used for
-        the terrain-line filter.
-    wall_penalty : float, default 5.0
-        Energy added to a candidate marked as the foot of a visible wall
-        with the roof edge inward of it (ours; needs ``ground_z``, see
-        :func:`rooftrace.image.walls.wall_strips`); 0 switches it off.
-        Five times the largest unary term of seed 000 (``w_length`` · 1 for
-        a candidate as long as its side): the roof edge wins unless the
-        pairwise terms strongly disagree.
-    register : bool, default True
-        Measure the proximity term (seed 000 eq. 7-8) against the projected
-        lines moved by the roof's common image shift, estimated from the
-        candidates (:func:`rooftrace.grouping.registration.estimate_shift`;
-        ours) and weighed against the camera's orientation error (its EO
-        covariance): a camera without covariance moves nothing.
-    register_max_px : float, default 12.0
-        Largest shift searched (px); the search radius is otherwise
-        ``max_shift_k · e + 1`` with ``e`` the largest registration error.
-    terrain_filter : bool, default False
-        Remove candidate lines lying on the terrain (seed 000 §2.1) when
-        LiDAR points are given.  Off by default: on the simulated scenes of
-        benchmarks/bench_refine.py it removed true roof edges next to the
-        ground (mean PoLiS 0.160 m with it, 0.139 m without, at 2 pts/m²;
-        1.55 px vs 0.81 px with a 3 px camera error).
-    mrf, ga : MRFOptions, GAOptions
-        Energy and optimiser (a TOML ``[mrf]`` / ``[ga]`` table, see
-        :meth:`from_config`).
-    """
-
-    section = "refine"
-
-    junction_tolerance: float = 1.0
-    simplify_tolerance: float | None = 0.0
-    min_side_px: float = 6.0
-    ridges_on_planes: bool = True
-    fuse: bool = True
-    derive_sigma: bool = True
-    lidar_sigma_spacing: float = 0.5
-    image_sigma_px: float = 0.7
-    carry_shift_px: float = 1.0
-    lidar_sigma: float = 0.48
-    plane_tolerance: float = 0.5
-    max_shift_k: float = 3.0
-    max_shift_margin_px: float = 3.0
-    max_move: float = 5.0
-    solver: str = "ga"
-    exact_max_table: int = 2**22
-    context: float = 10.0
-    terrain_filter: bool = False
-    wall_penalty: float = 5.0
-    register: bool = True
-    register_max_px: float = 12.0
-    mrf: MRFOptions = field(default_factory=MRFOptions)
-    ga: GAOptions = field(default_factory=GAOptions)
-    candidates: object = None
-    corners: object = None
-
-    def __post_init__(self) -> None:
-        if isinstance(self.mrf, dict):
-            object.__setattr__(self, "mrf", MRFOptions(**self.mrf))
-        if isinstance(self.ga, dict):
-            object.__setattr__(self, "ga", GAOptions(**self.ga))
-        if self.solver not in ("ga", "exact"):
-            raise ValueError(f"refine.solver must be 'ga' or 'exact', got {self.solver!r}")
-        for name in ("junction_tolerance", "plane_tolerance", "max_move", "context"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"refine.{name} must be > 0, got {getattr(self, name)!r}")
-        if not (self.image_sigma_px > 0 and self.lidar_sigma > 0):
-            raise ValueError("refine.image_sigma_px and refine.lidar_sigma must be > 0")
-        if self.simplify_tolerance is not None and self.simplify_tolerance < 0:
-            raise ValueError(f"refine.simplify_tolerance must be >= 0, got {self.simplify_tolerance!r}")
-        if not self.wall_penalty >= 0:
-            raise ValueError(f"refine.wall_penalty must be >= 0, got {self.wall_penalty!r}")
-        if self.max_shift_k < 0 or self.max_shift_margin_px < 0 or self.exact_max_table < 0:
-            raise ValueError("refine.max_shift_k, max_shift_margin_px and exact_max_table must be >= 0")
-
-    @classmethod
-    def from_config(cls, config: dict | None = None, **overrides) -> "RefineOptions":
-        """Options from a parsed TOML config: ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[corners]``."""
-        from rooftrace.image.candidates import CandidateOptions
-        from rooftrace.image.corners import HarrisOptions
-
-        config = config or {}
-        nested = {"mrf": _config.make_options(MRFOptions, config), "ga": _config.make_options(GAOptions, config),
-                  "candidates": _config.make_options(CandidateOptions, config),
-                  "corners": _config.make_options(HarrisOptions, config)}
-        return _config.make_options(cls, config, **{**nested, **overrides})
-
-
-@dataclass
-class BuildingRefinement:
-    """The refinement of one building.
-
-    ``outline`` and ``ridges`` are in object space; ``image_outline`` (V, 2),
-    ``references`` (M, 2, 2), ``selected`` (M, 2, 2) and ``candidate_sets``
-    (M arrays (K_s, 2, 2)) are pixels, one per topology line (``kinds``),
-    kept for diagnostics and evaluation.
-    """
-
-    outline: Polygon
-    ridges: list
-    ridge_refined: list
-    status: str
-    candidates_per_side: list = field(default_factory=list)
-    refined_sides: list = field(default_factory=list)
-    energy: float = float("nan")
-    exact_energy: float = float("nan")
-    ga_exact_gap: float = float("nan")
-    choice: np.ndarray | None = None
-    image_outline: np.ndarray | None = None
-    kinds: tuple = ()
-    ring_sizes: tuple = ()
-    references: np.ndarray | None = None
-    selected: np.ndarray | None = None
-    candidate_sets: list = field(default_factory=list)
-    seconds: float = float("nan")
-    image_shift: tuple = ()
-
 
 
 def _inside_image(camera, cr: np.ndarray) -> bool:
@@ -261,11 +82,6 @@ def _wall_flags(candidates, n: int) -> np.ndarray:
     """The ``wall`` flags (n,) float of a LineCandidates (zeros when it has none, e.g. precomputed elsewhere)."""
     wall = np.asarray(getattr(candidates, "wall", np.zeros(0)), bool)
     return wall.astype(float) if len(wall) == n else np.zeros(n)
-
-
-def keep_input(outline, ridges, status: str) -> BuildingRefinement:
-    """The refinement of a building left as it was, with the reason in ``status``."""
-    return BuildingRefinement(outline, list(ridges), [False] * len(ridges), status)
 
 
 def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: np.ndarray | None = None,
@@ -343,6 +159,10 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
                             for k in range(len(cs))]) for c, cs in zip(candidates, cand_sets)]
     # a side a few pixels long has no trustworthy image line: it keeps its projection
     short = np.linalg.norm(refs[:, 1] - refs[:, 0], axis=1) < opt.min_side_px
+    # ...but its image lines still vote for the roof's common shift (a curved wall is all short sides)
+    vote_sets = list(cand_sets)
+    vote_usable = [il & (opt.wall_penalty * _wall_flags(c, len(cs)) == 0)
+                   for il, c, cs in zip(image_line, candidates, cand_sets)]
     for s_ in np.flatnonzero(short):
         cand_sets[s_], image_line[s_] = refs[s_:s_ + 1], np.zeros(1, bool)
     # a wall foot (or a shadow beyond it) with the roof edge found inward of it is the wrong line
@@ -353,7 +173,7 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
     if opt.register:
         usable = [image_line[s_] & (p == 0) for s_, p in enumerate(penalty)]
         radius = min(opt.max_shift_k * float(error.max(initial=0.0)) + 1.0, opt.register_max_px)
-        roof_shift = estimate_shift(refs, cand_sets, outward, usable, radius=max(radius, 2.0))
+        roof_shift = estimate_shift(refs, vote_sets, outward, vote_usable, radius=max(radius, 2.0))
         if width is not None and opt.wall_penalty > 0:
             # a side whose only image lines lie where its wall's foot is expected: the projection competes
             far = beyond_wall(refs, cand_sets, outward, width, roof_shift, usable)
@@ -375,27 +195,42 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
 
     limit = np.array([opt.max_shift_k * max(error[line] for line, _ in j.members) + opt.max_shift_margin_px
                       for j in topo.junctions])
-    rec = reconstruct_image(topo, selected, ref_points, limit)
+    chosen_image = np.array([image_line[s_][k] for s_, k in enumerate(choice)])
+    # the LiDAR outline as the image sees it: sides moved outward by the roof's common growth
+    expected = ref_points
+    if opt.grow and roof_shift.n_sides >= 3 and GROWTH_RANGE[0] <= roof_shift.growth <= GROWTH_RANGE[1]:
+        grown = refs.copy()
+        side = np.isfinite(outward).all(axis=1)
+        grown[side] += roof_shift.growth * outward[side][:, None, :]
+        expected = reconstruct_image(topo, grown, ref_points, limit).points
+        rec = reconstruct_image(topo, np.where((~chosen_image & side)[:, None, None], grown, selected), ref_points,
+                                limit)
+    else:
+        rec = reconstruct_image(topo, selected, ref_points, limit)
     jplanes = junction_planes(topo, planes, opt.plane_tolerance)
     jlines = ridge_lines(topo, planes, opt.plane_tolerance) if opt.ridges_on_planes else None
     original = np.array([j.point for j in topo.junctions])
     # a junction of projected lines only is the LiDAR point itself: keep it exactly
-    chosen_image = np.array([image_line[s_][k] for s_, k in enumerate(choice)])
     supported = np.array([any(chosen_image[line] for line, _ in j.members) for j in topo.junctions])
     pixels = rec.points
     use = rec.moved & supported
     carried = np.zeros(len(use), bool)
     if opt.fuse and use.any():
-        pixels = fuse_positions(rec.points, ref_points, use, opt.image_sigma_px,
+        pixels = fuse_positions(rec.points, expected, use, opt.image_sigma_px,
                                 (lidar_sigma if lidar_sigma is not None else opt.lidar_sigma)
                                 / camera.ground_sample_distance)
-        shifts = rec.points[use] - ref_points[use]
+        shifts = rec.points[use] - expected[use]
         t = np.median(shifts, axis=0)
         spread = np.median(np.linalg.norm(shifts - t, axis=1))
         if use.sum() >= 3 and np.hypot(*t) > max(opt.carry_shift_px, 2.0 * spread):
             # a clear registration error is common to the roof: vertices without image support follow it
             carried = ~use
-            pixels[carried] = ref_points[carried] + t
+            pixels[carried] = expected[carried] + t
+    if expected is not ref_points:
+        # without image support and without a clear common shift, a vertex still follows the growth
+        grown_v = ~use & ~carried & (np.linalg.norm(expected - ref_points, axis=1) > 1e-9)
+        pixels = np.where(grown_v[:, None], expected, pixels)
+        carried = carried | grown_v
     xyz, ok = to_object_space(camera, pixels, jplanes, original, opt.max_move, jlines)
     moved = (use | carried) & ok
     xyz = np.where(moved[:, None], xyz, original)
@@ -440,4 +275,6 @@ def refine_building(outline, ridges, image: np.ndarray, camera, *, points_xyz: n
         choice=choice, image_outline=np.where(moved[:, None], pixels, ref_points)[:n_out], kinds=topo.kinds,
         ring_sizes=topo.ring_sizes, references=refs, selected=selected,
         candidate_sets=cand_sets, seconds=time.perf_counter() - t0,
-        image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides))
+        image_shift=(*roof_shift.translation.tolist(), roof_shift.growth, roof_shift.n_sides),
+        lines3d=np.asarray(topo.lines, float), outward=outward, image_chosen=chosen_image & ~short,
+        lidar_sigma_px=(lidar_sigma if lidar_sigma is not None else opt.lidar_sigma) / camera.ground_sample_distance)

@@ -36,12 +36,12 @@ from rooftrace.image.projection import window_slices
 __all__ = ["HarrisOptions", "harris_response", "harris_corners"]
 
 log = logging.getLogger(__name__)
-KNOWN_SECTIONS.add("corners")  # the [corners] table of a config file
+KNOWN_SECTIONS.add("harris")  # the [harris] table of a config file
 
 
 @dataclass(frozen=True)
 class HarrisOptions:
-    """Options of the Harris corner detector (section ``[corners]``).
+    """Options of the Harris corner detector (section ``[harris]``).
 
     Attributes
     ----------
@@ -61,7 +61,7 @@ class HarrisOptions:
         Sub-pixel refinement (see the module notes).
     """
 
-    section = "corners"
+    section = "harris"
 
     sigma_d: float = 1.0
     sigma_i: float = 2.0
@@ -73,14 +73,14 @@ class HarrisOptions:
 
     def __post_init__(self):
         if self.subpixel not in ("gradient", "quadratic"):
-            raise ValueError(f"corners.subpixel must be 'gradient' or 'quadratic', got {self.subpixel!r}")
+            raise ValueError(f"harris.subpixel must be 'gradient' or 'quadratic', got {self.subpixel!r}")
         for name in ("sigma_d", "sigma_i"):
             if getattr(self, name) <= 0:
-                raise ValueError(f"corners.{name} must be positive, got {getattr(self, name)}")
+                raise ValueError(f"harris.{name} must be positive, got {getattr(self, name)}")
         if not 0 < self.k < 0.25:
-            raise ValueError(f"corners.k must be in (0, 0.25), got {self.k}")
+            raise ValueError(f"harris.k must be in (0, 0.25), got {self.k}")
         if self.min_distance < 1:
-            raise ValueError(f"corners.min_distance must be >= 1, got {self.min_distance}")
+            raise ValueError(f"harris.min_distance must be >= 1, got {self.min_distance}")
 
 
 def harris_response(image: np.ndarray, sigma_d: float = 1.0, sigma_i: float = 2.0, k: float = 0.04) -> np.ndarray:

@@ -38,7 +38,8 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 
-__all__ = ["ResectionOptions", "Resection", "space_resection", "initial_exterior", "line_resection"]
+__all__ = ["ResectionOptions", "Resection", "space_resection", "initial_exterior", "line_resection",
+           "check_line_matches"]
 
 log = logging.getLogger(__name__)
 KNOWN_SECTIONS.add("resection")  # the [resection] table of a config file
@@ -265,6 +266,26 @@ def _line_equations(image_lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return n, -np.einsum("md,md->m", n, image_lines[:, 0])
 
 
+def check_line_matches(camera, lines3d, image_lines, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Checked ``(M, 2, 3)`` object and ``(M, 2, 2)`` image lines of a frame camera, as float arrays.
+
+    Raises
+    ------
+    InputError
+        Not a frame camera (``what`` names the caller), shapes that differ,
+        or non-finite coordinates.
+    """
+    if getattr(camera, "kind", None) != "frame":
+        raise InputError(f"{what} needs a frame camera (an orthophoto has no exterior orientation)")
+    l3 = np.asarray(lines3d, float)
+    l2 = np.asarray(image_lines, float)
+    if l3.ndim != 3 or l3.shape[1:] != (2, 3) or l2.shape != (len(l3), 2, 2):
+        raise InputError(f"need (M, 2, 3) object lines and (M, 2, 2) image lines, got {l3.shape} and {l2.shape}")
+    if not (np.isfinite(l3).all() and np.isfinite(l2).all()):
+        raise InputError("line coordinates must be finite numbers")
+    return l3, l2
+
+
 def line_resection(camera, lines3d, image_lines, *, weights=None, use_prior: bool = True,
                    options: ResectionOptions | None = None) -> Resection:
     """Correct the exterior orientation from matched 3D and image lines.
@@ -315,14 +336,7 @@ def line_resection(camera, lines3d, image_lines, *, weights=None, use_prior: boo
     True
     """
     opt = options or ResectionOptions()
-    if getattr(camera, "kind", None) != "frame":
-        raise InputError("line resection needs a frame camera (an orthophoto has no exterior orientation)")
-    l3 = np.asarray(lines3d, float)
-    l2 = np.asarray(image_lines, float)
-    if l3.ndim != 3 or l3.shape[1:] != (2, 3) or l2.shape != (len(l3), 2, 2):
-        raise InputError(f"need (M, 2, 3) object lines and (M, 2, 2) image lines, got {l3.shape} and {l2.shape}")
-    if not (np.isfinite(l3).all() and np.isfinite(l2).all()):
-        raise InputError("line coordinates must be finite numbers")
+    l3, l2 = check_line_matches(camera, lines3d, image_lines, "line resection")
     w = np.ones(len(l3)) if weights is None else np.broadcast_to(np.asarray(weights, float), (len(l3),))
     prior = camera.exterior_covariance if use_prior else None
     if prior is None and len(l3) < 3:

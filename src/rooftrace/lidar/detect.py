@@ -6,8 +6,9 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
 2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1);
 3. progressive TIN densification (§3.2) → class 2 and the height above
    ground (HAG) of every point;
-4. eigen-features (L, P, S, entropy; N = Ar_min·d_avg neighbours) and a
-   surface normal for every non-ground point (§3.4);
+4. eigen-features (L, P, S, entropy; N = Ar_min·d_avg neighbours, or by
+   default the size up to N of lowest entropy, :mod:`rooftrace.lidar.features`)
+   and a surface normal for every non-ground point (§3.4);
 5. region growing of the points above ``segment.min_height`` into roof-level
    clusters (§3.3; the height test is measured along the normals);
 6. k-means on the mean entropy of the clusters of at least T_Np points
@@ -17,7 +18,8 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
 Beyond the thesis, a building then takes in the non-ground points next to it
 whose own entropy is on the building side (walls, roof edges, dormers cut
 off by the height test), and drops out when it is narrower than
-``segment.min_width`` or when the laser went through it (``classify.max_penetration``).
+``segment.min_width`` or when the laser went through it (``classify.max_penetration``);
+see :mod:`rooftrace.lidar.buildings`.
 
 Class rules (first match wins):
 
@@ -45,16 +47,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, eigen_features, separate_buildings
+from rooftrace.lidar.buildings import assemble_buildings
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
+from rooftrace.lidar.derived import DerivedParams
+from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching, order_labels, region_growing
+from rooftrace.lidar.segment import SegmentOptions, link_pairs, order_labels, region_growing
 from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
 from rooftrace.progress import Reporter
 
@@ -86,91 +90,6 @@ class DetectOptions:
                               ("segment", SegmentOptions), ("classify", ClassifyOptions)):
             parts[name] = make_options(opt_cls, config, **overrides.get(name, {}))
         return cls(**parts)
-
-
-@dataclass(frozen=True)
-class DerivedParams:
-    """The detection parameters that come from the data, resolved or fixed.
-
-    Every threshold of the detection follows from the options and these
-    numbers.  Left ``None`` they are measured on the cloud being detected;
-    a tiled run measures them once on the whole input (or a sample of it,
-    see :func:`rooftrace.tiling.estimate_parameters`) and fixes them for
-    every tile, so a tile detects its buildings exactly as the whole cloud
-    would.  :attr:`Detection.derived` holds the values a run used, so
-    ``detect_buildings(c, derived=detect_buildings(c).derived)`` gives the
-    same result as ``detect_buildings(c)``.
-
-    Attributes
-    ----------
-    origin : (float, float) or None
-        Corner (m) the grids of the outlier filter and of the ground filter
-        (candidate and seed cells) are anchored at, and the origin of the
-        local frames.  ``None``: the lowest x and y of the cloud.
-    extent : (float, float, float, float) or None
-        xmin, ymin, xmax, ymax (m) the ground filter's border is laid
-        around.  ``None``: the cloud's bounding box.  A tile uses its own
-        extent clipped to the whole input's, so that along the true edges
-        of the data its TIN ends where the whole cloud's does.
-    mean_spacing : float or None
-        s_avg (m), :func:`rooftrace.lidar.spacing.mean_spacing` of the points
-        left by the outlier filter.
-    density : float or None
-        d_avg (pts/m²), :func:`rooftrace.lidar.spacing.point_density`.
-    sigma_h : float or None
-        sigma_H (m), :func:`rooftrace.lidar.spacing.height_precision`.
-    entropy_threshold : float or None
-        Building/vegetation boundary of the mean cluster entropy (k-means
-        with k = 2, thesis §3.4; :func:`rooftrace.lidar.classify.separate_buildings`).
-    entropy_centroids : (float, float) or None
-        The two k-means centroids (building, vegetation), which bound the
-        entropy of absorbed points (``segment.absorb_margin``); ``None`` with a
-        fixed ``entropy_threshold`` means one population (no margin).
-    """
-
-    origin: tuple[float, float] | None = None
-    extent: tuple[float, float, float, float] | None = None
-    mean_spacing: float | None = None
-    density: float | None = None
-    sigma_h: float | None = None
-    entropy_threshold: float | None = None
-    entropy_centroids: tuple[float, float] | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("mean_spacing", "density", "sigma_h"):
-            v = getattr(self, name)
-            if v is not None and not (np.isfinite(v) and v > 0):
-                raise ValueError(f"derived.{name} must be a finite number > 0, got {v}")
-        if self.origin is not None and (len(self.origin) != 2 or not np.isfinite(self.origin).all()):
-            raise ValueError(f"derived.origin must be two finite numbers, got {self.origin}")
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serialisable form (floats round-trip exactly through :mod:`json`)."""
-        return {
-            "origin": None if self.origin is None else [float(v) for v in self.origin],
-            "extent": None if self.extent is None else [float(v) for v in self.extent],
-            "mean_spacing": self.mean_spacing,
-            "density": self.density,
-            "sigma_h": self.sigma_h,
-            "entropy_threshold": self.entropy_threshold,
-            "entropy_centroids": None if self.entropy_centroids is None else [float(v) for v in self.entropy_centroids],
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "DerivedParams":
-        """Inverse of :meth:`to_dict`."""
-        origin = d.get("origin")
-        extent = d.get("extent")
-        cent = d.get("entropy_centroids")
-        return cls(
-            origin=None if origin is None else (float(origin[0]), float(origin[1])),
-            extent=None if extent is None else tuple(float(v) for v in extent),
-            mean_spacing=d.get("mean_spacing"),
-            density=d.get("density"),
-            sigma_h=d.get("sigma_h"),
-            entropy_threshold=d.get("entropy_threshold"),
-            entropy_centroids=None if cent is None else (float(cent[0]), float(cent[1])),
-        )
 
 
 @dataclass
@@ -239,50 +158,6 @@ def _check_cloud(cloud: PointCloud) -> None:
         raise InputError(f"{where}: all points lie on one line; detection needs an area")
 
 
-def _absorb(pts: np.ndarray, group: np.ndarray, eligible: np.ndarray, radius: float, rounds: int) -> np.ndarray:
-    """Let buildings take in eligible unassigned points within ``radius`` (3D) of them, ``rounds`` times.
-
-    Recovers roof edges, dormers and wall tops that the height test cut into
-    clusters too small to keep; only points whose own entropy is on the
-    building side are eligible, so tree crowns stay out.
-    """
-    group = group.copy()
-    for _ in range(rounds):
-        inb = np.flatnonzero(group >= 0)
-        todo = np.flatnonzero((group < 0) & eligible)
-        if len(inb) == 0 or len(todo) == 0:
-            break
-        dist, j = cKDTree(pts[inb]).query(pts[todo], distance_upper_bound=radius, workers=-1)
-        hit = np.isfinite(dist)
-        if not hit.any():
-            break
-        group[todo[hit]] = group[inb[j[hit]]]
-    return group
-
-
-def _group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
-    """Width of each group in plan: sqrt(12 · smallest variance), exact for a filled rectangle (m)."""
-    ok = group >= 0
-    if not ok.any():
-        return np.zeros(k)
-    g = group[ok]
-    cnt = np.maximum(np.bincount(g, minlength=k), 1)
-    c = xy[ok] - xy[ok].mean(axis=0)
-    mx, my = np.bincount(g, c[:, 0], k) / cnt, np.bincount(g, c[:, 1], k) / cnt
-    sxx = np.bincount(g, c[:, 0] ** 2, k) / cnt - mx**2
-    syy = np.bincount(g, c[:, 1] ** 2, k) / cnt - my**2
-    sxy = np.bincount(g, c[:, 0] * c[:, 1], k) / cnt - mx * my
-    small = (sxx + syy) / 2 - np.sqrt(((sxx - syy) / 2) ** 2 + sxy**2)
-    return np.sqrt(12 * np.maximum(small, 0))
-
-
-def _absorb_entropy(threshold: float, centroids: list | None, margin: float) -> float:
-    """Entropy limit of absorbed points: ``margin`` of the way from the threshold to the vegetation centroid."""
-    if not centroids or centroids[1] <= threshold:
-        return threshold
-    return threshold + margin * (centroids[1] - threshold)
-
-
 def _penetration(cloud: PointCloud, index: np.ndarray) -> np.ndarray | None:
     """1.0 where a point is not the last return of its pulse, from the LAS return numbers; None without them."""
     rn = cloud.fields.get("return_number")
@@ -290,20 +165,6 @@ def _penetration(cloud: PointCloud, index: np.ndarray) -> np.ndarray | None:
     if rn is None or nr is None or not np.any(nr[index] > 1):
         return None
     return (rn[index] < nr[index]).astype(np.float64)
-
-
-def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float, eligible: np.ndarray) -> np.ndarray:
-    """Eligible unassigned points under a building's roof (plan distance < radius, lower) join it: walls, eaves."""
-    group = group.copy()
-    inb = np.flatnonzero(group >= 0)
-    todo = np.flatnonzero((group < 0) & eligible)
-    if len(inb) == 0 or len(todo) == 0:
-        return group
-    dist, j = cKDTree(pts[inb, :2]).query(pts[todo, :2], distance_upper_bound=radius, workers=-1)
-    hit = np.isfinite(dist)
-    hit[hit] &= pts[todo[hit], 2] <= pts[inb[j[hit]], 2]
-    group[todo[hit]] = group[inb[j[hit]]]
-    return group
 
 
 def detect_buildings(
@@ -402,7 +263,12 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     pts = xyz[above] - shift if len(above) else np.empty((0, 3))
     high = np.flatnonzero(hag[above] >= so.min_height)
     with clock("features"):
-        feats = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours)
+        adaptive = co.neighbourhood == "adaptive"
+        # the linear-object guard looks at N points: at the smallest adaptive
+        # sizes a roof scanned in lines looks linear too (low entropy either way)
+        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours,
+                                      min_neighbours=min(co.min_neighbours, k_nb) if adaptive else None,
+                                      neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
         normals = feats[high, 4:] if so.height_test == "normal" else None
@@ -417,7 +283,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     with clock("classify"):
         big = sizes >= min_pts
         ent = cluster_means(levels, feats[high, 3], len(sizes))
-        lin = cluster_means(levels, feats[high, 0], len(sizes))
+        lin = cluster_means(levels, lin_n[high], len(sizes))
         if fixed.entropy_threshold is None:
             _, cparams = separate_buildings(ent[big], lin[big], co)
         else:
@@ -438,36 +304,10 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
-        group = merge_touching(levels, pairs, building_level)
-        group_high = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
-        gsize = np.bincount(group_high[group_high >= 0], minlength=int(group.max(initial=-1)) + 1)
-        # a building needs one roof level of T_Np points itself; small
-        # clusters only join one (a heap of small ones is a crown cut up)
-        keep = gsize >= min_pts
-        anchored = np.zeros(len(gsize), bool)
-        anchored[group[building_level & big]] = True
-        keep &= anchored
-        if co.max_penetration is not None and returns is not None:
-            # the same test on the whole building, at a stricter level: a
-            # roof lets few pulses through, a heap of crowns many
-            pen = cluster_means(group_high, returns, len(gsize))
-            keep &= ~(pen > co.max_penetration * co.building_penetration)
-        if so.min_width:
-            keep &= _group_widths(pts[high, :2], group_high, len(gsize)) >= so.min_width
-        keep = np.append(keep, False)  # slot for "no group"
-        group_high = np.where(keep[np.where(group_high >= 0, group_high, len(keep) - 1)], group_high, -1)
-        group_all = np.full(len(above), -1, np.int64)
-        group_all[high] = group_high
-        levels_all = np.full(len(above), -1, np.int64)
-        levels_all[high] = levels
-        if so.absorb_rounds and len(above):
-            # only points whose own neighbourhood is on the building side
-            # (roof edges, dormers, walls) join; hedges and crowns do not
-            eligible = feats[:, 3] <= _absorb_entropy(threshold, cparams["centroids"], so.absorb_margin)
-            group_all = _absorb(pts, group_all, eligible, link_d, so.absorb_rounds)
-            if so.absorb_touching:
-                group_all = _absorb(pts, group_all, np.ones(len(above), bool), s_avg, 1)
-                group_all = _absorb_below(pts, group_all, s_avg, eligible)
+        group_all, levels_all = assemble_buildings(
+            pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
+            min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
+            centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)
         level_local = order_labels(pts, np.where(bid_local >= 0, levels_all, -1))
         building_id = np.zeros(n, np.int32)
