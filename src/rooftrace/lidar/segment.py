@@ -179,12 +179,31 @@ def link_pairs(xy: np.ndarray, link_distance: float) -> np.ndarray:
     if len(xy) < 2:
         return np.empty((0, 2), np.int64)
     tree = cKDTree(np.asarray(xy)[:, :2])
-    return tree.query_pairs(link_distance, output_type="ndarray").astype(np.int64)
+    return tree.query_pairs(link_distance, output_type="ndarray").astype(np.int64, copy=False)
 
 
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
+
+
+#: pairs tested at once by :func:`region_growing`
+_PAIR_CHUNK = 2_000_000
+
+
+def _linked(xyz, pairs, link_height, max_slope, normals, max_normal_angle) -> np.ndarray:
+    """The height (or normal-distance) test of :func:`region_growing` for each pair."""
+    d = xyz[pairs[:, 0]] - xyz[pairs[:, 1]]
+    if normals is None:
+        dxy = np.hypot(d[:, 0], d[:, 1])
+        return np.abs(d[:, 2]) < link_height + dxy * np.tan(np.radians(max_slope))
+    n0, n1 = normals[pairs[:, 0]], normals[pairs[:, 1]]
+    keep = (np.abs(np.einsum("ij,ij->i", n0, d)) < link_height) & (np.abs(np.einsum("ij,ij->i", n1, d)) < link_height)
+    if max_normal_angle is not None:
+        # the normals are oriented upwards, but take |cos| anyway so a
+        # vertical (wall) normal of either sign counts as the same
+        keep &= np.abs(np.einsum("ij,ij->i", n0, n1)) >= np.cos(np.radians(max_normal_angle))
+    return keep
 
 
 def region_growing(
@@ -237,17 +256,12 @@ def region_growing(
     xyz = np.asarray(xyz, dtype=np.float64)
     if pairs is None:
         pairs = link_pairs(xyz[:, :2], link_distance)
-    d = xyz[pairs[:, 0]] - xyz[pairs[:, 1]]
-    if normals is None:
-        dxy = np.hypot(d[:, 0], d[:, 1])
-        keep = np.abs(d[:, 2]) < link_height + dxy * np.tan(np.radians(max_slope))
-    else:
-        n0, n1 = normals[pairs[:, 0]], normals[pairs[:, 1]]
-        keep = (np.abs(np.einsum("ij,ij->i", n0, d)) < link_height) & (np.abs(np.einsum("ij,ij->i", n1, d)) < link_height)
-        if max_normal_angle is not None:
-            # the normals are oriented upwards, but take |cos| anyway so a
-            # vertical (wall) normal of either sign counts as the same
-            keep &= np.abs(np.einsum("ij,ij->i", n0, n1)) >= np.cos(np.radians(max_normal_angle))
+    keep = np.empty(len(pairs), bool)
+    # in chunks: the differences and normals of all pairs at once (72 bytes a
+    # pair, ~10 pairs a point) were the peak memory of a whole tile's detection
+    for start in range(0, len(pairs), _PAIR_CHUNK):
+        part = pairs[start:start + _PAIR_CHUNK]
+        keep[start:start + len(part)] = _linked(xyz, part, link_height, max_slope, normals, max_normal_angle)
     labels = _components(len(xyz), pairs[keep])
     return order_labels(xyz, labels)
 
