@@ -129,7 +129,8 @@ def stage_table(n: int, summary: dict) -> str:
     for k, v in {**extra, **stages}.items():
         if k == "tiles":
             continue
-        lines.append(f"| {k} | {v:.1f} | {n / max(v, 1e-9):,.0f} |")
+        # a stage that rounds to 0.0 s has no meaningful rate
+        lines.append(f"| {k} | {v:.1f} | {n / v:,.0f} |" if v >= 0.05 else f"| {k} | {v:.1f} | – |")
     return "\n".join(lines)
 
 
