@@ -14,10 +14,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 import shapely
-from scipy.spatial import Delaunay, QhullError, cKDTree
+from scipy.spatial import cKDTree
 
+from rooftrace.contour.spacing import building_alpha, delaunay_edges, mean_spacing, point_spacing
 from rooftrace.errors import GeometryError
 
 __all__ = [
@@ -114,141 +114,6 @@ class AlphaShape:
     strategy: str
     spacing: np.ndarray
     dropped_area: float = 0.0
-
-
-def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique edges of the 2D Delaunay triangulation.
-
-    Parameters
-    ----------
-    xy : ndarray of shape (N, 2) float64
-        Planimetric coordinates, without duplicates.
-
-    Returns
-    -------
-    edges : ndarray of shape (E, 2) int64
-        Point indices, ``edges[:, 0] < edges[:, 1]``.
-    lengths : ndarray of shape (E,) float64
-        Edge lengths in the units of ``xy``.
-
-    Raises
-    ------
-    GeometryError
-        Fewer than 3 points, or all collinear.
-    """
-    if len(xy) < 3:
-        raise GeometryError("too_few_points")
-    try:
-        simplices = Delaunay(xy).simplices
-    except QhullError:
-        raise GeometryError("collinear") from None
-    if len(simplices) == 0:
-        raise GeometryError("collinear")
-    e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
-    e = np.sort(e, axis=1).astype(np.int64)
-    n = np.int64(len(xy))
-    key = np.unique(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than unique rows
-    e = np.column_stack([key // n, key % n])
-    lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
-    return e, lengths
-
-
-def mean_spacing(xy: np.ndarray) -> float:
-    """s_avg: mean Delaunay edge length in metres (thesis §6.2), long edges (> mean + 3 std) removed."""
-    _, lengths = delaunay_edges(np.unique(np.asarray(xy, dtype=np.float64)[:, :2], axis=0))
-    return building_alpha(lengths)
-
-
-def building_alpha(lengths: np.ndarray, sigma: float = 3.0) -> float:
-    """S2 alpha: mean edge length after dropping edges longer than mean + ``sigma`` * std (eq. 4.4)."""
-    lengths = np.asarray(lengths, dtype=np.float64)
-    keep = lengths <= lengths.mean() + sigma * lengths.std()
-    return float(lengths[keep].mean())
-
-
-def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius: float = 3.0) -> np.ndarray:
-    """ps_avg per point: mean length of the Delaunay edges wholly inside a circle of ``radius`` (eq. 4.5).
-
-    An edge lies inside the (convex) circle when both its end points do.
-    Points whose circle holds no whole edge get the mean of the edges they
-    touch.
-    """
-    n = len(xy)
-    # the balls are scanned on a grid of radius-sized cells instead of listing every pair: at AHN
-    # densities a 3 m ball holds ~400 points, and the pair list of a 60 000-point roof took 2 GB
-    cell = np.floor((xy - xy.min(axis=0)) / radius).astype(np.int64)
-    nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
-    if nx * ny > 8 * n + 4096:
-        # a few points kilometres apart (issue 10 fuzz: a dense grid of 65 GB): rank the occupied
-        # columns and rows instead; neighbouring ranks are a superset of the neighbouring cells,
-        # and the exact distance test below keeps only the ball
-        cell = np.column_stack([np.unique(cell[:, k], return_inverse=True)[1].ravel() for k in (0, 1)])
-        nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
-    key = cell[:, 0] * ny + cell[:, 1]
-    order = np.argsort(key, kind="stable")
-    cell_ptr = np.zeros(nx * ny + 1, dtype=np.int64)
-    np.cumsum(np.bincount(key, minlength=nx * ny), out=cell_ptr[1:])
-    adj_ptr, adj_idx = _csr(edges[:, 0], np.arange(len(edges)), n)
-    ps = _ps_avg(np.ascontiguousarray(xy, dtype=np.float64), float(radius), cell, nx, ny, cell_ptr, order,
-                 adj_ptr, adj_idx, edges[:, 1].copy(), lengths)
-    bad = ~np.isfinite(ps)
-    if bad.any():
-        touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
-        ps[bad] = touch[bad]
-    return ps
-
-
-def _csr(rows: np.ndarray, cols: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    ptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows, minlength=n), out=ptr[1:])
-    return ptr, _bucket(rows.astype(np.int64), cols.astype(np.int64), ptr)
-
-
-@njit(cache=True)
-def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
-    # counting sort of cols by rows (argsort of 1e5-1e6 pairs dominated S3)
-    fill = ptr[:-1].copy()
-    out = np.empty(len(cols), dtype=np.int64)
-    for k in range(len(rows)):
-        r = rows[k]
-        out[fill[r]] = cols[k]
-        fill[r] += 1
-    return out
-
-
-@njit(cache=True)
-def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, order, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
-    # each edge is stored once, at its lower end point; it counts for point i
-    # when both end points are in i's ball (marked with i)
-    n = len(xy)
-    r2 = radius * radius
-    mark = np.full(n, -1, dtype=np.int64)
-    ball = np.empty(n, dtype=np.int64)
-    out = np.empty(n, dtype=np.float64)
-    for i in range(n):
-        m = 0
-        for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
-            for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
-                c = cx * ny + cy
-                for p in range(cell_ptr[c], cell_ptr[c + 1]):
-                    j = order[p]
-                    dx = xy[j, 0] - xy[i, 0]
-                    dy = xy[j, 1] - xy[i, 1]
-                    if dx * dx + dy * dy <= r2:
-                        mark[j] = i
-                        ball[m] = j
-                        m += 1
-        total = 0.0
-        count = 0
-        for p in range(m):
-            j = ball[p]
-            for q in range(adj_ptr[j], adj_ptr[j + 1]):
-                e = adj_edge[q]
-                if mark[edge_hi[e]] == i:
-                    total += lengths[e]
-                    count += 1
-        out[i] = total / count if count > 0 else np.nan
-    return out
 
 
 def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
