@@ -7,15 +7,8 @@ span's degree in the span's local parameter, each span sharing its end
 control points with its neighbours; the curve is closed by making the last
 control point the first (thesis §5.4).  Here each span's basis comes from
 the Cox-de Boor recursion on a clamped knot vector of the span's degree,
-which is the recursion of eq. 5.5 restricted to one span.
-
-Notes
------
-Eq. 5.5 as printed in the thesis (denominators indexed by the recursion
-level k instead of the span's degree) does not give a partition of unity
-when a lower-degree span precedes a higher-degree one, so it is not used
-literally; for C0 joints the basis below is the unique normalised B-basis of
-the same spline space.
+which is the recursion of eq. 5.5 restricted to one span
+(:mod:`rooftrace.contour.cdbasis`).
 """
 
 from __future__ import annotations
@@ -30,6 +23,7 @@ import warnings
 from scipy import sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
+from rooftrace.contour.cdbasis import cd_basis, chord_parameters, span_basis
 from rooftrace.errors import GeometryError
 
 __all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline"]
@@ -109,88 +103,6 @@ class CDSplineOptions:
             raise ValueError(f"cdspline.densify must be > 0 m, not {self.densify}")
 
 
-def chord_parameters(points: np.ndarray, closed: bool = True) -> np.ndarray:
-    """Chord-length parameters (eq. 5.3-5.4).
-
-    Returns ``t`` of shape (N,), ``t[0] = 0``, increasing; for a closed ring
-    the closing chord counts in L, so ``t = 1`` is the first point again.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    ends = np.concatenate([points, points[:1]]) if closed else points
-    chords = np.linalg.norm(np.diff(ends, axis=0), axis=1)
-    total = chords.sum()
-    if total <= 0:
-        raise GeometryError("degenerate_ring")
-    return np.concatenate([[0.0], np.cumsum(chords)[: len(points) - 1]]) / total
-
-
-def _cox_de_boor(t: np.ndarray, knots: np.ndarray, degree: int) -> np.ndarray:
-    """B-spline basis of ``degree`` on ``knots`` at ``t`` (right end included); (len(t), len(knots)-degree-1)."""
-    n0 = len(knots) - 1
-    last = knots[-1]
-    b = ((knots[:-1] <= t[:, None]) & (t[:, None] < knots[1:])).astype(np.float64)
-    at_end = t == last
-    if at_end.any():
-        j = np.flatnonzero(knots[:-1] < last)[-1]
-        b[at_end] = 0.0
-        b[at_end, j] = 1.0
-    for p in range(1, degree + 1):
-        left_den = knots[p:n0] - knots[: n0 - p]
-        right_den = knots[p + 1: n0 + 1] - knots[1: n0 - p + 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            left = np.where(left_den > 0, (t[:, None] - knots[: n0 - p]) / left_den, 0.0)
-            right = np.where(right_den > 0, (knots[p + 1: n0 + 1] - t[:, None]) / right_den, 0.0)
-        b = left * b[:, :-1] + right * b[:, 1:]
-    return b
-
-
-def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) -> np.ndarray:
-    """CD-spline design matrix A (eq. 5.8) for C0 joints.
-
-    Parameters
-    ----------
-    t : ndarray of shape (Q,) float64
-        Parameters in ``[breaks[0], breaks[-1]]``.
-    breaks : ndarray of shape (M+1,) float64
-        Increasing knot values: segment k spans ``[breaks[k], breaks[k+1])``.
-    degrees : sequence of M int
-        Degree d_k of each segment (>= 1).
-    closed : bool
-        Close the curve: the last control point is the first (its column is
-        added onto the first, thesis §5.4).
-
-    Returns
-    -------
-    ndarray of shape (Q, sum(d)) if closed else (Q, sum(d) + 1)
-        Column ``offset_k + r`` holds the r-th basis function of segment k,
-        ``offset_k = sum(d[:k])``; neighbouring segments share a column.
-
-    Examples
-    --------
-    >>> a = cd_basis([0.0, 0.25, 0.5, 0.75], [0.0, 0.5, 1.0], [1, 2])
-    >>> a.round(3).tolist()
-    [[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.0, 1.0, 0.0], [0.25, 0.25, 0.5]]
-    """
-    t = np.asarray(t, dtype=np.float64)
-    breaks = np.asarray(breaks, dtype=np.float64)
-    degrees = [int(d) for d in degrees]
-    if len(breaks) != len(degrees) + 1 or np.any(np.diff(breaks) <= 0):
-        raise ValueError("cd_basis: breaks must be increasing with one more value than degrees")
-    offsets = np.concatenate([[0], np.cumsum(degrees)])
-    a = np.zeros((len(t), offsets[-1] + 1))
-    span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
-    for k, d in enumerate(degrees):
-        sel = span == k
-        if not sel.any():
-            continue
-        knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-        a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = _cox_de_boor(t[sel], knots, d)
-    if closed:
-        a[:, 0] += a[:, -1]
-        a = a[:, :-1]
-    return a
-
-
 @dataclass
 class CDSpline:
     """A fitted closed CD-spline.
@@ -262,7 +174,7 @@ def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
         block = cache.get(key) if cache is not None else None
         if block is None:
             knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-            block = _cox_de_boor(t[lo:hi], knots, d)
+            block = span_basis(t[lo:hi], knots, d)
             if cache is not None:
                 cache[key] = block
         rows.append(np.repeat(np.arange(lo, hi), d + 1))
