@@ -3,6 +3,7 @@
 >>> from rooftrace.roof import RoofOptions, RoofStructure, roof_structure, faces_layer, ridges_layer
 """
 
-from rooftrace.roof.structure import RoofOptions, RoofStructure, faces_layer, ridges_layer, roof_structure
+from rooftrace.roof.layers import faces_layer, ridges_layer
+from rooftrace.roof.structure import RoofOptions, RoofStructure, roof_structure
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "faces_layer", "ridges_layer"]

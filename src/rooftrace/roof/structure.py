@@ -13,8 +13,8 @@
 5. step edges where neighbouring faces are at different heights
    (:func:`rooftrace.roof.faces.step_edges`).
 
-:func:`faces_layer` and :func:`ridges_layer` turn a list of structures into
-the ``roof_faces`` and ``ridges`` output layers.
+:func:`rooftrace.roof.layers.faces_layer` and :func:`rooftrace.roof.layers.ridges_layer`
+turn a list of structures into the ``roof_faces`` and ``ridges`` output layers.
 """
 
 from __future__ import annotations
@@ -29,13 +29,12 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace import config
 from rooftrace.errors import GeometryError
-from rooftrace.io.vector import Layer
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
 from rooftrace.roof.planes import estimate_spacing, segment_planes
 from rooftrace.roof.ridges import intersection_lines
 
-__all__ = ["RoofOptions", "RoofStructure", "roof_structure", "faces_layer", "ridges_layer", "point_hull"]
+__all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
 log = logging.getLogger(__name__)
 
@@ -365,60 +364,3 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if not roof.faces:
         roof.status = "no_faces"
     return roof
-
-
-def _length3d(line) -> float:
-    c = np.asarray(line.coords)
-    return float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
-
-
-def faces_layer(structures: list[RoofStructure]) -> Layer:
-    """The ``roof_faces`` layer: one PolygonZ per face.
-
-    Attributes: ``building_id``, ``plane_id``, ``slope_deg``, ``aspect_deg``
-    (downslope direction clockwise from north, NaN under 1° of slope), ``rmse`` (m,
-    height residuals of the plane's points), ``n_points``.
-    """
-    geoms, cols = [], {k: [] for k in ("building_id", "plane_id", "slope_deg", "aspect_deg", "rmse", "n_points")}
-    for st in structures:
-        slope, aspect = st.slope_deg, st.aspect_deg
-        for g, k in zip(st.faces, st.face_plane):
-            geoms.append(g)
-            cols["building_id"].append(int(st.building_id))
-            cols["plane_id"].append(int(k))
-            cols["slope_deg"].append(float(slope[k]))
-            cols["aspect_deg"].append(float(aspect[k]))
-            cols["rmse"].append(float(st.plane_sigma[k]))
-            cols["n_points"].append(int(st.plane_n[k]))
-    cols["building_id"] = np.asarray(cols["building_id"], dtype=np.int64)
-    cols["plane_id"] = np.asarray(cols["plane_id"], dtype=np.int64)
-    cols["n_points"] = np.asarray(cols["n_points"], dtype=np.int64)
-    for k in ("slope_deg", "aspect_deg", "rmse"):
-        cols[k] = np.asarray(cols[k], dtype=np.float64)
-    return Layer(geoms, cols, "PolygonZ")
-
-
-def ridges_layer(structures: list[RoofStructure]) -> Layer:
-    """The ``ridges`` layer: one LineStringZ per ridge, hip, valley or step edge.
-
-    Attributes: ``building_id``, ``kind`` (``ridge|hip|valley|step``),
-    ``length`` (m, 3D), ``plane_a``, ``plane_b`` (the two planes; for a step,
-    upper then lower).
-    """
-    geoms, bid, kind, length, pa, pb = [], [], [], [], [], []
-    for st in structures:
-        for g, k, (a, b) in zip(st.ridges, st.ridge_kind, st.ridge_planes):
-            geoms.append(g)
-            bid.append(int(st.building_id))
-            kind.append(k)
-            length.append(_length3d(g))
-            pa.append(int(a))
-            pb.append(int(b))
-    cols = {
-        "building_id": np.asarray(bid, dtype=np.int64),
-        "kind": kind,
-        "length": np.asarray(length, dtype=np.float64),
-        "plane_a": np.asarray(pa, dtype=np.int64),
-        "plane_b": np.asarray(pb, dtype=np.int64),
-    }
-    return Layer(geoms, cols, "LineStringZ")
