@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.image.resection import check_line_matches
+from rooftrace.image.resection import check_line_matches, line_equations, whitened_prior, wrap_angles
 
 __all__ = ["OrientationCorrection", "correct_orientation", "EO_NAMES"]
 
@@ -109,15 +109,12 @@ class OrientationCorrection:
 
 
 def _oriented_lines(image_lines: np.ndarray, outward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (M, 2), turned outward where ``outward`` is given, and a point (M, 2) of each image line."""
-    d = image_lines[:, 1] - image_lines[:, 0]
-    length = np.hypot(d[:, 0], d[:, 1])
-    if np.any(length < 1e-9):
-        raise InputError("image lines must have two distinct end points")
-    n = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    """Image lines ``n . p + c = 0`` (:func:`line_equations`), the normal turned outward where ``outward`` is given."""
+    n, c = line_equations(image_lines)
     flip = np.isfinite(outward).all(axis=1) & (np.einsum("md,md->m", n, np.nan_to_num(outward)) < 0)
     n[flip] *= -1
-    return n, image_lines[:, 0]
+    c[flip] *= -1
+    return n, c
 
 
 def _rcond(a: np.ndarray) -> float:
@@ -244,20 +241,18 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     keys, inv = np.unique(grp[grown], return_inverse=True)
     gid[grown] = inv
     n_groups = len(keys)
-    normal, q = _oriented_lines(l2, out)
+    normal, offset = _oriented_lines(l2, out)
     xyz = l3.reshape(-1, 3)
-    nn, qq, gg = np.repeat(normal, 2, axis=0), np.repeat(q, 2, axis=0), np.repeat(gid, 2)
+    nn, cc, gg = np.repeat(normal, 2, axis=0), np.repeat(offset, 2), np.repeat(gid, 2)
     eo0 = np.asarray(camera.exterior, float)
     prior = getattr(camera, "exterior_covariance", None)
     has_prior = prior is not None and np.all(np.isfinite(prior)) and np.any(np.diag(np.asarray(prior)) > 0)
     p_rows = None
     if has_prior:
-        # whitened prior rows L^-1 (eo - eo0), Sigma = L L^T, in units of one sigma_px observation
-        chol = np.linalg.cholesky(np.asarray(prior, float) + 1e-18 * np.eye(6))
-        p_rows = np.linalg.inv(chol)
+        p_rows = whitened_prior(prior)  # in units of one sigma_px observation
 
     def model(eo, b):
-        r = np.einsum("kd,kd->k", nn, camera.project(xyz, eo) - qq)
+        r = np.einsum("kd,kd->k", nn, camera.project(xyz, eo)) + cc
         return r + np.where(gg >= 0, b[np.maximum(gg, 0)] if n_groups else 0.0, 0.0)
 
     def eo_jacobian(eo):
@@ -369,7 +364,7 @@ def correct_orientation(camera, lines3d, image_lines, *, outward=None, groups=No
     cov = 0.5 * (cov + cov.T)
     res = model(eo, b).reshape(m, 2)
     rms = float(np.sqrt(np.mean(res[inliers] ** 2)))
-    eo[3:] = np.mod(eo[3:] + np.pi, 2 * np.pi) - np.pi
+    eo = wrap_angles(eo)
     log.info("orientation correction: %d lines (%d inliers), %s, rms %.2f px, shift %s", m, int(inliers.sum()),
              ",".join(EO_NAMES[i] for i in free), rms, np.round(eo - eo0, 5).tolist())
     return OrientationCorrection(camera.with_exterior(eo, cov), eo, eo - eo0, cov,

@@ -39,7 +39,7 @@ from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 
 __all__ = ["ResectionOptions", "Resection", "space_resection", "initial_exterior", "line_resection",
-           "check_line_matches"]
+           "check_line_matches", "line_equations", "whitened_prior", "wrap_angles"]
 
 log = logging.getLogger(__name__)
 KNOWN_SECTIONS.add("resection")  # the [resection] table of a config file
@@ -138,8 +138,9 @@ def initial_exterior(camera, xyz, cr) -> np.ndarray:
     return np.array([x0, y0, z0, 0.0, 0.0, kappa])
 
 
-def _wrap(eo: np.ndarray) -> np.ndarray:
-    out = eo.copy()
+def wrap_angles(eo: np.ndarray) -> np.ndarray:
+    """A copy of the EO (6,) with omega, phi, kappa wrapped to [-pi, pi)."""
+    out = np.array(eo, float)
     out[3:] = np.mod(out[3:] + np.pi, 2 * np.pi) - np.pi
     return out
 
@@ -157,7 +158,7 @@ def _gauss_newton(camera, xyz, obs, eo, opt):
         step, *_ = np.linalg.lstsq(a, res.reshape(-1), rcond=None)
         # halve the step while it makes things worse (far starts overshoot)
         for _ in range(20):
-            trial = _wrap(eo + step)
+            trial = wrap_angles(eo + step)
             r_trial = obs - camera.project(xyz, trial)
             s_trial = float(np.sum(r_trial**2)) if np.isfinite(r_trial).all() else np.inf
             if s_trial <= ssr * (1 + 1e-12) or np.max(np.abs(step) * scale) < opt.tolerance:
@@ -256,7 +257,7 @@ def space_resection(camera, xyz, cr, *, exterior0=None, options: ResectionOption
     return Resection(camera.with_exterior(eo, cov), eo, cov, float(sigma0), res, rms, iterations, redundancy)
 
 
-def _line_equations(image_lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def line_equations(image_lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals (M, 2) and offsets (M,) of the image lines n . p + c = 0."""
     d = image_lines[:, 1] - image_lines[:, 0]
     length = np.hypot(d[:, 0], d[:, 1])
@@ -264,6 +265,11 @@ def _line_equations(image_lines: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise InputError("image lines must have two distinct endpoints")
     n = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
     return n, -np.einsum("md,md->m", n, image_lines[:, 0])
+
+
+def whitened_prior(covariance: np.ndarray) -> np.ndarray:
+    """Rows ``L^-1`` (6, 6) with ``covariance = L L^T``: ``L^-1 (eo - eo0)`` is an EO prior in units of one observation sigma."""
+    return np.linalg.inv(np.linalg.cholesky(np.asarray(covariance, float) + 1e-18 * np.eye(6)))
 
 
 def check_line_matches(camera, lines3d, image_lines, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -341,16 +347,14 @@ def line_resection(camera, lines3d, image_lines, *, weights=None, use_prior: boo
     prior = camera.exterior_covariance if use_prior else None
     if prior is None and len(l3) < 3:
         raise InputError(f"line resection without a prior needs at least 3 lines, got {len(l3)}")
-    n, c = _line_equations(l2)
+    n, c = line_equations(l2)
     xyz = l3.reshape(-1, 3)
     nn = np.repeat(n, 2, axis=0)
     cc = np.repeat(c, 2)
     sw = np.sqrt(np.repeat(w, 2))
     eo0 = np.asarray(camera.exterior, float)
     if prior is not None:
-        # whiten the prior: rows L^-1 (eo - eo0) with Sigma = L L^T, in units of one px observation
-        chol = np.linalg.cholesky(np.asarray(prior, float) + 1e-18 * np.eye(6))
-        p_rows = np.linalg.inv(chol)
+        p_rows = whitened_prior(prior)
 
     def residual(eo):
         r = (np.einsum("kd,kd->k", nn, camera.project(xyz, eo)) + cc) * sw
@@ -374,7 +378,7 @@ def line_resection(camera, lines3d, image_lines, *, weights=None, use_prior: boo
         # minimise |r + a step|^2 (the residual is model minus observation here)
         step, *_ = np.linalg.lstsq(a, -r, rcond=None)
         for _ in range(20):
-            trial = _wrap(eo + step)
+            trial = wrap_angles(eo + step)
             r_trial = residual(trial)
             if np.isfinite(r_trial).all() and (r_trial @ r_trial <= r @ r * (1 + 1e-12)
                                                or np.max(np.abs(step) * scale) < opt.tolerance):
