@@ -13,7 +13,11 @@ roof levels (:mod:`rooftrace.lidar.classify`):
    building side (walls, roof edges, dormers cut off by the height test),
    then any point touching it and the points under its roof edge; with
    ``segment.absorb_min_height`` set, points of no roof level lower than
-   that stay out.
+   that stay out;
+4. patches of a building where the laser went through (``classify.max_patch_penetration``:
+   a hedge or crown grown into a shed's roof level) leave it, and a
+   building that falls apart in plan becomes one building per part of at
+   least T_Np points.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means
-from rooftrace.lidar.segment import SegmentOptions, merge_touching
+from rooftrace.lidar.classify import ClassifyOptions, penetration
+from rooftrace.lidar.segment import SegmentOptions, components, merge_touching
 
 __all__ = ["assemble_buildings"]
 
@@ -62,6 +66,69 @@ def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float, eligible: n
     return group
 
 
+def _same_group_pairs(xy: np.ndarray, group: np.ndarray, radius: float) -> np.ndarray:
+    """Plan pairs closer than ``radius`` between points of the same group (indices into ``xy``)."""
+    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray").astype(np.int64, copy=False)
+    return pairs[group[pairs[:, 0]] == group[pairs[:, 1]]]
+
+
+def drop_penetrated(xy: np.ndarray, group: np.ndarray, returns: np.ndarray, radius: float,
+                    max_fraction: float) -> np.ndarray:
+    """Take out of their building the points around which the laser went through the roof.
+
+    Around each building point the fraction of non-last returns among the
+    building's points within ``radius`` in plan (itself included) is
+    measured; where it exceeds ``max_fraction`` the point leaves.  A solid
+    roof gives last returns except in the thin band along its edges where
+    pulses split (about 0.3 of a 2·L_Dxy disc there), a crown or hedge
+    grown into the roof level gives 0.5-0.9.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (M, 2), float64
+        Plan coordinates (m).
+    group : ndarray of shape (M,), int
+        Building of each point, -1 none.
+    returns : ndarray of shape (M,), float64
+        1.0 where a point is not the last return of its pulse.
+    radius : float
+        Plan radius of the neighbourhood (m).
+    max_fraction : float
+        Largest fraction of non-last returns a building point may have around it.
+
+    Returns
+    -------
+    ndarray of shape (M,), int64
+        ``group`` with the penetrated points set to -1.
+    """
+    group = np.asarray(group, dtype=np.int64).copy()
+    inb = np.flatnonzero(group >= 0)
+    if len(inb) == 0:
+        return group
+    pairs = _same_group_pairs(xy[inb], group[inb], radius)
+    r = np.asarray(returns, dtype=np.float64)[inb]
+    n = len(inb)
+    count = 1 + np.bincount(pairs.ravel(), minlength=n)
+    through = r + np.bincount(pairs[:, 0], r[pairs[:, 1]], n) + np.bincount(pairs[:, 1], r[pairs[:, 0]], n)
+    group[inb[through / count > max_fraction]] = -1
+    return group
+
+
+def split_parts(xy: np.ndarray, group: np.ndarray, radius: float, min_points: int) -> np.ndarray:
+    """One group per part of a building that is connected in plan at ``radius``; parts under ``min_points`` leave.
+
+    Returns the new group of each point (-1 none; numbered in no order).
+    """
+    group = np.asarray(group, dtype=np.int64)
+    inb = np.flatnonzero(group >= 0)
+    out = np.full(len(group), -1, np.int64)
+    if len(inb) == 0:
+        return out
+    part = components(len(inb), _same_group_pairs(xy[inb], group[inb], radius))
+    out[inb] = np.where(np.bincount(part)[part] >= min_points, part, -1)
+    return out
+
+
 def group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
     """Width of each group in plan: sqrt(12 · smallest variance), exact for a filled rectangle (m)."""
     ok = group >= 0
@@ -96,6 +163,8 @@ def assemble_buildings(
     big: np.ndarray,
     returns: np.ndarray | None,
     *,
+    interior: np.ndarray | None = None,
+    returns_all: np.ndarray | None = None,
     min_points: int,
     link_distance: float,
     mean_spacing: float,
@@ -124,6 +193,13 @@ def assemble_buildings(
         Levels decided as building; levels of at least T_Np points.
     returns : ndarray of shape (H,), float64 or None
         1.0 where a segmented point is not the last return of its pulse.
+    interior : ndarray of shape (H,), bool, optional
+        Segmented points inside their roof level
+        (:func:`rooftrace.lidar.classify.interior_points`); when given, the
+        building's penetration test counts only them.
+    returns_all : ndarray of shape (M,), float64, optional
+        ``returns`` for every point of ``pts``; needed by
+        ``classify.max_patch_penetration``.
     min_points : int
         T_Np.
     link_distance, mean_spacing : float
@@ -154,7 +230,7 @@ def assemble_buildings(
     if co.max_penetration is not None and returns is not None:
         # the same test on the whole building, at a stricter level: a
         # roof lets few pulses through, a heap of crowns many
-        pen = cluster_means(group_high, returns, len(gsize))
+        pen = penetration(group_high, returns, interior, len(gsize))
         keep &= ~(pen > co.max_penetration * co.building_penetration)
     if so.min_width:
         keep &= group_widths(pts[high, :2], group_high, len(gsize)) >= so.min_width
@@ -168,10 +244,15 @@ def assemble_buildings(
         # only points whose own neighbourhood is on the building side
         # (roof edges, dormers, walls) join; hedges and crowns do not
         eligible = entropy <= absorb_entropy(threshold, centroids, so.absorb_margin)
-        group_all = _absorb(pts, group_all, eligible, link_distance, so.absorb_rounds)
+        # bins and shrubs by a wall would join through the wall, in any round
+        allowed = np.ones(len(pts), bool) if so.absorb_min_height is None else (
+            (levels_all >= 0) | (hag >= so.absorb_min_height))
+        group_all = _absorb(pts, group_all, eligible & allowed, link_distance, so.absorb_rounds)
         if so.absorb_touching:
-            group_all = _absorb(pts, group_all, np.ones(len(pts), bool), mean_spacing, 1)
-            group_all = _absorb_below(pts, group_all, mean_spacing, eligible)
-        if so.absorb_min_height is not None:
-            group_all[(levels_all < 0) & (hag < so.absorb_min_height)] = -1
+            group_all = _absorb(pts, group_all, allowed, mean_spacing, 1)
+            group_all = _absorb_below(pts, group_all, mean_spacing, eligible & allowed)
+    if co.max_patch_penetration is not None and returns_all is not None and len(pts):
+        group_all = drop_penetrated(pts[:, :2], group_all, returns_all, co.patch_factor * link_distance,
+                                    co.max_patch_penetration)
+        group_all = split_parts(pts[:, :2], group_all, link_distance, min_points)
     return group_all, levels_all

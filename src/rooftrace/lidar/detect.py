@@ -53,7 +53,8 @@ from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
+from rooftrace.lidar.classify import (ClassifyOptions, cluster_means, interior_points, penetration,
+                                      separate_buildings)
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
@@ -296,8 +297,11 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         building_level = (ent <= threshold) & (lin <= co.max_linearity)
         linear = big & (lin > co.max_linearity)
         returns = _penetration(cloud, above[high])
+        interior = None
         if co.max_penetration is not None and returns is not None:
-            penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
+            if co.penetration_edge is not None:
+                interior = interior_points(pts[high, :2], levels, pairs, link_d, co.penetration_edge)
+            penetrated = penetration(levels, returns, interior, len(sizes)) > co.max_penetration
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
@@ -305,7 +309,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
-            pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
+            pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns, interior=interior,
+            returns_all=None if returns is None else _penetration(cloud, above),
             min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)

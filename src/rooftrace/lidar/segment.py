@@ -43,7 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["SegmentOptions", "link_pairs", "region_growing", "merge_touching", "order_labels"]
+__all__ = ["SegmentOptions", "components", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -182,7 +182,8 @@ def link_pairs(xy: np.ndarray, link_distance: float) -> np.ndarray:
     return tree.query_pairs(link_distance, output_type="ndarray").astype(np.int64, copy=False)
 
 
-def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+def components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Connected component (0..C-1) of each of ``n`` nodes linked by ``pairs`` (P, 2)."""
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
 
@@ -262,7 +263,7 @@ def region_growing(
     for start in range(0, len(pairs), _PAIR_CHUNK):
         part = pairs[start:start + _PAIR_CHUNK]
         keep[start:start + len(part)] = _linked(xyz, part, link_height, max_slope, normals, max_normal_angle)
-    labels = _components(len(xyz), pairs[keep])
+    labels = components(len(xyz), pairs[keep])
     return order_labels(xyz, labels)
 
 
@@ -288,7 +289,7 @@ def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -
     ok = (la >= 0) & (lb >= 0) & (la != lb)
     ok[ok] &= members[la[ok]] & members[lb[ok]]
     edges = np.unique(np.column_stack([la[ok], lb[ok]]), axis=0) if ok.any() else np.empty((0, 2), np.int64)
-    comp = _components(k, edges)
+    comp = components(k, edges)
     group = np.full(k, -1, np.int64)
     _, group[members] = np.unique(comp[members], return_inverse=True)
     return group
