@@ -53,8 +53,7 @@ from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings
-from rooftrace.lidar.classify import (ClassifyOptions, cluster_means, interior_points, penetration,
-                                      separate_buildings)
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, interior_points, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
@@ -299,9 +298,9 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         returns = _penetration(cloud, above[high])
         interior = None
         if co.max_penetration is not None and returns is not None:
+            penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
             if co.penetration_edge is not None:
                 interior = interior_points(pts[high, :2], levels, pairs, link_d, co.penetration_edge)
-            penetrated = penetration(levels, returns, interior, len(sizes)) > co.max_penetration
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,

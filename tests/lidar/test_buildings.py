@@ -1,0 +1,90 @@
+"""Tests of the penetration tests and the building parts (lidar/classify.py, lidar/buildings.py)."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from rooftrace.lidar.buildings import drop_penetrated, split_parts
+from rooftrace.lidar.classify import ClassifyOptions, interior_points, penetration
+
+
+def grid(nx, ny, step=0.3, x0=0.0, y0=0.0):
+    g = np.stack(np.meshgrid(x0 + step * np.arange(nx), y0 + step * np.arange(ny)), -1).reshape(-1, 2)
+    return g
+
+
+def edge_split_returns(xy, width):
+    """Non-last returns along a roof's edge band (the pulse also hits the ground), last returns inside."""
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    d = np.minimum(np.min(xy - lo, axis=1), np.min(hi - xy, axis=1))
+    return (d < width).astype(float)
+
+
+def test_interior_points_are_the_grid_without_its_border():
+    xy = grid(12, 8)
+    inner = interior_points(xy, np.zeros(len(xy), int), cKDTree(xy).query_pairs(0.65, output_type="ndarray"), 0.65, 0.2)
+    on_border = (xy[:, 0] < 0.1) | (xy[:, 1] < 0.1) | (xy[:, 0] > 3.2) | (xy[:, 1] > 2.0)
+    assert not inner[on_border].any()
+    # two rows in from the border every neighbourhood is symmetric
+    deep = (xy[:, 0] > 0.5) & (xy[:, 1] > 0.5) & (xy[:, 0] < 2.9) & (xy[:, 1] < 1.6)
+    assert inner[deep].all()
+
+
+def test_interior_points_look_only_at_their_own_cluster():
+    xy = grid(20, 10)
+    labels = (xy[:, 0] > 2.9).astype(int)  # two roofs side by side, touching
+    pairs = cKDTree(xy).query_pairs(0.65, output_type="ndarray")
+    inner = interior_points(xy, labels, pairs, 0.65, 0.2)
+    seam = np.abs(xy[:, 0] - 2.95) < 0.2
+    assert not inner[seam].any()
+    assert interior_points(xy, np.zeros(len(xy), int), pairs, 0.65, 0.2)[seam & (xy[:, 1] > 0.5) & (xy[:, 1] < 2.2)].all()
+
+
+def test_penetration_of_a_small_shed_comes_from_its_interior():
+    xy = grid(10, 10)  # a 2.7 m shed at 0.3 m spacing
+    ret = edge_split_returns(xy, 0.1)  # the outer row: 36 % of the shed
+    labels = np.zeros(len(xy), int)
+    inner = interior_points(xy, labels, cKDTree(xy).query_pairs(0.65, output_type="ndarray"), 0.65, 0.2)
+    every = penetration(labels, ret, None, 1)[0]
+    assert every > 0.3  # the edge band alone is over the building test's 0.18
+    assert penetration(labels, ret, inner, 1)[0] == 0.0
+    # a crown: non-last returns everywhere, inside too
+    assert penetration(labels, np.ones(len(xy)), inner, 1)[0] == 1.0
+
+
+def test_penetration_falls_back_to_every_point_without_interior():
+    labels = np.array([0, 0, 0, 1, 1])
+    ret = np.array([1.0, 0.0, 0.0, 1.0, 1.0])
+    inner = np.array([False, False, False, True, True])
+    got = penetration(labels, ret, inner, 3, min_interior=2)
+    assert got[0] == pytest.approx(1 / 3) and got[1] == 1.0 and np.isnan(got[2])
+
+
+def test_drop_penetrated_cuts_a_hedge_off_a_shed_and_keeps_its_edges():
+    shed = grid(10, 10)  # 2.7 m x 2.7 m
+    hedge = grid(20, 4, x0=3.0)  # 6 m x 1 m at the same height, grown into the same level
+    xy = np.vstack([shed, hedge])
+    ret = np.concatenate([edge_split_returns(shed, 0.1), (np.arange(len(hedge)) % 5 != 0).astype(float)])
+    group = np.zeros(len(xy), np.int64)
+    out = drop_penetrated(xy, group, ret, 1.3, 0.5)
+    assert (out[: len(shed)] == 0).mean() > 0.9  # the edge band stays, bar a few corner points
+    assert (out[len(shed):][hedge[:, 0] > 3.6] == -1).all()
+    assert drop_penetrated(xy, np.full(len(xy), -1), ret, 1.3, 0.5).max() == -1
+
+
+def test_split_parts_numbers_each_plan_part_and_drops_small_ones():
+    a, b, c = grid(10, 10), grid(10, 10, x0=10.0), grid(2, 2, x0=20.0)
+    xy = np.vstack([a, b, c])
+    group = np.zeros(len(xy), np.int64)
+    out = split_parts(xy, group, 0.65, min_points=50)
+    assert len(np.unique(out[: len(a)])) == 1 and len(np.unique(out[len(a): len(a) + len(b)])) == 1
+    assert out[0] != out[len(a)] and out[0] >= 0 and out[len(a)] >= 0
+    assert (out[len(a) + len(b):] == -1).all()
+    assert (split_parts(xy, np.full(len(xy), -1), 0.65, 1) == -1).all()
+
+
+@pytest.mark.parametrize("key, value", [("penetration_edge", 0.0), ("penetration_edge", 1.5),
+                                        ("max_patch_penetration", 0.0), ("patch_factor", 0.0)])
+def test_penetration_options_are_checked(key, value):
+    with pytest.raises(ValueError, match=key):
+        ClassifyOptions(**{key: value})
