@@ -10,16 +10,16 @@ import shapely
 from shapely import Polygon, box
 from shapely.affinity import translate
 
+from rooftrace.evaluate._geometry import _closest_on_segments
 from rooftrace.evaluate.metrics import (
-    _closest_on_segments,
     area_scores,
     hausdorff,
     polis,
     ridge_scores,
+    ring_segments,
     ring_vertices,
     rmse_xyz,
     vertex_residuals,
-    ring_segments,
 )
 
 
