@@ -128,6 +128,14 @@ def test_3d_and_ridges():
     assert all(k in m for k in SUMMARY_KEYS)
 
 
+def test_vertical_step_pooled_and_per_building():
+    # an annex (z 3) meeting the main roof (z 8) at x = 4; extracted 0.1 m higher
+    step = [(0, 0, 3), (4, 0, 3), (4, 0, 8), (10, 0, 8), (10, 5, 8), (4, 5, 8), (4, 5, 3), (0, 5, 3)]
+    m = evaluate([Polygon([(x, y, z + 0.1) for x, y, z in step])], [Polygon(step)])
+    assert m["rmse_z"] == pytest.approx(0.1, abs=1e-12)
+    assert m["buildings"][0]["rmse_z"] == pytest.approx(0.1, abs=1e-12)
+
+
 def test_deterministic_and_order_free(rng):
     ref = _scene(rng)
     ext = [translate(p, 0.3, -0.2) for p in ref]

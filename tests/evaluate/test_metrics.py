@@ -10,11 +10,13 @@ import shapely
 from shapely import Polygon, box
 from shapely.affinity import translate
 
+from rooftrace.evaluate._geometry import _closest_on_segments
 from rooftrace.evaluate.metrics import (
     area_scores,
     hausdorff,
     polis,
     ridge_scores,
+    ring_segments,
     ring_vertices,
     rmse_xyz,
     vertex_residuals,
@@ -173,6 +175,66 @@ def test_3d_distances():
         polis(a, a, dim=4)
     with pytest.raises(TypeError, match="Polygon"):
         polis(shapely.LineString([(0, 0), (1, 1)]), a)
+
+
+# an annex (eave z = 3) meets the main roof (z = 8) at x = 4: a vertical step
+_STEP = [(0, 0, 3), (4, 0, 3), (4, 0, 8), (10, 0, 8), (10, 5, 8), (4, 5, 8), (4, 5, 3), (0, 5, 3)]
+
+
+def _first_segment_residuals(ref, ext):
+    """The choice before the step rule: z on the first plan-closest segment."""
+    verts = ring_vertices(ref)
+    return _closest_on_segments(verts, *ring_segments(ext), 2) - verts
+
+
+def test_vertical_step_takes_the_height_of_its_own_side():
+    ref = ext = Polygon(_STEP)
+    # the main-roof corner (4, 0, 8) and the annex corner (4, 5, 3) meet the other side's segment first
+    old = _first_segment_residuals(ref, ext)
+    np.testing.assert_array_equal(old[:, 2], [0, 0, -5, 0, 0, 0, 5, 0])
+    res = vertex_residuals(ref, ext)
+    np.testing.assert_array_equal(res, np.zeros((8, 3)))
+    assert rmse_xyz(ref, ext) == (0.0, 0.0, 0.0)
+    # the extracted outline 0.3 m off across the step and 0.1 m higher: each side keeps its own height
+    moved = Polygon([(x, y + 0.3, z + 0.1) for x, y, z in _STEP])
+    res = vertex_residuals(ref, moved)
+    np.testing.assert_array_equal(res[:, :2], _first_segment_residuals(ref, moved)[:, :2])
+    np.testing.assert_allclose(res[:, 2], 0.1, atol=1e-12)
+    # off along the side instead, the step is 0.3 m from the corner in plan, no tie: the annex decides
+    along = Polygon([(x + 0.3, y, z) for x, y, z in _STEP])
+    np.testing.assert_array_equal(vertex_residuals(ref, along), _first_segment_residuals(ref, along))
+    assert vertex_residuals(ref, along)[2, 2] == pytest.approx(-5.0)
+
+
+def test_near_vertical_step_within_the_tolerance():
+    ref = Polygon(_STEP)
+    # the step's two vertices written 3 mm apart in plan
+    ext = Polygon([(x + 0.003 if (x, z) == (4, 8) else x, y, z) for x, y, z in _STEP])
+    res = vertex_residuals(ref, ext)
+    np.testing.assert_array_equal(res[:, :2], _first_segment_residuals(ref, ext)[:, :2])
+    assert np.abs(res[:, 2]).max() < 0.01
+    # beyond the tolerance the plan-closest point decides alone, as before
+    np.testing.assert_array_equal(vertex_residuals(ref, ext, step_tolerance=0.001),
+                                  _first_segment_residuals(ref, ext))
+
+
+def test_ring_without_steps_is_unchanged(rng):
+    slope = lambda x, y: 5 + 0.3 * x - 0.2 * y + 0.1 * np.sin(x)  # noqa: E731
+    for _ in range(20):
+        ref = _setz(_random_polygon(rng), slope)
+        ext = _setz(_random_polygon(rng, centre=rng.uniform(-1, 1, 2)), lambda x, y: slope(x, y) + 0.05)
+        np.testing.assert_array_equal(vertex_residuals(ref, ext), _first_segment_residuals(ref, ext))
+    box_z = _setz(box(0, 0, 10, 10), lambda x, y: 3 + 0.1 * x)
+    shifted = _setz(box(0.4, 0.2, 10.4, 10.2), lambda x, y: 3 + 0.1 * x)
+    np.testing.assert_array_equal(vertex_residuals(box_z, shifted), _first_segment_residuals(box_z, shifted))
+
+
+def test_step_tolerance_is_checked():
+    a = box(0, 0, 1, 1)
+    with pytest.raises(ValueError, match="step_tolerance"):
+        vertex_residuals(a, a, step_tolerance=-0.01)
+    with pytest.raises(TypeError, match="step_tolerance"):
+        rmse_xyz(a, a, step_tolerance="5 mm")
 
 
 def test_multipolygon_vertices_and_distances():

@@ -10,6 +10,9 @@ Conventions shared by every function:
   of every part of a MultiPolygon), each ring's closing vertex counted once;
 * distances are in the units of the CRS (metres for projected CRSs);
 * a ``None`` or empty geometry gives NaN (shapely's convention), never an error.
+
+Rings, segments and the closest-point search live in
+:mod:`rooftrace.evaluate._geometry`.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from collections.abc import Iterable
 import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
+
+from rooftrace.evaluate._geometry import _closest_on_segments, _polygonal, ring_segments, ring_vertices
 
 __all__ = [
     "polis",
@@ -34,93 +39,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-# points × segments evaluated at once in the 3D distance; bounds memory (~100 MB)
-_CHUNK = 2_000_000
-
-
-def _as_geometry(geom) -> BaseGeometry | None:
-    """One geometry from a geometry, a sequence of them (unioned) or None."""
-    if geom is None:
-        return None
-    if isinstance(geom, BaseGeometry):
-        return geom
-    parts = [g for g in geom if g is not None]
-    if not parts:
-        return None
-    return shapely.union_all(np.asarray(parts, dtype=object))
-
-
-def _polygonal(geom, name: str) -> BaseGeometry | None:
-    geom = _as_geometry(geom)
-    if geom is None or geom.is_empty:
-        return None
-    if isinstance(geom, shapely.GeometryCollection) and not isinstance(geom, shapely.MultiPolygon):
-        polys = [g for g in shapely.get_parts(geom) if isinstance(g, (shapely.Polygon, shapely.MultiPolygon))]
-        geom = shapely.union_all(polys) if polys else None
-        if geom is None or geom.is_empty:
-            return None
-    if not isinstance(geom, (shapely.Polygon, shapely.MultiPolygon)):
-        raise TypeError(f"{name} must be a Polygon or MultiPolygon, not {geom.geom_type}")
-    return geom
-
-
-def _rings(geom: BaseGeometry) -> list[np.ndarray]:
-    """Closed coordinate arrays (k, 3) of every ring; z is NaN when absent."""
-    rings = shapely.get_rings(shapely.get_parts(geom))
-    return [shapely.get_coordinates(r, include_z=True) for r in rings if not r.is_empty]
-
-
-def ring_vertices(geom) -> np.ndarray:
-    """Vertices of all rings of a (Multi)Polygon, closing vertices dropped.
-
-    Parameters
-    ----------
-    geom : Polygon or MultiPolygon
-
-    Returns
-    -------
-    ndarray of shape (N, 3) float64
-        x, y, z; z is NaN for a 2D geometry. Empty for None/empty input.
-    """
-    geom = _polygonal(geom, "geom")
-    if geom is None:
-        return np.empty((0, 3))
-    rings = [r[:-1] for r in _rings(geom)]
-    return np.concatenate(rings) if rings else np.empty((0, 3))
-
-
-def ring_segments(geom) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end points, each (M, 3) float64, of every boundary segment."""
-    geom = _polygonal(geom, "geom")
-    if geom is None:
-        return np.empty((0, 3)), np.empty((0, 3))
-    rings = _rings(geom)
-    return np.concatenate([r[:-1] for r in rings]), np.concatenate([r[1:] for r in rings])
-
-
-def _closest_on_segments(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, dims: int) -> np.ndarray:
-    """Closest point (N, 3) on a set of segments for each point, measured in ``dims`` dimensions.
-
-    Along the chosen segment the point is found in ``dims`` dimensions and the
-    remaining coordinates (z when dims = 2) are interpolated linearly.
-    """
-    out = np.empty((len(points), 3))
-    d = p1 - p0
-    dd = np.einsum("ij,ij->i", d[:, :dims], d[:, :dims])
-    safe = np.where(dd > 0, dd, 1.0)
-    step = max(1, _CHUNK // max(1, len(p0)))
-    for i in range(0, len(points), step):
-        pts = points[i:i + step]
-        rel = pts[:, None, :dims] - p0[None, :, :dims]
-        t = np.clip(np.einsum("ijk,jk->ij", rel, d[:, :dims]) / safe, 0.0, 1.0)
-        t = np.where(dd > 0, t, 0.0)
-        foot = p0[None, :, :dims] + t[..., None] * d[None, :, :dims]
-        dist2 = ((pts[:, None, :dims] - foot) ** 2).sum(axis=2)
-        j = np.argmin(dist2, axis=1)  # first segment on ties: deterministic
-        tj = t[np.arange(len(pts)), j]
-        out[i:i + step] = p0[j] + tj[:, None] * d[j]
-    return out
 
 
 def _directed_mean(a: BaseGeometry, b: BaseGeometry, dim: int) -> float:
@@ -220,36 +138,69 @@ def hausdorff(a, b, *, densify: float | None = None) -> float:
     return float(shapely.hausdorff_distance(a.boundary, b.boundary, densify=densify))
 
 
-def vertex_residuals(reference, extracted) -> np.ndarray:
+def vertex_residuals(reference, extracted, *, step_tolerance: float = 0.005) -> np.ndarray:
     """Extracted minus reference coordinates at every reference vertex.
 
     For each reference vertex the planimetrically closest point on the
-    extracted boundary is found; its z is interpolated linearly along the
-    extracted segment.
+    extracted boundary gives dx, dy.  dz is taken, among the points of the
+    extracted boundary within ``step_tolerance`` in plan of that closest
+    point, at the one whose z is closest to the vertex's (z interpolated
+    linearly along the extracted segments; a vertical segment offers its two
+    ends).  Without a vertical step this changes dz by at most
+    ``step_tolerance`` times the outline's slope.
 
     Parameters
     ----------
     reference, extracted : Polygon or MultiPolygon
+    step_tolerance : float, default 0.005
+        Plan distance of the z candidates from the closest point, in CRS
+        units (m).  At a vertical step of a 3D outline (an annex meeting the
+        main roof: two vertices at one xy) the plan-closest point is
+        ambiguous, and the first segment found may carry the other roof's
+        height.  5 mm is far above the rounding of projected coordinates
+        (~1e-10 m) and covers steps whose two vertices were written a few mm
+        apart, while staying well below outline errors (cm to dm), so no
+        other part of the outline competes.
 
     Returns
     -------
     ndarray of shape (N, 3) float64
         dx, dy, dz in CRS units, one row per reference vertex; dz is NaN when
         either geometry has no z. Empty (0, 3) when either is None/empty.
+
+    Raises
+    ------
+    TypeError, ValueError
+        ``step_tolerance`` not a number, or negative.
+
+    Examples
+    --------
+    A vertical step at x = 4 (the annex at z = 3, the main roof at z = 8):
+    the reference corner on the main roof is measured against the main roof.
+
+    >>> from shapely import Polygon
+    >>> step = [(0, 0, 3), (4, 0, 3), (4, 0, 8), (10, 0, 8), (10, 5, 8), (0, 5, 3)]
+    >>> vertex_residuals(Polygon(step), Polygon(step))[2].tolist()
+    [0.0, 0.0, 0.0]
     """
+    if isinstance(step_tolerance, bool) or not isinstance(step_tolerance, (int, float, np.floating)):
+        raise TypeError(f"step_tolerance must be a number, not {step_tolerance!r}")
+    if not step_tolerance >= 0:
+        raise ValueError(f"step_tolerance must be >= 0, not {step_tolerance}")
     ref, ext = _polygonal(reference, "reference"), _polygonal(extracted, "extracted")
     if ref is None or ext is None:
         return np.empty((0, 3))
     verts = ring_vertices(ref)
     p0, p1 = ring_segments(ext)
-    return _closest_on_segments(verts, p0, p1, 2) - verts
+    return _closest_on_segments(verts, p0, p1, 2, z_tie=float(step_tolerance)) - verts
 
 
-def rmse_xyz(reference, extracted) -> tuple[float, float, float]:
+def rmse_xyz(reference, extracted, *, step_tolerance: float = 0.005) -> tuple[float, float, float]:
     """RMSE in x, y and z of the reference vertices (thesis eq. 3.16).
 
     Discrepancies are taken against the closest points on the extracted
-    outline (see :func:`vertex_residuals`).
+    outline, z on the side of a vertical step nearest to the vertex's z (see
+    :func:`vertex_residuals`, which also describes ``step_tolerance``).
 
     Returns
     -------
@@ -263,7 +214,7 @@ def rmse_xyz(reference, extracted) -> tuple[float, float, float]:
     >>> rmse_xyz(box(0, 0, 10, 10), box(2, 0, 12, 10))[:2]
     (1.4142135623730951, 0.0)
     """
-    res = vertex_residuals(reference, extracted)
+    res = vertex_residuals(reference, extracted, step_tolerance=step_tolerance)
     if len(res) == 0:
         return (math.nan, math.nan, math.nan)
     r = np.sqrt(np.mean(res ** 2, axis=0))

@@ -15,7 +15,8 @@ per-point labels.
 """
 
 from rooftrace.synth.buildings import Building, RoofBlock
-from rooftrace.synth.scene import SceneOptions, default_buildings
+from rooftrace.synth.mix import default_buildings
+from rooftrace.synth.scene import SceneOptions
 from rooftrace.synth.simulate import Scene, simulate_scene, write_scene
 
 __all__ = ["SceneOptions", "Scene", "Building", "RoofBlock", "simulate_scene", "write_scene", "default_buildings"]

@@ -1,0 +1,234 @@
+"""The figures of the evaluation report, as PNG bytes.
+
+Plots (matplotlib, Agg canvas, no pyplot state): a scene map coloured by
+PoLiS, histograms of PoLiS and Hausdorff, and per-building overlays of the
+extracted and reference outlines over the LiDAR points (the worst buildings
+by PoLiS, a few of the best, and a few missed ones).  Re-exported by
+:mod:`rooftrace.evaluate.report`, which embeds them in the HTML page.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import shapely
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import PatchCollection
+from matplotlib.figure import Figure
+from matplotlib.patches import PathPatch
+from matplotlib.path import Path as MplPath
+from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.axes_grid1 import make_axes_locatable
+
+__all__ = ["render_figures", "FIGURES"]
+
+#: file name -> caption, in page order
+FIGURES = {
+    "scene_map.png": "Scene: extracted outlines coloured by PoLiS (m); reference in black, "
+                     "missed reference buildings in red, false detections in orange.",
+    "histograms.png": "Distribution of PoLiS and Hausdorff distances over the matched buildings.",
+    "overlays.png": "Per building: reference (black) and extracted (red, dashed) outlines over the points, "
+                    "ridges dotted. "
+                    "The worst buildings by PoLiS first, then the best, then missed ones and false detections.",
+}
+_REF, _EXT, _MISS, _FP, _PTS = "#111111", "#d62728", "#e31a1c", "#ff7f00", "#8a9bb0"
+_MAX_POINTS_MAP = 300_000
+_N_WORST, _N_BEST, _N_MISSED = 12, 4, 4
+
+
+def _path(geom) -> MplPath:
+    """A matplotlib path of a (Multi)Polygon, holes included (even-odd fill)."""
+    paths = []
+    for ring in shapely.get_rings(shapely.get_parts(geom)):
+        xy = shapely.get_coordinates(ring)
+        codes = np.full(len(xy), MplPath.LINETO, dtype=np.uint8)
+        codes[0], codes[-1] = MplPath.MOVETO, MplPath.CLOSEPOLY
+        paths.append(MplPath(xy, codes))
+    return MplPath.make_compound_path(*paths)
+
+
+def _union(geoms, idx):
+    parts = [geoms[i] for i in idx if geoms[i] is not None and not geoms[i].is_empty]
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else shapely.union_all(parts)
+
+
+def _png(fig: Figure) -> bytes:
+    buf = io.BytesIO()
+    FigureCanvasAgg(fig)
+    # no timestamps in the PNG, so the same metrics give the same bytes
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight", metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _outline(ax, geom, **kw) -> None:
+    for ring in shapely.get_rings(shapely.get_parts(geom)):
+        xy = shapely.get_coordinates(ring)
+        ax.plot(xy[:, 0], xy[:, 1], **kw)
+
+
+def _scene_map(metrics, extracted, reference, points_xy) -> Figure:
+    geoms = [g for g in (*extracted, *reference) if g is not None and not g.is_empty]
+    x0, y0, x1, y1 = shapely.total_bounds(geoms) if geoms else (0.0, 0.0, 1.0, 1.0)
+    # the figure follows the scene's shape so that the map fills it
+    height = float(np.clip(9.0 * (y1 - y0) / max(x1 - x0, 1e-9), 3.0, 10.0)) + 1.0
+    fig = Figure(figsize=(10, height))
+    ax = fig.add_subplot()
+    if points_xy is not None and len(points_xy):
+        step = max(1, len(points_xy) // _MAX_POINTS_MAP)
+        ax.scatter(points_xy[::step, 0], points_xy[::step, 1], s=0.2, c=_PTS, alpha=0.4, linewidths=0,
+                   rasterized=True)
+    units = metrics.get("buildings", [])
+    matched = [b for b in units if b["status"] == "matched"]
+    values = np.array([b["polis"] if b["polis"] is not None else np.nan for b in matched], dtype=float)
+    vmax = float(np.nanpercentile(values, 95)) if np.isfinite(values).any() else 1.0
+    patches = [_path(_union(extracted, b["extracted_index"])) for b in matched]
+    if patches:
+        coll = PatchCollection([PathPatch(p) for p in patches], cmap="viridis_r", alpha=0.85, linewidths=0)
+        coll.set_array(values)
+        coll.set_clim(0.0, max(vmax, 1e-3))
+        ax.add_collection(coll)
+        cax = make_axes_locatable(ax).append_axes("right", size="2.5%", pad=0.15)
+        fig.colorbar(coll, cax=cax, label="PoLiS (m)", extend="max")
+    fps = [_path(_union(extracted, b["extracted_index"])) for b in units if b["status"] == "false_positive"]
+    if fps:
+        ax.add_collection(PatchCollection([PathPatch(p) for p in fps], facecolor=_FP, alpha=0.7, linewidths=0))
+    for b in units:
+        r = _union(reference, b["reference_index"])
+        if r is not None:
+            missed = b["status"] == "missed"
+            _outline(ax, r, color=_MISS if missed else _REF, lw=1.4 if missed else 0.6)
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_title(f"{metrics.get('n_matched', 0)} matched, "
+                 f"{sum(b['status'] == 'missed' for b in units)} missed, "
+                 f"{sum(b['status'] == 'false_positive' for b in units)} false detections")
+    return fig
+
+
+def _histograms(metrics) -> Figure:
+    fig = Figure(figsize=(9, 3.4))
+    matched = [b for b in metrics.get("buildings", []) if b["status"] == "matched"]
+    for k, (key, label) in enumerate((("polis", "PoLiS (m)"), ("hausdorff", "Hausdorff (m)"))):
+        ax = fig.add_subplot(1, 2, k + 1)
+        v = np.array([b[key] for b in matched if b[key] is not None], dtype=float)
+        if len(v):
+            ax.hist(v, bins=min(40, max(5, int(np.sqrt(len(v))) * 2)), color="#3b75af", edgecolor="white")
+            ax.axvline(float(v.mean()), color=_EXT, lw=1.2, label=f"mean {v.mean():.3f} m")
+            ax.legend(frameon=True, loc="upper right")
+            ax.set_xlim(left=0.0)  # distances: the axis starts at zero
+        else:
+            ax.text(0.5, 0.5, "no matched buildings", ha="center", va="center", transform=ax.transAxes)
+        ax.set_xlabel(label)
+        ax.set_ylabel("buildings")
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.tight_layout()
+    return fig
+
+
+def _pick(metrics) -> list[dict]:
+    units = metrics.get("buildings", [])
+    matched = [b for b in units if b["status"] == "matched" and b["polis"] is not None]
+    matched.sort(key=lambda b: (-b["polis"], b["unit"]))
+    worst = matched[:_N_WORST]
+    best = matched[_N_WORST:][-_N_BEST:][::-1]
+    missed = [b for b in units if b["status"] == "missed"][:_N_MISSED]
+    false = [b for b in units if b["status"] == "false_positive"][:_N_MISSED]
+    return worst + best + missed + false
+
+
+def _ridges_in(lines, bounds) -> list:
+    if not lines:
+        return []
+    lines = np.asarray([g for g in lines if g is not None and not g.is_empty], dtype=object)
+    return list(lines[shapely.intersects(lines, shapely.box(*bounds))]) if len(lines) else []
+
+
+def _overlays(metrics, extracted, reference, points_xy, ridges=(None, None)) -> Figure | None:
+    chosen = _pick(metrics)
+    if not chosen:
+        return None
+    ncol = 4
+    nrow = math.ceil(len(chosen) / ncol)
+    fig = Figure(figsize=(3.2 * ncol, 3.3 * nrow))
+    for k, b in enumerate(chosen):
+        ax = fig.add_subplot(nrow, ncol, k + 1)
+        r = _union(reference, b["reference_index"])
+        e = _union(extracted, b["extracted_index"])
+        geoms = [g for g in (r, e) if g is not None]
+        x0, y0, x1, y1 = shapely.total_bounds(geoms)
+        pad = 0.15 * max(x1 - x0, y1 - y0, 1.0)
+        if points_xy is not None and len(points_xy):
+            inside = ((points_xy[:, 0] >= x0 - pad) & (points_xy[:, 0] <= x1 + pad)
+                      & (points_xy[:, 1] >= y0 - pad) & (points_xy[:, 1] <= y1 + pad))
+            ax.scatter(points_xy[inside, 0], points_xy[inside, 1], s=1.5, c=_PTS, linewidths=0, rasterized=True)
+        if r is not None:
+            _outline(ax, r, color=_REF, lw=1.6)
+        if e is not None:
+            _outline(ax, e, color=_EXT, lw=1.4, ls="--")
+        box_ = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        for lines, colour, ls in ((ridges[1], _REF, ":"), (ridges[0], _EXT, ":")):
+            for line in _ridges_in(lines, box_):
+                for part in shapely.get_parts(line):
+                    xy = shapely.get_coordinates(part)
+                    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.2, ls=ls)
+        ax.set_xlim(x0 - pad, x1 + pad)
+        ax.set_ylim(y0 - pad, y1 + pad)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        side, label = ("extracted_ids", "ext") if b["status"] == "false_positive" else ("reference_ids", "ref")
+        ids = ",".join(str(i) for i in b[side][:3]) + ("…" if len(b[side]) > 3 else "")
+        if b["status"] == "matched":
+            ax.set_title(f"ref {ids}\nPoLiS {b['polis']:.2f} m · H {b['hausdorff']:.2f} m · Q {b['quality']:.0%}",
+                         fontsize=8)
+        elif b["status"] == "missed":
+            ax.set_title(f"ref {ids}\nmissed", fontsize=8, color=_MISS)
+        else:
+            ax.set_title(f"{label} {ids}\nfalse detection", fontsize=8, color=_FP)
+    fig.tight_layout()
+    return fig
+
+
+def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, points_xy=None,
+                   extracted_ridges: Sequence | None = None,
+                   reference_ridges: Sequence | None = None) -> dict[str, bytes]:
+    """PNG images of the report.
+
+    Parameters
+    ----------
+    metrics : dict
+        The output of :func:`rooftrace.evaluate.evaluate` (its ``buildings``
+        records index into ``extracted`` and ``reference``).
+    extracted, reference : sequence of Polygon/MultiPolygon
+        The same sequences that were evaluated.
+    points_xy : ndarray of shape (N, 2) float64, optional
+        LiDAR points drawn under the outlines (subsampled on the scene map).
+    extracted_ridges, reference_ridges : sequence of LineString, optional
+        Drawn dotted on the per-building overlays.
+
+    Returns
+    -------
+    dict of str to bytes
+        File name -> PNG bytes, the keys of :data:`FIGURES` (no
+        ``overlays.png`` when there is no building to show).
+    """
+    if points_xy is not None:
+        points_xy = np.asarray(points_xy, dtype=float)
+        if points_xy.ndim != 2 or points_xy.shape[1] < 2:
+            raise ValueError(f"points_xy must have shape (N, 2), not {points_xy.shape}")
+        points_xy = points_xy[:, :2]
+    extracted, reference = list(extracted), list(reference)
+    out = {"scene_map.png": _png(_scene_map(metrics, extracted, reference, points_xy)),
+           "histograms.png": _png(_histograms(metrics))}
+    fig = _overlays(metrics, extracted, reference, points_xy, (extracted_ridges, reference_ridges))
+    if fig is not None:
+        out["overlays.png"] = _png(fig)
+    return out
