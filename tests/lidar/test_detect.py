@@ -167,7 +167,10 @@ def test_clusters_the_laser_went_through_are_not_buildings():
     assert through.n_buildings == 0
     from rooftrace.lidar.classify import ClassifyOptions
 
-    off = DetectOptions(classify=ClassifyOptions(max_penetration=None))
+    # the patch test alone takes every point out of it too
+    level_off = DetectOptions(classify=ClassifyOptions(max_penetration=None))
+    assert detect_buildings(PointCloud(xyz, fields, crs=RD), level_off).n_buildings == 0
+    off = DetectOptions(classify=ClassifyOptions(max_penetration=None, max_patch_penetration=None))
     assert detect_buildings(PointCloud(xyz, fields, crs=RD), off).n_buildings == 1
 
 
