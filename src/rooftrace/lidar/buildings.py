@@ -105,12 +105,16 @@ def drop_penetrated(xy: np.ndarray, group: np.ndarray, returns: np.ndarray, radi
     inb = np.flatnonzero(group >= 0)
     if len(inb) == 0:
         return group
-    pairs = _same_group_pairs(xy[inb], group[inb], radius)
-    r = np.asarray(returns, dtype=np.float64)[inb]
-    n = len(inb)
-    count = 1 + np.bincount(pairs.ravel(), minlength=n)
-    through = r + np.bincount(pairs[:, 0], r[pairs[:, 1]], n) + np.bincount(pairs[:, 1], r[pairs[:, 0]], n)
-    group[inb[through / count > max_fraction]] = -1
+    # each building on its own plane, 3·radius apart: a ball query then
+    # sees only its own building, and counting (not listing) neighbours
+    # keeps memory linear (~70 neighbours a point at 15 pts/m²)
+    xy_b = np.asarray(xy, dtype=np.float64)[inb]
+    stacked = np.column_stack([xy_b, group[inb] * 3.0 * radius])
+    through = np.asarray(returns, dtype=np.float64)[inb] > 0
+    count = cKDTree(stacked).query_ball_point(stacked, radius, return_length=True, workers=-1)
+    n_through = (cKDTree(stacked[through]).query_ball_point(stacked, radius, return_length=True, workers=-1)
+                 if through.any() else np.zeros(len(inb)))
+    group[inb[n_through / count > max_fraction]] = -1
     return group
 
 
