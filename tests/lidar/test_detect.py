@@ -238,3 +238,13 @@ def test_low_clutter_by_a_wall_stays_out_of_the_building():
     assert np.all(det.building_id[low] == 0)
     taken = detect_buildings(cloud)  # default: no limit, the wall takes them in
     assert np.mean(taken.building_id[low] > 0) > 0.5
+
+
+def test_a_wire_over_a_roof_does_not_join_it():
+    rng = np.random.default_rng(3)
+    # the wire runs at y = 25 (size - 5), 12 m up, over a 6 m flat roof
+    xyz, truth = scene(rng, size=30, density=10, slope=0.0, boxes=((5.0, 18.0, 20.0, 10.0, 6.0),), wire=True)
+    det = detect_buildings(PointCloud(xyz + OFFSET, {}, crs=RD))
+    assert det.n_buildings == 1
+    assert not np.any(det.classification[truth == 1] == ASPRS.BUILDING)
+    assert f1(det.classification == ASPRS.BUILDING, truth == BUILDING) > 0.97

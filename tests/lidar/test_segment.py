@@ -84,3 +84,18 @@ def test_options_are_checked():
     with pytest.raises(ValueError, match="max_normal_angle"):
         SegmentOptions(max_normal_angle=0)
     assert SegmentOptions().max_normal_angle is None  # the thesis' linking by default
+
+
+
+def test_contact_share_counts_member_points_next_to_others():
+    from rooftrace.lidar.segment import contact_share
+
+    labels = np.array([0, 0, 0, 0, 1, 1, 2, -1])
+    # points 0 and 1 of cluster 0 have a neighbour in cluster 1; cluster 2 only touches noise
+    pairs = np.array([[0, 4], [1, 5], [2, 3], [6, 7]])
+    members = np.array([True, False, True])
+    others = np.array([False, True, False])
+    assert contact_share(labels, pairs, members, others).tolist() == [0.5, 0.0, 0.0]
+    # directed: the same pairs seen from cluster 1 do not count for cluster 0
+    assert contact_share(labels, pairs[:, ::-1], members, others).tolist() == [0.0, 0.0, 0.0]
+    assert contact_share(labels, pairs, members, np.zeros(3, bool)).tolist() == [0.0, 0.0, 0.0]

@@ -58,7 +58,7 @@ from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar.segment import SegmentOptions, link_pairs, order_labels, region_growing
+from rooftrace.lidar.segment import SegmentOptions, contact_share, link_pairs, order_labels, region_growing
 from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
 from rooftrace.progress import Reporter
 
@@ -297,12 +297,26 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         linear = big & (lin > co.max_linearity)
         returns = _penetration(cloud, above[high])
         interior = None
+        penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
             penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
             if co.penetration_edge is not None:
                 interior = interior_points(pts[high, :2], levels, pairs, link_d, co.penetration_edge)
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
+        if co.linear_joins and len(pairs):
+            # a narrow roof strip the height test cut into scan lines is a
+            # row of linear levels along the roof or wall beside it; a wire
+            # crossing over a roof touches it in plan too, but from above
+            strip = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
+            z = pts[high, 2]
+            both = np.concatenate([pairs, pairs[:, ::-1]])
+            below = both[z[both[:, 0]] <= z[both[:, 1]] + 2.0 * link_d]
+            while True:  # a row of strips joins one after the other
+                joins = strip & ~building_level & (contact_share(levels, below, strip, building_level) >= 0.25)
+                if not joins.any():
+                    break
+                building_level |= joins
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
                               "n_building_levels": int(building_level.sum())}
 

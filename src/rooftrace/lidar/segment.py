@@ -43,7 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["SegmentOptions", "components", "link_pairs", "region_growing", "merge_touching", "order_labels"]
+__all__ = ["SegmentOptions", "components", "contact_share", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -293,6 +293,35 @@ def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -
     group = np.full(k, -1, np.int64)
     _, group[members] = np.unique(comp[members], return_inverse=True)
     return group
+
+
+def contact_share(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray, others: np.ndarray) -> np.ndarray:
+    """Fraction of each member cluster's points that have a plan neighbour in an ``others`` cluster.
+
+    Parameters
+    ----------
+    labels : ndarray of shape (N,), int
+        Cluster label per point, 0..K-1; negative = no cluster.
+    pairs : ndarray of shape (M, 2), int
+        Directed pairs (member point, neighbour point); pass both orders of
+        :func:`link_pairs` for an undirected contact.
+    members, others : ndarray of shape (K,), bool
+
+    Returns
+    -------
+    ndarray of shape (K,), float64
+        0 for clusters not in ``members`` (and for empty ones).
+    """
+    members, others = np.asarray(members, bool), np.asarray(others, bool)
+    k = len(members)
+    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    ok = (la >= 0) & (lb >= 0) & (la != lb)
+    ok[ok] &= members[la[ok]] & others[lb[ok]]
+    touched = np.zeros(len(labels), bool)
+    touched[pairs[ok, 0]] = True
+    size = np.bincount(labels[labels >= 0], minlength=k)
+    hits = np.bincount(labels[touched], minlength=k)
+    return np.where(members & (size > 0), hits / np.maximum(size, 1), 0.0)
 
 
 def order_labels(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
