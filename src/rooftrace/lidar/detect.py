@@ -295,7 +295,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         # filter below drops those that do not touch a building
         building_level = (ent <= threshold) & (lin <= co.max_linearity)
         linear = big & (lin > co.max_linearity)
-        returns = _penetration(cloud, above[high])
+        returns_all = _penetration(cloud, above)
+        returns = None if returns_all is None else returns_all[high]
         interior = None
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
@@ -309,8 +310,9 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             # row of linear levels along the roof or wall beside it; a wire
             # crossing over a roof touches it in plan too, but from above
             strip = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
+            near = pairs[strip[levels[pairs[:, 0]]] | strip[levels[pairs[:, 1]]]]
+            both = np.concatenate([near, near[:, ::-1]])
             z = pts[high, 2]
-            both = np.concatenate([pairs, pairs[:, ::-1]])
             below = both[z[both[:, 0]] <= z[both[:, 1]] + 2.0 * link_d]
             while True:  # a row of strips joins one after the other
                 joins = strip & ~building_level & (contact_share(levels, below, strip, building_level) >= 0.25)
@@ -323,7 +325,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
             pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns, interior=interior,
-            returns_all=None if returns is None else _penetration(cloud, above),
+            returns_all=returns_all,
             min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)
