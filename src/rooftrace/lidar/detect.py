@@ -15,11 +15,14 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
    (§3.4) with the guards of :mod:`rooftrace.lidar.classify`; building
    clusters that touch in plan are merged into buildings.
 
-Beyond the thesis, a building then takes in the non-ground points next to it
-whose own entropy is on the building side (walls, roof edges, dormers cut
-off by the height test), and drops out when it is narrower than
-``segment.min_width`` or when the laser went through it (``classify.max_penetration``);
-see :mod:`rooftrace.lidar.buildings`.
+Beyond the thesis, linear clusters beside a building cluster join it (narrow
+roof strips cut into scan lines, ``classify.linear_joins``); a building then
+takes in the non-ground points next to it whose own entropy is on the
+building side (walls, roof edges, dormers cut off by the height test), and
+drops out when it is narrower than ``segment.min_width`` or when the laser
+went through it (``classify.max_penetration``, counted away from roof edges
+where pulses split); patches of it the laser went through leave it
+(``classify.max_patch_penetration``); see :mod:`rooftrace.lidar.buildings`.
 
 Class rules (first match wins):
 
