@@ -256,7 +256,14 @@ def assemble_buildings(
             group_all = _absorb(pts, group_all, allowed, mean_spacing, 1)
             group_all = _absorb_below(pts, group_all, mean_spacing, eligible & allowed)
     if co.max_patch_penetration is not None and returns_all is not None and len(pts):
-        group_all = drop_penetrated(pts[:, :2], group_all, returns_all, co.patch_factor * link_distance,
-                                    co.max_patch_penetration)
-        group_all = split_parts(pts[:, :2], group_all, link_distance, min_points)
+        kept = drop_penetrated(pts[:, :2], group_all, returns_all, co.patch_factor * link_distance,
+                               co.max_patch_penetration)
+        # only a building that lost points can have fallen apart
+        cut = np.zeros(int(group_all.max(initial=-1)) + 1, bool)
+        cut[group_all[(group_all >= 0) & (kept < 0)]] = True
+        redo = np.flatnonzero((kept >= 0) & cut[np.maximum(kept, 0)])
+        if len(redo):
+            parts = split_parts(pts[redo, :2], kept[redo], link_distance, min_points)
+            kept[redo] = np.where(parts >= 0, parts + len(cut), -1)
+        group_all = kept
     return group_all, levels_all

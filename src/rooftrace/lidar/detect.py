@@ -304,8 +304,6 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
             penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
-            if co.penetration_edge is not None:
-                interior = interior_points(pts[high, :2], levels, pairs, link_d, co.penetration_edge)
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
         if co.linear_joins and len(pairs):
@@ -313,7 +311,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             # row of linear levels along the roof or wall beside it; a wire
             # crossing over a roof touches it in plan too, but from above
             strip = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
-            near = pairs[strip[levels[pairs[:, 0]]] | strip[levels[pairs[:, 1]]]]
+            on_strip = strip[levels]
+            near = pairs[on_strip[pairs[:, 0]] | on_strip[pairs[:, 1]]]
             both = np.concatenate([near, near[:, ::-1]])
             z = pts[high, 2]
             below = both[z[both[:, 0]] <= z[both[:, 1]] + 2.0 * link_d]
@@ -322,6 +321,11 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                 if not joins.any():
                     break
                 building_level |= joins
+        if co.max_penetration is not None and returns is not None and co.penetration_edge is not None:
+            # only the building test uses it: pairs inside building levels
+            on_building = building_level[levels]
+            inside = pairs[on_building[pairs[:, 0]] & on_building[pairs[:, 1]]]
+            interior = interior_points(pts[high, :2], levels, inside, link_d, co.penetration_edge)
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
                               "n_building_levels": int(building_level.sum())}
 
