@@ -261,7 +261,8 @@ def assemble_buildings(
         # only a building that lost points can have fallen apart
         cut = np.zeros(int(group_all.max(initial=-1)) + 1, bool)
         cut[group_all[(group_all >= 0) & (kept < 0)]] = True
-        redo = np.flatnonzero((kept >= 0) & cut[np.maximum(kept, 0)])
+        redo = np.flatnonzero(kept >= 0)
+        redo = redo[cut[kept[redo]]]
         if len(redo):
             parts = split_parts(pts[redo, :2], kept[redo], link_distance, min_points)
             kept[redo] = np.where(parts >= 0, parts + len(cut), -1)
