@@ -110,7 +110,7 @@ def _building_lines(rng, n_buildings=4):
 
 
 def test_line_resection_recovers_the_orientation_from_partial_lines(rng):
-    from rooftrace.image.resection import line_resection
+    from rooftrace.image.line_resection import line_resection
 
     truth = _camera()
     lines = _building_lines(rng)
@@ -125,7 +125,7 @@ def test_line_resection_recovers_the_orientation_from_partial_lines(rng):
 
 
 def test_line_resection_with_noise_and_prior_improves_a_perturbed_camera(rng):
-    from rooftrace.image.resection import line_resection
+    from rooftrace.image.line_resection import line_resection
 
     truth = _camera()
     lines = _building_lines(rng, 6)
@@ -141,7 +141,7 @@ def test_line_resection_with_noise_and_prior_improves_a_perturbed_camera(rng):
 
 
 def test_line_resection_bad_input(rng):
-    from rooftrace.image.resection import line_resection
+    from rooftrace.image.line_resection import line_resection
 
     cam = _camera()
     lines = _building_lines(rng, 1)

@@ -46,7 +46,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.image.resection import check_line_matches, line_equations, whitened_prior, wrap_angles
+from rooftrace.image.line_resection import check_line_matches, line_equations, whitened_prior
+from rooftrace.image.resection import wrap_angles
 
 __all__ = ["OrientationCorrection", "correct_orientation", "EO_NAMES"]
 
