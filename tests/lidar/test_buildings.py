@@ -88,3 +88,15 @@ def test_split_parts_numbers_each_plan_part_and_drops_small_ones():
 def test_penetration_options_are_checked(key, value):
     with pytest.raises(ValueError, match=key):
         ClassifyOptions(**{key: value})
+
+
+def test_local_penetration_sees_only_the_points_own_cluster():
+    from rooftrace.lidar.classify import local_penetration
+
+    xy = np.vstack([grid(5, 5), grid(5, 5)])  # two clusters on the same spot
+    labels = np.repeat([0, 1], 25)
+    ret = np.repeat([0.0, 1.0], 25)
+    got = local_penetration(xy, labels, ret, 0.5)
+    assert np.all(got[:25] == 0.0) and np.all(got[25:] == 1.0)
+    labels[:5] = -1
+    assert np.isnan(local_penetration(xy, labels, ret, 0.5)[:5]).all()

@@ -26,8 +26,10 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-__all__ = ["ClassifyOptions", "cluster_means", "interior_points", "kmeans_1d", "penetration", "separate_buildings"]
+__all__ = ["ClassifyOptions", "cluster_means", "interior_points", "kmeans_1d", "local_penetration", "penetration",
+           "separate_buildings"]
 
 log = logging.getLogger(__name__)
 
@@ -242,6 +244,42 @@ def penetration(labels: np.ndarray, returns: np.ndarray, interior: np.ndarray | 
     n_in = np.bincount(labels[ok & interior], minlength=k)
     inner = cluster_means(np.where(interior, labels, -1), returns, k)
     return np.where(n_in >= min_interior, inner, every)
+
+
+def local_penetration(xy: np.ndarray, labels: np.ndarray, returns: np.ndarray, radius: float) -> np.ndarray:
+    """Fraction of non-last returns among each point's cluster-mates within ``radius`` in plan (itself included).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Plan coordinates (m).
+    labels : ndarray of shape (N,), int
+        Cluster of each point, negative = none.
+    returns : ndarray of shape (N,), float64
+        1.0 where a point is not the last return of its pulse.
+    radius : float
+        Plan radius (m).
+
+    Returns
+    -------
+    ndarray of shape (N,), float64
+        NaN for points of no cluster.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    out = np.full(len(labels), np.nan)
+    inb = np.flatnonzero(labels >= 0)
+    if len(inb) == 0:
+        return out
+    # each cluster on its own plane, 3·radius apart: a ball query then sees
+    # only its own cluster, and counting (not listing) neighbours keeps
+    # memory linear (~70 neighbours a point at 15 pts/m² and 1.2 m)
+    stacked = np.column_stack([np.asarray(xy, dtype=np.float64)[inb], labels[inb] * 3.0 * radius])
+    through = np.asarray(returns, dtype=np.float64)[inb] > 0
+    count = cKDTree(stacked).query_ball_point(stacked, radius, return_length=True, workers=-1)
+    n_through = (cKDTree(stacked[through]).query_ball_point(stacked, radius, return_length=True, workers=-1)
+                 if through.any() else np.zeros(len(inb)))
+    out[inb] = n_through / count
+    return out
 
 
 def kmeans_1d(values: np.ndarray, k: int = 2, max_iter: int = 100) -> tuple[np.ndarray, np.ndarray]:
