@@ -146,3 +146,50 @@ def test_a_ring_pinched_at_a_point_keeps_both_wings():
     assert fixed.is_valid and fixed.geom_type == "Polygon" and fixed.has_z
     assert fixed.area == pytest.approx(200, abs=0.5)  # both wings and a bridge of a few cm²
     assert set(np.round(np.asarray(fixed.exterior.coords)[:, 2])) == {5, 6}
+
+
+def _scan_lines(seed: int, line_gap: float = 0.65, step: float = 0.15, width: float = 16.0, height: float = 9.5):
+    """A flat 16 x 9.5 m roof scanned in oblique lines ``line_gap`` apart, two returns per pulse (the demo's pattern).
+
+    The many short along-line edges keep the mean spacing (hence alpha) small while the
+    lines stay far apart: the alpha disk only just fits between them.
+    """
+    rng = np.random.default_rng(seed)
+    d = np.array([np.cos(-0.12), np.sin(-0.12)])
+    n = np.array([-d[1], d[0]])
+    parts = []
+    for off in np.arange(-15, 15, line_gap):
+        t = np.arange(-20, 20, step) + rng.uniform(0, step)
+        p = off * n + t[:, None] * d + rng.normal(0, 0.03, (len(t), 2))
+        parts += [p, p + rng.normal(0, 0.03, p.shape)]
+    p = np.concatenate(parts)
+    p = p[(p[:, 0] > 0) & (p[:, 0] < width) & (p[:, 1] > 0) & (p[:, 1] < height)]
+    return np.column_stack([p, np.full(len(p), 10.0)])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_alpha_is_enlarged_until_it_bridges_the_scan_lines(seed):
+    from rooftrace.contour.alpha_shape import alpha_shape
+
+    xyz = _scan_lines(seed)
+    # at scale 1 the ring closes, but through bays between the scan lines
+    assert alpha_shape(xyz[:, :2]).gap_fill > 0.85
+    out = trace_outline(xyz)
+    assert out.status == "alpha_enlarged"
+    # before: closed at the first alpha with 11-19 corners, PoLiS 0.21-0.41 m
+    assert len(out.corners[0]) == 4
+    truth = shapely.box(0, 0, 16, 9.5)
+    assert polis(out.polygon, truth) < 0.25
+    # dropping a dozen points at an edge (the demo's wall points) leaves the outline as it is
+    edge = np.flatnonzero(xyz[:, 0] < 0.3)
+    again = trace_outline(np.delete(xyz, edge[:: len(edge) // 13][:13], axis=0))
+    assert len(again.corners[0]) == 4
+    assert polis(again.polygon, out.polygon) < 0.1
+
+
+def test_even_sampling_bridges_at_the_first_alpha():
+    from rooftrace.contour.alpha_shape import alpha_shape
+
+    g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T
+    assert alpha_shape(g).gap_fill < 0.6
+    assert trace_outline(np.column_stack([g, np.full(len(g), 5.0)])).status == "ok"

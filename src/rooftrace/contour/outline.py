@@ -37,8 +37,13 @@ _STAGES = {"surface": SurfaceOptions, "alpha": AlphaOptions, "corners": CornerOp
            "regularize": RegularizeOptions}
 KNOWN_SECTIONS.update(_STAGES)
 
-#: alpha is enlarged by these factors when the shape does not close or falls apart (status "alpha_enlarged")
+#: alpha is enlarged by these factors when the shape does not close, falls apart or does not bridge
+#: the sampling (status "alpha_enlarged")
 _RETRY_SCALES = (1.0, 1.5, 2.0, 3.0)
+#: alpha bridges the sampling when the 90th percentile of the Delaunay edges stays below this share
+#: of the alpha disk's diameter (AlphaShape.gap_fill).  An edge as long as the diameter is a gap the
+#: disk enters; AHN3 roofs (Delft, City3D) measure 0.50-0.65, the demo's scan lines 0.86-0.93
+_GAP_FILL_MAX = 0.75
 
 
 @dataclass(frozen=True)
@@ -101,7 +106,8 @@ class RoofOutline:
         Metres (median of the per-edge values for the 'point' strategy).
     n_points : int
     status : str
-        'ok', 'alpha_enlarged' (closed only with a larger alpha), 'repaired'
+        'ok', 'alpha_enlarged' (closed, or bridged the gaps between scan
+        lines, only with a larger alpha), 'repaired'
         (invalid rings fixed by make_valid), 'multipart' (the points fall
         apart into several parts even with alpha tripled; the largest is
         kept), 'unregularised' (the CD-spline
@@ -218,6 +224,12 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
             status = "alpha_enlarged"
             continue
         shape = shape or trial
+        if trial.gap_fill >= _GAP_FILL_MAX and scale != _RETRY_SCALES[-1]:
+            # the alpha disk does not bridge the sampling's own gaps (between scan lines): where
+            # the lines end at an edge it slips in between them, the ring closes or not by chance
+            # (13 wall points decided it for a demo building) and, closed, is jagged
+            status = "alpha_enlarged"
+            continue
         main_area = abs(_area(pts[trial.rings[0], :2]))
         if trial.dropped_area <= max(options.alpha.min_hole_area, 0.05 * main_area):
             shape = trial
