@@ -99,3 +99,17 @@ def test_contact_share_counts_member_points_next_to_others():
     # directed: the same pairs seen from cluster 1 do not count for cluster 0
     assert contact_share(labels, pairs[:, ::-1], members, others).tolist() == [0.0, 0.0, 0.0]
     assert contact_share(labels, pairs, members, np.zeros(3, bool)).tolist() == [0.0, 0.0, 0.0]
+
+
+def test_join_strips_joins_a_row_from_beside_not_from_below():
+    from rooftrace.lidar.segment import join_strips
+
+    # clusters 0 (roof) - 1 - 2 (strips in a row); 3 a strip 5 m above the roof
+    labels = np.array([0, 0, 1, 1, 2, 2, 3, 3])
+    z = np.array([5.0, 5.0, 5.2, 5.2, 5.3, 5.3, 10.0, 10.0])
+    pairs = np.array([[1, 2], [3, 4], [0, 6], [1, 7]])
+    strips = np.array([False, True, True, True])
+    members = np.array([True, False, False, False])
+    got = join_strips(labels, pairs, z, strips, members, max_drop=1.2)
+    assert got.tolist() == [True, True, True, False]
+    assert members.tolist() == [True, False, False, False]  # not changed in place

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar.classify import ClassifyOptions, local_penetration, penetration
+from rooftrace.lidar.classify import ClassifyOptions, interior_points, local_penetration, penetration
 from rooftrace.lidar.segment import SegmentOptions, components, merge_touching
 
 __all__ = ["assemble_buildings"]
@@ -155,8 +155,6 @@ def assemble_buildings(
     big: np.ndarray,
     returns: np.ndarray | None,
     *,
-    interior: np.ndarray | None = None,
-    returns_all: np.ndarray | None = None,
     min_points: int,
     link_distance: float,
     mean_spacing: float,
@@ -183,15 +181,9 @@ def assemble_buildings(
         Plan-neighbour pairs of the segmented points (:func:`rooftrace.lidar.segment.link_pairs`).
     building_level, big : ndarray of shape (K,), bool
         Levels decided as building; levels of at least T_Np points.
-    returns : ndarray of shape (H,), float64 or None
-        1.0 where a segmented point is not the last return of its pulse.
-    interior : ndarray of shape (H,), bool, optional
-        Segmented points inside their roof level
-        (:func:`rooftrace.lidar.classify.interior_points`); when given, the
-        building's penetration test counts only them.
-    returns_all : ndarray of shape (M,), float64, optional
-        ``returns`` for every point of ``pts``; needed by
-        ``classify.max_patch_penetration``.
+    returns : ndarray of shape (M,), float64 or None
+        1.0 where a point is not the last return of its pulse (None: the
+        file has no return numbers, no penetration test).
     min_points : int
         T_Np.
     link_distance, mean_spacing : float
@@ -221,8 +213,14 @@ def assemble_buildings(
     keep &= anchored
     if co.max_penetration is not None and returns is not None:
         # the same test on the whole building, at a stricter level: a
-        # roof lets few pulses through, a heap of crowns many
-        pen = penetration(group_high, returns, interior, len(gsize))
+        # roof lets few pulses through, a heap of crowns many; counted
+        # inside the roof levels, where pulses do not split on an edge
+        interior = None
+        if co.penetration_edge is not None:
+            on_building = building_level[levels]
+            inside = pairs[on_building[pairs[:, 0]] & on_building[pairs[:, 1]]]
+            interior = interior_points(pts[high, :2], levels, inside, link_distance, co.penetration_edge)
+        pen = penetration(group_high, returns[high], interior, len(gsize))
         keep &= ~(pen > co.max_penetration * co.building_penetration)
     if so.min_width:
         keep &= group_widths(pts[high, :2], group_high, len(gsize)) >= so.min_width
@@ -243,8 +241,8 @@ def assemble_buildings(
         if so.absorb_touching:
             group_all = _absorb(pts, group_all, allowed, mean_spacing, 1)
             group_all = _absorb_below(pts, group_all, mean_spacing, eligible & allowed)
-    if co.max_patch_penetration is not None and returns_all is not None and len(pts):
-        kept = drop_penetrated(pts[:, :2], group_all, returns_all, co.patch_factor * link_distance,
+    if co.max_patch_penetration is not None and returns is not None and len(pts):
+        kept = drop_penetrated(pts[:, :2], group_all, returns, co.patch_factor * link_distance,
                                co.max_patch_penetration)
         # only a building that lost points can have fallen apart
         cut = np.zeros(int(group_all.max(initial=-1)) + 1, bool)

@@ -56,12 +56,12 @@ from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, interior_points, separate_buildings
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar.segment import SegmentOptions, contact_share, link_pairs, order_labels, region_growing
+from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
 from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
 from rooftrace.progress import Reporter
 
@@ -298,41 +298,23 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         # filter below drops those that do not touch a building
         building_level = (ent <= threshold) & (lin <= co.max_linearity)
         linear = big & (lin > co.max_linearity)
-        returns_all = _penetration(cloud, above)
-        returns = None if returns_all is None else returns_all[high]
-        interior = None
+        returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
-            penetrated = cluster_means(levels, returns, len(sizes)) > co.max_penetration
+            penetrated = cluster_means(levels, returns[high], len(sizes)) > co.max_penetration
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
         if co.linear_joins and len(pairs):
             # a narrow roof strip the height test cut into scan lines is a
-            # row of linear levels along the roof or wall beside it; a wire
-            # crossing over a roof touches it in plan too, but from above
-            strip = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
-            on_strip = strip[levels]
-            near = pairs[on_strip[pairs[:, 0]] | on_strip[pairs[:, 1]]]
-            both = np.concatenate([near, near[:, ::-1]])
-            z = pts[high, 2]
-            below = both[z[both[:, 0]] <= z[both[:, 1]] + 2.0 * link_d]
-            while True:  # a row of strips joins one after the other
-                joins = strip & ~building_level & (contact_share(levels, below, strip, building_level) >= 0.25)
-                if not joins.any():
-                    break
-                building_level |= joins
-        if co.max_penetration is not None and returns is not None and co.penetration_edge is not None:
-            # only the building test uses it: pairs inside building levels
-            on_building = building_level[levels]
-            inside = pairs[on_building[pairs[:, 0]] & on_building[pairs[:, 1]]]
-            interior = interior_points(pts[high, :2], levels, inside, link_d, co.penetration_edge)
+            # row of linear levels along the roof or wall beside it
+            strips = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
+            building_level = join_strips(levels, pairs, pts[high, 2], strips, building_level, 2.0 * link_d)
         params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
-            pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns, interior=interior,
-            returns_all=returns_all,
+            pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
             min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)

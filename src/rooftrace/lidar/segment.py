@@ -43,7 +43,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["SegmentOptions", "components", "contact_share", "link_pairs", "region_growing", "merge_touching", "order_labels"]
+__all__ = ["SegmentOptions", "components", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -322,6 +322,45 @@ def contact_share(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray, ot
     size = np.bincount(labels[labels >= 0], minlength=k)
     hits = np.bincount(labels[touched], minlength=k)
     return np.where(members & (size > 0), hits / np.maximum(size, 1), 0.0)
+
+
+def join_strips(labels: np.ndarray, pairs: np.ndarray, z: np.ndarray, strips: np.ndarray, members: np.ndarray,
+                max_drop: float, min_share: float = 0.25) -> np.ndarray:
+    """Add to ``members`` the ``strips`` clusters lying beside one of them, repeatedly.
+
+    A strip joins when ``min_share`` of its points have a plan neighbour in
+    a member cluster that is not lower than them by more than ``max_drop``;
+    the test is repeated so that a row of strips joins one after the other.
+
+    Parameters
+    ----------
+    labels : ndarray of shape (N,), int
+        Cluster label per point, 0..K-1; negative = no cluster.
+    pairs : ndarray of shape (M, 2), int
+        Plan-neighbour pairs (:func:`link_pairs`).
+    z : ndarray of shape (N,), float64
+        Heights of the points (m).
+    strips, members : ndarray of shape (K,), bool
+    max_drop : float
+        How far a member's point may lie below the strip's point (m): a wire
+        crossing over a roof touches it in plan too, but from above.
+    min_share : float, default 0.25
+
+    Returns
+    -------
+    ndarray of shape (K,), bool
+        ``members`` with the joined strips.
+    """
+    members = np.asarray(members, bool).copy()
+    on_strip = np.asarray(strips, bool)[labels]
+    near = pairs[on_strip[pairs[:, 0]] | on_strip[pairs[:, 1]]]
+    both = np.concatenate([near, near[:, ::-1]])
+    below = both[z[both[:, 0]] <= z[both[:, 1]] + max_drop]
+    while True:
+        joins = strips & ~members & (contact_share(labels, below, strips, members) >= min_share)
+        if not joins.any():
+            return members
+        members |= joins
 
 
 def order_labels(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
