@@ -59,3 +59,35 @@ def test_good_config_and_overrides(tmp_path):
     assert make_options(SegmentOptions, cfg).min_height == 2.5
     assert make_options(SegmentOptions, cfg, min_height=3.0).min_height == 3.0  # a CLI flag wins
     assert load_config(None) == {}
+
+
+def test_false_switches_an_optional_test_off(tmp_path):
+    """TOML has no null: `false` turns off a test that defaults to a value, `"auto"` derives one."""
+    from rooftrace.grouping.options import RefineOptions
+    from rooftrace.lidar.classify import ClassifyOptions
+    from rooftrace.lidar.detect import DetectOptions
+    from rooftrace.lidar.segment import SegmentOptions
+
+    assert ClassifyOptions().max_penetration is not None and SegmentOptions().min_width is not None
+    cfg = load_config(_cfg(tmp_path, "[classify]\nmax_penetration = false\nmax_patch_penetration = false\n"
+                                     "penetration_edge = false\n[segment]\nmin_width = false\n"
+                                     "[refine]\nsimplify_tolerance = 'auto'\n"))
+    opts = DetectOptions.from_config(cfg)
+    assert (opts.classify.max_penetration, opts.classify.max_patch_penetration, opts.classify.penetration_edge,
+            opts.segment.min_width) == (None, None, None, None)
+    assert RefineOptions.from_config(cfg).simplify_tolerance is None
+    # numbers still set them, and 0 is a number, not "off"
+    cfg = load_config(_cfg(tmp_path, "[classify]\nmax_penetration = 0.4\n[refine]\nsimplify_tolerance = 0\n"))
+    assert make_options(ClassifyOptions, cfg).max_penetration == 0.4
+    assert RefineOptions.from_config(cfg).simplify_tolerance == 0.0
+
+
+@pytest.mark.parametrize("text,match", [
+    ("[classify]\nmax_penetration = true\n", r"\[classify\] max_penetration must be a number or false, got True"),
+    ("[refine]\nsimplify_tolerance = false\n", r"\[refine\] simplify_tolerance must be a number or \"auto\""),
+    ("[segment]\nmin_width = 'auto'\n", r"\[segment\] min_width must be a number or false, got 'auto'"),
+    ("[segment]\nmin_height = false\n", r"\[segment\] min_height must be a number, got False"),
+])
+def test_none_is_spelled_only_where_it_means_something(tmp_path, text, match):
+    with pytest.raises(InputError, match=match):
+        load_config(_cfg(tmp_path, text))

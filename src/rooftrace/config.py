@@ -10,13 +10,20 @@ named by the dataclass's ``section`` class attribute::
     [alpha]
     strategy = "point"
 
+    [classify]
+    max_penetration = false     # an optional test switched off
+
 Unknown tables or keys are an error, so a typo never silently does nothing.
+TOML has no null, so an option whose ``None`` is meaningful and which
+defaults to a value is declared with :func:`optional`: ``false`` in the file
+switches off a test, ``"auto"`` asks for the value derived from the data.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 import os
 import sys
 import tomllib
@@ -27,7 +34,7 @@ from typing import Any, TypeVar
 
 from rooftrace.errors import InputError
 
-__all__ = ["load_config", "make_options", "options_dict", "validate_config"]
+__all__ = ["load_config", "make_options", "optional", "options_dict", "validate_config"]
 
 T = TypeVar("T")
 
@@ -41,6 +48,42 @@ _STAGE_MODULES = (
     "rooftrace.grouping.building", "rooftrace.image.candidates", "rooftrace.image.corners",
     "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth",
 )
+
+
+#: how a config file writes ``None`` for an :func:`optional` field, by meaning
+_NONE_SPELLING = {"off": False, "auto": "auto"}
+
+
+def optional(default: Any, *, none: str = "off") -> Any:
+    """A dataclass field with a default whose ``None`` a config file can still ask for.
+
+    Parameters
+    ----------
+    default
+        The default value (not None).
+    none : {'off', 'auto'}
+        What ``None`` means: the test is switched off (written ``false``
+        in TOML) or the value is derived from the data (written ``"auto"``).
+    """
+    if none not in _NONE_SPELLING:
+        raise ValueError(f"none must be one of {sorted(_NONE_SPELLING)}, not {none!r}")
+    return dataclasses.field(default=default, metadata={"none": none})
+
+
+def _none_spellings(cls: type) -> dict[str, Any]:
+    """``{field: its TOML spelling of None}`` for the :func:`optional` fields of an options dataclass."""
+    return {f.name: _NONE_SPELLING[f.metadata["none"]] for f in dataclasses.fields(cls) if "none" in f.metadata}
+
+
+def _spells_none(value: Any, spelling: Any) -> bool:
+    # `False == 0` in Python: compare types too, so that 0 stays a number
+    return type(value) is type(spelling) and value == spelling
+
+
+def _resolve_none(cls: type, table: dict[str, Any]) -> dict[str, Any]:
+    """The table with ``false`` / ``"auto"`` of optional fields turned into ``None``."""
+    spellings = _none_spellings(cls)
+    return {k: None if k in spellings and _spells_none(v, spellings[k]) else v for k, v in table.items()}
 
 
 def load_config(path: str | os.PathLike | None, *, validate: bool = True) -> dict[str, dict[str, Any]]:
@@ -161,12 +204,16 @@ def validate_config(config: dict[str, Any]) -> None:
             except Exception:  # an annotation that does not resolve: leave the checks to the dataclass
                 hints = {}
             own = {f.name for f in dataclasses.fields(cls) if f.init}
+            spellings = _none_spellings(cls)
             for key in sorted(set(table) & own):
+                if key in spellings and _spells_none(table[key], spellings[key]):
+                    continue
                 if key in hints and not _type_ok(table[key], hints[key]):
-                    raise InputError(f"{where}: [{section}] {key} must be {_type_name(hints[key])}, "
+                    spelled = f" or {json.dumps(spellings[key])}" if key in spellings else ""
+                    raise InputError(f"{where}: [{section}] {key} must be {_type_name(hints[key])}{spelled}, "
                                      f"got {table[key]!r}")
             try:
-                cls(**{k: v for k, v in table.items() if k in own})
+                cls(**_resolve_none(cls, {k: v for k, v in table.items() if k in own}))
             except (TypeError, ValueError) as exc:
                 message = str(exc)
                 if "required" in message and "argument" in message:
@@ -190,7 +237,7 @@ def make_options(cls: type[T], config: dict[str, Any] | None = None, **overrides
     """
     section = getattr(cls, "section", cls.__name__.lower())
     where = (config or {}).get("__path__", "config")
-    table = dict((config or {}).get(section, {}))
+    table = _resolve_none(cls, dict((config or {}).get(section, {})))
     names = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(table) - set(names))
     if unknown:

@@ -34,8 +34,8 @@ class RefineOptions:
     simplify_tolerance : float or None, default 0
         Douglas-Peucker tolerance (m, plan) applied to the LiDAR outline
         first, so that vertices that hardly change its shape do not become
-        sides of their own; None: half the image GSD.  Off by default: on
-        the pipeline's outlines it cost accuracy (mean PoLiS 0.107 m with
+        sides of their own; None (``"auto"`` in a config file): half the
+        image GSD.  Off by default: on the pipeline's outlines it cost accuracy (mean PoLiS 0.107 m with
         None, 0.099 m without, 12 pts/m², benchmarks/bench_refine.py).
     min_side_px : float, default 6
         Sides projecting shorter than this (px) keep their projected line
@@ -139,7 +139,7 @@ class RefineOptions:
     section = "refine"
 
     junction_tolerance: float = 1.0
-    simplify_tolerance: float | None = 0.0
+    simplify_tolerance: float | None = _config.optional(0.0, none="auto")
     min_side_px: float = 6.0
     ridges_on_planes: bool = True
     fuse: bool = True

@@ -28,6 +28,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
+from rooftrace.config import optional
+
 __all__ = ["ClassifyOptions", "cluster_means", "interior_points", "kmeans_1d", "local_penetration", "penetration",
            "separate_buildings"]
 
@@ -89,7 +91,8 @@ class ClassifyOptions:
         Beyond the thesis: clusters where more than this fraction of points
         are not the last return of their pulse are not buildings (the laser
         went through them: hedges, crowns trimmed flat).  Used only when the
-        file has return numbers; ``None`` disables it.  0.5 before the
+        file has return numbers; ``None`` (``false`` in a config file)
+        disables it.  0.5 before the
         adaptive neighbourhood, which lets the flat tops of some crowns and
         hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gave
         IGN building F1 0.898 -> 0.911 and Delft area F 0.915 -> 0.918, the
@@ -111,7 +114,7 @@ class ClassifyOptions:
         interior 0.03-0.16, while hedges and crowns keep 0.8-0.97 inside.
         The per-level test keeps every point: counting only the interior
         there too lets IGN crowns in (IGN building F1 0.917 -> 0.906).
-        ``None``: every point counts.
+        ``None`` (``false`` in a config file): every point counts.
     max_patch_penetration : float or None, default 0.5
         After the buildings are assembled, a building point leaves when
         more than this fraction of the building's points within
@@ -120,7 +123,7 @@ class ClassifyOptions:
         crown that grew into a shed's roof level at the same height.  A
         building that falls apart then becomes one building per part of at
         least T_Np points.  Used only when the file has return numbers;
-        ``None`` disables it.
+        ``None`` (``false`` in a config file) disables it.
     patch_factor : float, default 2.0
         Radius of that neighbourhood, in units of L_Dxy.
     """
@@ -138,10 +141,10 @@ class ClassifyOptions:
     max_linearity: float = 0.7
     linear_joins: bool = True
     boundary: str = "zscore"
-    max_penetration: float | None = 0.3
+    max_penetration: float | None = optional(0.3)
     building_penetration: float = 0.6
-    penetration_edge: float | None = 0.2
-    max_patch_penetration: float | None = 0.5
+    penetration_edge: float | None = optional(0.2)
+    max_patch_penetration: float | None = optional(0.5)
     patch_factor: float = 2.0
 
     def __post_init__(self) -> None:

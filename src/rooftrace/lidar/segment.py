@@ -43,6 +43,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from rooftrace.config import optional
+
 __all__ = ["SegmentOptions", "components", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
 log = logging.getLogger(__name__)
@@ -103,7 +105,8 @@ class SegmentOptions:
         Beyond the thesis: buildings narrower than this in plan (m,
         ``sqrt(12·smallest variance)`` of their roof points, exact for a
         rectangle) are dropped: hedges and walls trimmed flat look like
-        roofs to the entropy test.  ``None`` disables it.
+        roofs to the entropy test.  ``None`` (``false`` in a config file)
+        disables it.
     absorb_margin : float, default 1.0
         Entropy limit of absorbed points, as the fraction of the way from the
         k-means threshold to the vegetation centroid (0: the threshold; 1:
@@ -139,7 +142,7 @@ class SegmentOptions:
     absorb_touching: bool = True
     absorb_min_height: float | None = None
     absorb_margin: float = 1.0
-    min_width: float | None = 2.5
+    min_width: float | None = optional(2.5)
 
     def __post_init__(self) -> None:
         if not self.link_factor > 0:
