@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar.buildings import drop_penetrated, split_parts
+from rooftrace.lidar.buildings import drop_penetrated, split_cut, split_parts
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, penetration
 
 
@@ -81,6 +81,21 @@ def test_split_parts_numbers_each_plan_part_and_drops_small_ones():
     assert out[0] != out[len(a)] and out[0] >= 0 and out[len(a)] >= 0
     assert (out[len(a) + len(b):] == -1).all()
     assert (split_parts(xy, np.full(len(xy), -1), 0.65, 1) == -1).all()
+
+
+def test_split_cut_splits_only_the_groups_that_lost_points():
+    # group 0: two 10 x 10 grids joined by a strip that leaves; group 1: two grids joined the same way, intact
+    left, right, strip = grid(10, 10), grid(10, 10, x0=3.9), grid(3, 10, x0=3.0)
+    one = np.vstack([left, right, strip])
+    xy = np.vstack([one, one + [0.0, 20.0]])
+    before = np.repeat([0, 1], len(one))
+    after = before.copy()
+    after[len(left) + len(right): len(one)] = -1
+    out = split_cut(xy, before, after, 0.65, min_points=50)
+    parts = [np.unique(out[i: i + 100]) for i in (0, 100)]
+    assert all(len(p) == 1 and p[0] >= 0 for p in parts) and parts[0] != parts[1]
+    assert (out[200: len(one)] == -1).all()
+    assert (out[len(one):] == 1).all()  # untouched: same number, strip included
 
 
 @pytest.mark.parametrize("key, value", [("penetration_edge", 0.0), ("penetration_edge", 1.5),

@@ -121,6 +121,39 @@ def split_parts(xy: np.ndarray, group: np.ndarray, radius: float, min_points: in
     return out
 
 
+def split_cut(xy: np.ndarray, before: np.ndarray, after: np.ndarray, radius: float, min_points: int) -> np.ndarray:
+    """Groups after points left them: a group that lost points becomes one group per part (:func:`split_parts`).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (M, 2), float64
+        Plan coordinates (m).
+    before, after : ndarray of shape (M,), int
+        Group of each point before and after some left (-1 none); a point
+        never changes group, it only leaves.
+    radius : float
+        Plan distance connecting a part (m).
+    min_points : int
+        Smallest part kept.
+
+    Returns
+    -------
+    ndarray of shape (M,), int64
+        Groups numbered in no order, -1 none; untouched groups keep their number.
+    """
+    before = np.asarray(before, dtype=np.int64)
+    out = np.asarray(after, dtype=np.int64).copy()
+    # only a group that lost points can have fallen apart
+    cut = np.zeros(int(before.max(initial=-1)) + 1, bool)
+    cut[before[(before >= 0) & (out < 0)]] = True
+    redo = np.flatnonzero(out >= 0)
+    redo = redo[cut[out[redo]]]
+    if len(redo):
+        parts = split_parts(xy[redo], out[redo], radius, min_points)
+        out[redo] = np.where(parts >= 0, parts + len(cut), -1)
+    return out
+
+
 def group_widths(xy: np.ndarray, group: np.ndarray, k: int) -> np.ndarray:
     """Width of each group in plan: sqrt(12 · smallest variance), exact for a filled rectangle (m)."""
     ok = group >= 0
@@ -244,13 +277,5 @@ def assemble_buildings(
     if co.max_patch_penetration is not None and returns is not None and len(pts):
         kept = drop_penetrated(pts[:, :2], group_all, returns, co.patch_factor * link_distance,
                                co.max_patch_penetration)
-        # only a building that lost points can have fallen apart
-        cut = np.zeros(int(group_all.max(initial=-1)) + 1, bool)
-        cut[group_all[(group_all >= 0) & (kept < 0)]] = True
-        redo = np.flatnonzero(kept >= 0)
-        redo = redo[cut[kept[redo]]]
-        if len(redo):
-            parts = split_parts(pts[redo, :2], kept[redo], link_distance, min_points)
-            kept[redo] = np.where(parts >= 0, parts + len(cut), -1)
-        group_all = kept
+        group_all = split_cut(pts[:, :2], group_all, kept, link_distance, min_points)
     return group_all, levels_all
