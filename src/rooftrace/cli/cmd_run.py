@@ -44,6 +44,7 @@ def run(
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import run_pipeline
+    from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
     if alpha is not None and alpha not in ("global", "building", "point"):
@@ -59,7 +60,16 @@ def run(
         check_output(classified, overwrite)
     cfg = load_config(config)
 
-    if (tile_size is not None or workers > 1 or scheduler is not None or resume) and not _all_empty(inputs):
+    tiled = tile_size is not None or workers > 1 or scheduler is not None or resume
+    announced = header_points(inputs)  # None: not all readable LAS/LAZ (the readers say why)
+    if not tiled and announced and not fits_in_memory(announced):
+        log.warning("%s: %d points need about %.1f GiB in one piece and %.1f GiB are available; running in tiles "
+                    "(--tile-size sets their size)", ", ".join(map(str, inputs)), announced,
+                    untiled_bytes(announced) / 2**30, available_bytes() / 2**30)
+        tiled = True
+    # an input whose headers announce no points fits in memory whatever the options: the untiled
+    # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
+    if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
         summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
@@ -136,21 +146,3 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
         emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})
 
-
-def _all_empty(inputs) -> bool:
-    """True when every input is a LAS/LAZ whose header announces no points.
-
-    Such an input fits in memory whatever the tiling options, so it takes
-    the untiled path, which writes empty layers and a warning (an empty
-    tile of a batch is data, not a mistake).
-    """
-    import laspy
-
-    try:
-        counts = []
-        for p in inputs:
-            with laspy.open(p) as reader:
-                counts.append(int(reader.header.point_count))
-    except Exception:  # unreadable: the tiled reader reports it with its own message
-        return False
-    return sum(counts) == 0
