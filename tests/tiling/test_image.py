@@ -108,6 +108,14 @@ def test_the_image_changes_the_tiled_outlines(scene, tiled):
     assert "refine_status" not in read_layer(lidar, "roof_outlines").attributes
 
 
+@pytest.mark.slow  # a LocalCluster starts in about 8 s; the refinement itself runs in the parent
+def test_two_workers_give_the_output_of_one(scene, tiled, tmp_path):
+    out = tmp_path / "w2.gpkg"
+    summary = _run(scene, out, *TILED, "--workers", "2")
+    assert summary["refined"] and summary["orientation"] == tiled[1]["orientation"]
+    assert_same_features(tiled[0], out, tol=0.0)
+
+
 def _bad_camera(scene, tmp_path, change):
     cam = json.loads((scene / "camera.json").read_text())
     change(cam)
