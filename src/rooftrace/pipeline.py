@@ -21,7 +21,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
-__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers"]
+__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "refine_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -114,20 +114,67 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
     return structures
 
 
-def _refine_with_image(cloud: PointCloud, outlines: list, structures: list, image: np.ndarray, camera: Any,
-                       config: dict | None, seed: int):
+def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
+                  image: np.ndarray, camera: Any, *, config: dict | None = None, seed: int = 0):
+    """Image refinement of the LiDAR layers of a run, every building in one pass.
+
+    The untiled run and the merge of a tiled run both call this on their
+    LiDAR-only layers, so that they refine the same inputs the same way:
+    the exterior-orientation correction (``[refine] orientation``) uses the
+    line matches of all buildings jointly, and the genetic algorithm of
+    building ``i`` (in building-id order) is seeded with ``seed + i``.
+
+    Parameters
+    ----------
+    layers : dict of str to Layer
+        ``roof_outlines`` (one feature per building, in building-id order,
+        failed ones without geometry), ``ridges`` (with ``building_id`` and
+        ``kind``) and ``roof_faces``, as :func:`building_layers` makes them.
+    planes : dict of int to ndarray of shape (K, 4)
+        Roof planes ``a X + b Y + c Z + d = 0`` per building id; a building
+        without an entry is projected through horizontal planes.
+    points_xyz : ndarray of shape (N, 3), float64, or None
+        LiDAR points of any class (m), in input order: at least every point
+        within ``[refine] context`` of each building (the refinement's
+        ground height, LiDAR precision and terrain-line filter use them).
+    image : ndarray of shape (H, W)
+        Grey image in [0, 1].
+    camera : FrameCamera or OrthoCamera
+        Orientation of ``image``, same CRS as the layers.
+    config : dict, optional
+        Parsed TOML config (``[refine]`` and its nested tables).
+    seed : int, default 0
+        Seed of the genetic algorithm.
+
+    Returns
+    -------
+    refined : RefineResult
+    layers : dict of str to Layer
+        ``roof_outlines`` with the refined geometries and the refinement's
+        attributes added, ``ridges`` refined (attributes ``building_id``,
+        ``kind``, ``refined``), ``roof_faces`` unchanged.
+    """
     from rooftrace.refine import RefineOptions, refine_buildings
 
-    plane_by_id = {s.building_id: s.planes for s in structures}
-    return refine_buildings(
-        [o.polygon for o in outlines], [r for s in structures for r in s.ridges], image, camera,
-        points_xyz=cloud.xyz,
-        planes=[plane_by_id.get(o.building_id) for o in outlines],
-        building_ids=[o.building_id for o in outlines],
-        ridge_building_ids=[s.building_id for s in structures for _ in s.ridges],
-        ridge_kinds=[k for s in structures for k in s.ridge_kind],
+    outlines, ridges = layers["roof_outlines"], layers["ridges"]
+    ids = [int(b) for b in outlines.attributes["building_id"]]
+    refined = refine_buildings(
+        list(outlines.geometries), list(ridges.geometries), image, camera,
+        points_xyz=points_xyz,
+        planes=[planes.get(b) for b in ids],
+        building_ids=ids,
+        ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
+        ridge_kinds=list(ridges.attributes["kind"]),
         options=RefineOptions.from_config(config), seed=seed,
     )
+    return refined, _with_refinement(layers, refined)
+
+
+def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
+    outlines = layers["roof_outlines"]
+    return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
+            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
+            "roof_faces": layers["roof_faces"]}
 
 
 def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
@@ -135,12 +182,9 @@ def building_layers(outlines: list, structures: list, refined: Any = None) -> di
     from rooftrace.contour.outline import outlines_layer
     from rooftrace.roof import faces_layer, ridges_layer
 
-    roof_outlines = outlines_layer(outlines)
-    ridges = ridges_layer(structures)
-    if refined is not None:
-        roof_outlines = Layer(list(refined.outlines), {**roof_outlines.attributes, **refined.attributes}, "PolygonZ")
-        ridges = Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")
-    return {"roof_outlines": roof_outlines, "ridges": ridges, "roof_faces": faces_layer(structures)}
+    layers = {"roof_outlines": outlines_layer(outlines), "ridges": ridges_layer(structures),
+              "roof_faces": faces_layer(structures)}
+    return layers if refined is None else _with_refinement(layers, refined)
 
 
 def run_pipeline(
@@ -218,11 +262,12 @@ def run_pipeline(
         timings["roof_planes"] = time.perf_counter() - t0
 
     refined = None
+    layers = building_layers(outlines, structures)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
-            refined = _refine_with_image(cloud, outlines, structures, image, camera, config, seed)
+            refined, layers = refine_layers(layers, {s.building_id: s.planes for s in structures}, cloud.xyz,
+                                            image, camera, config=config, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    layers = building_layers(outlines, structures, refined)
     return RunResult(detection, outlines, structures, refined, layers, timings)

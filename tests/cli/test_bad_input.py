@@ -164,6 +164,13 @@ CASES = [
      ["seeds_far.gpkg", "LiDAR points near the seeds"]),
     ("run image size vs camera", ["run", "{scene}", "--image", "{image_small}", "--camera", "{camera}", "-o",
                                   "{out_gpkg}"], ["image_small.tif", "120 x 100", "400 x 400"]),
+    # a tiled run checks the image on the headers before any tile work
+    ("tiled run cloud vs camera CRS", ["run", "{scene}", "--image", "{image}", "--camera", "{camera_l93}", "-o",
+                                       "{out_gpkg}", "--tile-size", "20"], ["camera_l93.json", "different CRSs"]),
+    ("tiled run image far from cloud", ["run", "{scene}", "--image", "{image}", "--camera", "{camera_far}", "-o",
+                                        "{out_gpkg}", "--tile-size", "20"], ["image.tif", "does not cover"]),
+    ("tiled run image size vs camera", ["run", "{scene}", "--image", "{image_small}", "--camera", "{camera}", "-o",
+                                        "{out_gpkg}", "--tile-size", "20"], ["image_small.tif", "120 x 100", "400 x 400"]),
     ("refine image size vs camera", ["refine", "{outlines}", "--image", "{image_small}", "--camera", "{camera}", "-o",
                                      "{out_gpkg}"], ["image_small.tif", "120 x 100"]),
     # malformed camera.json

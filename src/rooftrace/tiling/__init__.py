@@ -34,11 +34,15 @@ Flow (each step restartable):
    sees).
 4. ``merge``: join the tile results, number the buildings by their lowest
    (x, y, z) point like the untiled detection does, and write the
-   GeoPackage atomically.
+   GeoPackage atomically.  With an image, the parent first refines all the
+   merged buildings in one pass, as the untiled run does; the image is
+   checked before step 1 and never goes to the tiles
+   (:mod:`rooftrace.tiling.image`).
 
 Results do not depend on the number of workers: tiles are independent and
 merged in a fixed order.  ``--resume`` keeps the split, the parameters and
-every finished tile of an earlier run of the same inputs and options.
+every finished tile of an earlier run of the same inputs and options
+(the image and camera included).
 """
 
 
@@ -64,7 +68,11 @@ from rooftrace.tiling.split import (  # noqa: F401
     tile_cell_ranges, tile_grid,
 )
 from rooftrace.tiling.tile import (  # noqa: F401
-    _core, _extent, _write_classified, estimate_parameters, merge_tiles, owned_buildings, process_tile,
+    _core, _extent, _write_classified, building_numbers, estimate_parameters, merge_tiles, owned_buildings,
+    process_tile,
+)
+from rooftrace.tiling.image import (
+    check_image_inputs, cut_neighbourhoods, image_fingerprint, join_neighbourhoods, merged_planes,
 )
 
 __all__ = [
@@ -140,6 +148,27 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
             cluster.close()
 
 
+def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path, cam, cfg: dict | None, seed: int,
+                   quiet: bool):
+    """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
+    from rooftrace.cli.app import reporter_for
+    from rooftrace.io.raster import read_image
+    from rooftrace.pipeline import refine_layers
+
+    grey = read_image(image)
+    if grey.shape[::-1] != tuple(cam.image_size):  # the file changed since the check
+        raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
+                         f"{cam.image_size[0]} x {cam.image_size[1]}")
+    points = join_neighbourhoods(results)
+    planes = merged_planes(results, building_numbers(results))
+    reporter = reporter_for(quiet)
+    try:
+        with reporter.stage("image refinement", total=None):
+            return refine_layers(layers, planes, points, grey, cam, config=cfg, seed=seed)
+    finally:
+        reporter.close()
+
+
 def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
               config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
               seed: int = 0, overwrite: bool = False, quiet: bool = False,
@@ -155,8 +184,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     options : TileOptions
     crs, config, alpha, planes, seed, overwrite, quiet
         As ``rooftrace run``.
-    image, camera
-        Refused: image refinement runs untiled.
+    image, camera : path-like, optional
+        Aerial image and its ``camera.json``: the merged buildings are
+        refined with it in one pass, as an untiled run refines them
+        (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
     classified : path-like, optional
         Also write the input points with the run's classes and building ids
         (LAS/LAZ, every input dimension kept; inputs of one point format).
@@ -164,8 +195,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     Returns
     -------
     dict
-        A JSON-serialisable summary: counts, the parameters used, and the
-        seconds and throughput of every step.
+        A JSON-serialisable summary: counts, the parameters used, whether
+        the image refinement ran (``refined``, and the camera's
+        ``orientation`` correction when there was one), and the seconds and
+        throughput of every step.
 
     Notes
     -----
@@ -179,16 +212,17 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
     from rooftrace.config import validate_config
+    from rooftrace.refine import RefineOptions
 
-    if image is not None or camera is not None:
-        raise InputError("image refinement runs per building on one image; run it without tiling "
-                         "(or use 'rooftrace refine' on the tiled result)")
+    if (image is None) != (camera is None):
+        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
     output = check_output(output, overwrite)
     if config:
         validate_config(config)
     cfg = {k: v for k, v in (config or {}).items() if k != "__path__"} or None
     try:
         outlier_opts = DetectOptions.from_config(cfg).outliers
+        refine_context = RefineOptions.from_config(cfg).context if image is not None else None
     except (TypeError, ValueError) as exc:
         raise InputError(f"config: {exc}") from None
     paths = [Path(p) for p in inputs]
@@ -210,6 +244,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             check_same_crs(crs_obj, c, str(paths[0]), str(p))
     b = head["bounds"]  # without a CRS, header bounds within a fraction of a unit of (lon, lat) are degrees
     require_metric_crs(crs_obj, str(paths[0]), np.array([[b[0], b[1]], [b[2], b[3]]]))
+    cam = None
+    if image is not None:
+        # the untiled run's checks, on the headers, before minutes of tile work
+        cam = check_image_inputs(Path(image), Path(camera), crs_obj, head, ", ".join(map(str, paths)))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
@@ -217,7 +255,9 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     meta = {"inputs": [str(p.resolve()) for p in paths],
             "options": {k: v for k, v in asdict(options).items() if k not in ("resume", "workers", "scheduler")},
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
-            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None}
+            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
+            # the tiles do not use the image, but a resumed run must give what a fresh one gives
+            **({"image": image_fingerprint(Path(image), Path(camera))} if image is not None else {})}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -248,7 +288,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
         wkt = crs_obj.to_wkt() if crs_obj is not None else None
         tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
-                  classified is not None) for k in keys]
+                  classified is not None, refine_context) for k in keys]
         t0 = time.perf_counter()
         with reporter.stage("tiles", total=len(tasks)):
             result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
@@ -260,8 +300,20 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     layers = merge_tiles(results)
     for name, gtype in (("roof_outlines", "PolygonZ"), ("ridges", "LineStringZ"), ("roof_faces", "PolygonZ")):
         layers.setdefault(name, Layer([], {"building_id": []}, gtype))
+    merge_seconds = time.perf_counter() - t0
+    refined = None
+    if cam is not None and len(layers["roof_outlines"]):
+        for k, res in zip(keys, results):
+            for x, y, r in np.asarray(res.get("refine_discs", []), float).reshape(-1, 3)[
+                    cut_neighbourhoods(res.get("refine_discs", []), _extent(index, k), index["bounds"])]:
+                log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
+                            "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
+        t0 = time.perf_counter()
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera), cam, cfg, seed, quiet)
+        timings["refine"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     write_layers(output, layers, crs_obj, overwrite=overwrite)
-    timings["merge"] = time.perf_counter() - t0
+    timings["merge"] = merge_seconds + time.perf_counter() - t0
     if classified is not None:
         t0 = time.perf_counter()
         _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
@@ -278,6 +330,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         "tile_points": int(sum(r["points"] for r in results)),
         "edge_buildings": int(sum(len(r["edge_buildings"]) for r in results)),
         "parameters": derived.to_dict(), "sample_points": index["sample_points"],
+        "refined": refined is not None,
+        # as the untiled summary: the camera's exterior orientation corrected from all buildings' line matches
+        **({"orientation": refined.summary()["orientation"]}
+           if refined is not None and refined.orientation is not None else {}),
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
     }

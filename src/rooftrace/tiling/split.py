@@ -183,7 +183,7 @@ def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
 
     from rooftrace.io.las import check_point_count, las_crs
 
-    bounds, crss, counts = [], [], []
+    bounds, boxes, crss, counts = [], [], [], []
     for p in paths:
         if not p.is_file():
             raise InputError(f"{p}: no such file")
@@ -194,13 +194,14 @@ def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
                 h = r.header
                 check_point_count(p, h)
                 bounds.append([*h.mins[:2], *h.maxs[:2]])
+                boxes.append([float(v) for v in (*h.mins[:3], *h.maxs[:3])])
                 crss.append(las_crs(h, str(p)))
                 counts.append(int(h.point_count))
         except laspy.errors.LaspyException as exc:
             raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
     b = np.asarray(bounds, float)
     return {"bounds": [float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()), float(b[:, 3].max())],
-            "crs": crss, "points": int(sum(counts))}
+            "crs": crss, "points": int(sum(counts)), "boxes": boxes, "counts": counts}
 
 
 def _records(chunk, start: int) -> np.ndarray:

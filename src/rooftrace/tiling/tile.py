@@ -104,7 +104,8 @@ def owned_buildings(xyz: np.ndarray, building_id: np.ndarray, core: Sequence[flo
 
 def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | None,
                  config: dict | None, alpha: str | None, planes: bool, seed: int,
-                 derived: dict[str, Any], extent: Sequence[float] | None = None, classified: bool = False) -> str:
+                 derived: dict[str, Any], extent: Sequence[float] | None = None, classified: bool = False,
+                 refine_context: float | None = None) -> str:
     """Run the pipeline on one buffered tile and keep the buildings whose centre is in its core.
 
     Parameters
@@ -130,6 +131,11 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
     classified : bool, default False
         Also keep the labels of the core points (``results/<key>.labels.npz``,
         :func:`rooftrace.tile_points.core_labels`) for the classified LAZ.
+    refine_context : float, optional
+        ``[refine] context`` (m) of a run with an image: also keep the roof
+        planes of the owned buildings and the points around them that the
+        parent's image refinement uses (``planes`` and ``refine_points`` of
+        the result, :func:`rooftrace.tiling.image.neighbourhood_points`).
 
     Returns
     -------
@@ -194,6 +200,8 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
                 "geometry_type": layer.geometry_type,
             }
         result["buildings"] = {"id": keep_ids.tolist(), "key": keys[owned].tolist()}
+        if refine_context is not None:
+            _keep_for_refinement(result, cloud, run_out, keep_ids, refine_context)
         result["timings"] = {**det.timings, **run_out.timings}
         result["core_points"] = int(((cloud.xyz[:, 0] >= core[0]) & (cloud.xyz[:, 0] < core[1])
                                      & (cloud.xyz[:, 1] >= core[2]) & (cloud.xyz[:, 1] < core[3])).sum())
@@ -206,6 +214,18 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
     tmp.write_bytes(pickle.dumps(result))
     os.replace(tmp, out)
     return str(out)
+
+
+def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, context: float) -> None:
+    """Store what the parent's image refinement needs of the buildings this tile owns."""
+    from rooftrace.tiling.image import neighbourhood_points
+
+    keep = set(int(b) for b in keep_ids)
+    result["planes"] = {int(s.building_id): np.asarray(s.planes, float) for s in run_out.structures
+                        if int(s.building_id) in keep}
+    polygons = [o.polygon for o in run_out.outlines if int(o.building_id) in keep]
+    result["refine_points"], discs = neighbourhood_points(cloud.xyz, cloud.fields["gidx"], polygons, context)
+    result["refine_discs"] = discs.tolist()  # the parent warns about those its tile may have cut
 
 
 def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
