@@ -165,6 +165,16 @@ def test_a_building_belongs_to_the_tile_holding_its_centre():
     assert owned.tolist() == [False, True]
 
 
+def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
+    from rooftrace.tiling.tile import near_open_side
+
+    # a 100 x 10 m tile box in a 200 x 10 m input: only its east side has data beyond it
+    boxes = np.array([[1.0, 5, 3, 6], [97, 5, 99, 6], [50, 8.5, 52, 9.5], [40, 2, 60, 4]])
+    assert near_open_side(boxes, [0, 0, 100, 10], [0, 0, 200, 10], 2.0).tolist() == [False, True, False, False]
+    # the same tile as the whole input: nothing to miss anywhere
+    assert not near_open_side(boxes, [0, 0, 100, 10], [0, 0, 100, 10], 2.0).any()
+
+
 def test_merge_numbers_buildings_by_their_lowest_point_whatever_the_tile_order():
     def tile(ids, keys, xs):
         polys = [shapely.box(x, 0, x + 1, 1) for x in xs]

@@ -179,11 +179,10 @@ def cut_neighbourhoods(discs: np.ndarray, extent: Sequence[float], bounds: Seque
         True where the tile may lack points the refinement of the whole
         cloud would use (a larger ``--buffer`` helps).
     """
-    d = np.asarray(discs, float).reshape(-1, 3)
-    x, y, r = d.T
-    e, b = extent, bounds
-    return (((x - r < e[0]) & (e[0] > b[0])) | ((y - r < e[1]) & (e[1] > b[1]))
-            | ((x + r > e[2]) & (e[2] < b[2])) | ((y + r > e[3]) & (e[3] < b[3])))
+    from rooftrace.tiling.tile import near_open_side
+
+    x, y, r = np.asarray(discs, float).reshape(-1, 3).T
+    return near_open_side(np.column_stack([x - r, y - r, x + r, y + r]), extent, bounds)
 
 
 def join_neighbourhoods(results: Sequence[dict]) -> np.ndarray | None:

@@ -156,6 +156,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
     crs = pyproj.CRS.from_wkt(crs_wkt) if crs_wkt else None
     cloud = _load_cloud(run / "tiles" / key, crs)
     fixed = DerivedParams.from_dict(derived)
+    bounds = fixed.extent  # of the whole input: past it there is no data to miss
     if extent is not None:
         fixed = dataclasses.replace(fixed, extent=tuple(float(v) for v in extent))
     result: dict[str, Any] = {"key": key, "points": len(cloud), "layers": {}, "buildings": {}, "timings": {},
@@ -181,11 +182,13 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         # the buffer's outer edge (where the tile stops but the data goes on)
         # may have been cut, so say so
         margin = max(2.0 * float(det.params["segment"]["link_distance"]), 1.0)
-        lo, hi = cloud.xyz[:, :2].min(axis=0), cloud.xyz[:, :2].max(axis=0)
-        near = owned & (((box[:, 0] - lo[0] < margin) & np.isfinite(core[0]))
-                        | ((hi[0] - box[:, 2] < margin) & np.isfinite(core[1]))
-                        | ((box[:, 1] - lo[1] < margin) & np.isfinite(core[2]))
-                        | ((hi[1] - box[:, 3] < margin) & np.isfinite(core[3])))
+        tile_box, data_box = extent, bounds
+        if tile_box is None or data_box is None:
+            # no boxes given: the tile's points bound it, and the data goes on where the core has a neighbour
+            tile_box = (*cloud.xyz[:, :2].min(axis=0), *cloud.xyz[:, :2].max(axis=0))
+            neighbour = np.isfinite(np.asarray(core, float)[[0, 2, 1, 3]])
+            data_box = np.where(neighbour, [-np.inf, -np.inf, np.inf, np.inf], tile_box)
+        near = owned & near_open_side(box, tile_box, data_box, margin)
         result["edge_buildings"] = box[near].tolist()
         for b in box[near]:
             log.warning("tile %s: the building at (%.1f, %.1f)-(%.1f, %.1f) reaches the buffer's edge and may be "
@@ -259,6 +262,36 @@ def _core(index: dict, key: str) -> tuple[float, float, float, float]:
     x0, y0 = xs[i], ys[j]
     return (-np.inf if i == 0 else float(x0), np.inf if i == len(xs) - 1 else float(x0 + size),
             -np.inf if j == 0 else float(y0), np.inf if j == len(ys) - 1 else float(y0 + size))
+
+
+def near_open_side(boxes: np.ndarray, extent: Sequence[float], bounds: Sequence[float],
+                   margin: float = 0.0) -> np.ndarray:
+    """Which boxes come within ``margin`` of a side of the tile past which the data goes on.
+
+    Parameters
+    ----------
+    boxes : ndarray of shape (B, 4)
+        xmin, ymin, xmax, ymax of each box (m).
+    extent : (xmin, ymin, xmax, ymax)
+        The buffered tile clipped to the inputs' bounds (m).
+    bounds : (xmin, ymin, xmax, ymax)
+        The inputs' bounds (m): a side of ``extent`` on them has no data beyond it.
+    margin : float
+        Metres.
+
+    Returns
+    -------
+    ndarray of shape (B,), bool
+
+    Examples
+    --------
+    >>> near_open_side(np.array([[1.0, 5, 3, 6], [97, 5, 99, 6]]), [0, 0, 100, 10], [0, 0, 200, 10], 2.0).tolist()
+    [False, True]
+    """
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    e, lim = extent, bounds
+    return (((b[:, 0] - e[0] < margin) & (e[0] > lim[0])) | ((b[:, 1] - e[1] < margin) & (e[1] > lim[1]))
+            | ((e[2] - b[:, 2] < margin) & (e[2] < lim[2])) | ((e[3] - b[:, 3] < margin) & (e[3] < lim[3])))
 
 
 def _extent(index: dict, key: str) -> list[float]:
