@@ -7,6 +7,7 @@ Private to :mod:`rooftrace.roof.planes`; see :func:`~rooftrace.roof.planes.segme
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
@@ -125,19 +126,41 @@ def _best_candidate(xyz, nn, labels, planes, tol, margin=0.0):
     where its extension crosses another plane (two coplanar dormers would
     join along their common valley line).
     """
-    cand = np.concatenate([labels[:, None], labels[nn]], axis=1)
-    valid = cand >= 0
-    c = np.where(valid, cand, 0)
-    pl = planes[c]  # (N, k, 4)
-    z = plane_height(pl, np.broadcast_to(xyz[:, None, :2], c.shape + (2,)))
-    r = np.abs(z - xyz[:, None, 2])
-    r = np.where(valid & np.isfinite(r), r, np.inf)
-    r[:, 0] -= margin
-    j = np.argmin(r, axis=1)
-    rows = np.arange(len(cand))
-    best = cand[rows, j]
-    rb = r[rows, j] + np.where(j == 0, margin, 0.0)
-    return np.where(rb <= tol, best, -1)
+    # compiled: the vectorised form gathered an (N, 2k + 1, 4) array of planes
+    # per call and dominated the plane segmentation (1.5 s of 8.5 s on Delft)
+    return _best_candidate_kernel(np.ascontiguousarray(xyz, dtype=np.float64), np.ascontiguousarray(nn, dtype=np.int64),
+                                  np.ascontiguousarray(labels, dtype=np.int64),
+                                  np.ascontiguousarray(planes, dtype=np.float64), float(tol), float(margin))
+
+
+@njit(cache=True, error_model="numpy")  # x / 0 gives inf, as in numpy
+def _best_candidate_kernel(xyz, nn, labels, planes, tol, margin):  # pragma: no cover - compiled
+    # the same float operations, in the same order, as the numpy form it
+    # replaced (height -(a x + b y + d) / c, residual minus the margin for the
+    # point's own label, first minimum wins), so the labels are identical
+    n, k = nn.shape
+    out = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        x, y, zp = xyz[p, 0], xyz[p, 1], xyz[p, 2]
+        best_r = np.inf
+        best_j = 0
+        for j in range(k + 1):
+            c = labels[p] if j == 0 else labels[nn[p, j - 1]]
+            r = np.inf
+            if c >= 0:
+                h = -(x * planes[c, 0] + y * planes[c, 1] + planes[c, 3]) / planes[c, 2]
+                r = abs(h - zp)
+                if not np.isfinite(r):
+                    r = np.inf
+            if j == 0:
+                r -= margin
+            if r < best_r:
+                best_r = r
+                best_j = j
+        best = labels[p] if best_j == 0 else labels[nn[p, best_j - 1]]
+        rb = best_r + margin if best_j == 0 else best_r + 0.0
+        out[p] = best if rb <= tol else -1
+    return out
 
 
 def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
