@@ -94,10 +94,11 @@ def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) ->
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     a = np.zeros((len(t), offsets[-1] + 1))
     span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
-    for k, d in enumerate(degrees):
+    # only the spans that hold parameters: a ring has dozens of segments and
+    # the overshoot test evaluates one of them at a time
+    for k in np.unique(span).tolist():
+        d = degrees[k]
         sel = span == k
-        if not sel.any():
-            continue
         knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
         a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = span_basis(t[sel], knots, d)
     if closed:

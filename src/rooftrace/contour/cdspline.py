@@ -167,7 +167,7 @@ def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     n_ctrl = int(offsets[-1])
     bounds = np.append(np.searchsorted(t, breaks[:-1], side="left"), len(t))
-    rows, cols, vals = [], [], []
+    vals = []
     for k, d in enumerate(degrees):
         lo, hi = bounds[k], bounds[k + 1]
         key = (k, d, breaks[k], breaks[k + 1])
@@ -177,15 +177,33 @@ def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
             block = span_basis(t[lo:hi], knots, d)
             if cache is not None:
                 cache[key] = block
-        rows.append(np.repeat(np.arange(lo, hi), d + 1))
-        cols.append(np.tile((np.arange(d + 1) + offsets[k]) % n_ctrl, hi - lo))  # last control point = first
         vals.append(block.ravel())
+    vals = np.concatenate(vals)
+    rows, cols = _design_index(bounds, offsets)
     if n_ctrl <= _DENSE_UP_TO:
-        a = np.zeros((len(t), n_ctrl))
-        np.add.at(a, (np.concatenate(rows), np.concatenate(cols)), np.concatenate(vals))
-        return a
-    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(len(t), n_ctrl))
+        # bincount adds in input order from 0.0, as np.add.at did (the columns of a
+        # one-segment ring wrap onto column 0 and are summed), and is much faster
+        flat = np.bincount(rows * n_ctrl + cols, vals, minlength=len(t) * n_ctrl)
+        return flat.reshape(len(t), n_ctrl)
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(len(t), n_ctrl))
+
+
+def _design_index(bounds: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of every span-basis value, span by span, row-major within a span.
+
+    Row ``r`` of span k (``bounds[k] <= r < bounds[k+1]``) holds columns
+    ``offsets[k] .. offsets[k+1]`` modulo the control-point count (the last
+    control point is the first).  Built without a loop over the spans: a
+    building ring has dozens of them and the design is rebuilt for every
+    trial degree.
+    """
+    n_ctrl = int(offsets[-1])
+    counts = np.diff(bounds)
+    width = np.repeat(np.diff(offsets) + 1, counts)  # values per row
+    rows = np.repeat(np.arange(bounds[0], bounds[-1]), width)
+    first = np.repeat(np.repeat(offsets[:-1], counts), width)
+    within = np.arange(len(rows)) - np.repeat(np.cumsum(width) - width, width)
+    return rows, (first + within) % n_ctrl
 
 
 def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None,
