@@ -343,7 +343,10 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         new = fit_cdspline(points, corners, trial, t=t, _cache=cache)
         history.append((trial.tolist(), new.sigma))
         seg_points = _segment_points(points, corners, k)
-        if _overshoot(new, k, seg_points) > max(options.max_overshoot, _overshoot(fit, k, seg_points)):
+        # the current curve's overshoot only matters when the raised one
+        # exceeds max_overshoot (evaluating it every time cost a tenth of the outline)
+        over = _overshoot(new, k, seg_points)
+        if over > options.max_overshoot and over > max(options.max_overshoot, _overshoot(fit, k, seg_points)):
             frozen[k] = True
             continue
         if options.test == "global":
