@@ -23,7 +23,7 @@ import shapely
 from rasterio import features
 from rasterio.transform import Affine
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, Polygon, shape
+from shapely.geometry import LineString, Polygon
 
 from rooftrace.roof.planes import plane_height
 
@@ -43,6 +43,12 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     t = np.clip((ap * ab).sum(axis=1) / L2, 0, 1)
     d = ap - t[:, None] * ab
     return np.hypot(d[:, 0], d[:, 1])
+
+
+def _polygon(rings: list) -> Polygon:
+    """The polygon of GeoJSON-like rings (as ``shapely.geometry.shape`` builds it, without its per-vertex loop)."""
+    rings = [np.asarray(r, dtype=np.float64) for r in rings]
+    return Polygon(rings[0], rings[1:])
 
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
@@ -171,10 +177,16 @@ def partition_outline(
         S = segidx[cm[:, :, None], cm[:, None, :]]
         m, i, j = np.nonzero(S >= 0)
         sv = S[m, i, j]
-        near = _segment_distance(Cm[m], seg[sv, 0], seg[sv, 1]) <= line_tolerance
+        # The distance depends on the cell and the line only, the height on
+        # the cell and the candidate: computed once each, not per candidate
+        # pair (up to k² pairs per cell; 0.9 s of 2.5 s on Delft).
+        key = m * len(seg) + sv
+        ukey, back = np.unique(key, return_inverse=True)
+        um, us = ukey // len(seg), ukey % len(seg)
+        near = (_segment_distance(Cm[um], seg[us, 0], seg[us, 1]) <= line_tolerance)[back]
         m, i, j, sv = m[near], i[near], j[near], sv[near]
-        zi = plane_height(planes[cm[m, i]], Cm[m])
-        zj = plane_height(planes[cm[m, j]], Cm[m])
+        z = plane_height(planes[cm], Cm[:, None, :])
+        zi, zj = z[m, i], z[m, j]
         wrong = ((sign[sv] > 0) & (zi > zj)) | ((sign[sv] < 0) & (zi < zj))
         viol = np.zeros(cm.shape, dtype=np.int64)
         np.add.at(viol, (m[wrong], i[wrong]), 1)
@@ -188,7 +200,7 @@ def partition_outline(
     transform = Affine(cell, 0, x0, 0, -cell, y1)
     regions, ids = [], []
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
-        regions.append(shape(geom))
+        regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
     regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     polys, pids = [], []
