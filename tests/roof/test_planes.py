@@ -153,3 +153,22 @@ def test_small_dormer_at_low_density_is_found():
     assert np.sum(np.abs(slope - 10) < 2) == 1
     k = int(np.flatnonzero(np.abs(slope - 10) < 2)[0])
     assert np.mean(face[labels == k] == 2) > 0.8 and np.sum(face[labels == k] == 2) > 0.8 * np.sum(face == 2)
+
+
+@pytest.mark.parametrize("n_side", [3, 5, 12])
+def test_two_neighbourhoods_equal_two_queries(n_side):
+    """One 2k query gives the k and 2k nearest neighbours of two queries,
+    also where distances tie (a grid with duplicated points)."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.planes import _two_neighbourhoods
+
+    g = np.mgrid[0:n_side, 0:n_side, 0:2].reshape(3, -1).T.astype(float)
+    rng = np.random.default_rng(2)
+    xyz = np.vstack([g, g[:5], g + rng.normal(0, 0.2, g.shape)])
+    tree = cKDTree(xyz)
+    for k in (1, 4, 16):
+        k = min(k, len(xyz))
+        nn, wide = _two_neighbourhoods(tree, xyz, k)
+        assert np.array_equal(nn, tree.query(xyz, k=k)[1].reshape(len(xyz), k))
+        assert np.array_equal(wide, tree.query(xyz, k=min(2 * k, len(xyz)))[1].reshape(len(xyz), -1))

@@ -108,7 +108,12 @@ def point_normals(xyz: np.ndarray, k: int = 16, tree: cKDTree | None = None):
     k = int(min(k, len(xyz)))
     tree = cKDTree(xyz) if tree is None else tree
     _, nn = tree.query(xyz, k=k)
-    nn = nn.reshape(len(xyz), k)
+    return _pca_normals(xyz, nn.reshape(len(xyz), k))
+
+
+def _pca_normals(xyz: np.ndarray, nn: np.ndarray):
+    """:func:`point_normals` from given neighbour indices (N, k)."""
+    k = nn.shape[1]
     nb = xyz[nn]
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb) / k
@@ -185,6 +190,29 @@ def plane_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return -(xy[..., 0] * planes[..., 0] + xy[..., 1] * planes[..., 1] + planes[..., 3]) / planes[..., 2]
 
 
+def _two_neighbourhoods(tree: cKDTree, xyz: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k and the min(2k, N) nearest neighbours of every point, from one k-d tree query.
+
+    The first k of the 2k neighbours are the k nearest unless distances tie
+    within them (duplicate points, a grid); the order of tied neighbours
+    depends on the query's k, so those points are queried again with k and
+    the result equals two separate queries.  One query instead of two saved
+    a third of the normal estimation.
+    """
+    n = len(xyz)
+    dist, wide = tree.query(xyz, k=min(2 * k, n))
+    dist, wide = dist.reshape(n, -1), wide.reshape(n, -1)
+    nn = wide[:, :k].copy()
+    if wide.shape[1] > k:
+        tied = (np.diff(dist[:, : k + 1], axis=1) <= 0).any(axis=1)
+    else:
+        tied = (np.diff(dist, axis=1) <= 0).any(axis=1)
+    if tied.any():
+        _, again = tree.query(xyz[tied], k=k)
+        nn[tied] = again.reshape(-1, k)
+    return nn, wide
+
+
 def segment_planes(
     xyz: np.ndarray,
     spacing: float,
@@ -250,7 +278,8 @@ def segment_planes(
     if N < min_pts:
         raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
     tree = cKDTree(xyz)
-    normals, rms, nn = point_normals(xyz, k, tree)
+    nn, nn_c = _two_neighbourhoods(tree, xyz, int(min(k, N)))
+    normals, rms, nn = _pca_normals(xyz, nn)
     kk = nn.shape[1]
     med = float(np.median(rms))
     noise = med * np.sqrt(kk / max(kk - 3, 1))
@@ -306,7 +335,6 @@ def segment_planes(
     # Candidate planes for growing and reassignment come from a wider
     # neighbourhood (2k): on scan-line patterns the k nearest points of a
     # point can all lie on its own line, which may be wholly unassigned.
-    _, nn_c = tree.query(xyz, k=min(2 * kk, N))
     link = link or 2.5 * spacing
 
     def refine(labels, rounds):
