@@ -25,6 +25,7 @@ from rasterio.transform import Affine
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
+from rooftrace.roof._candidates import _cell_choice, _cell_lines
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "lift_to_plane", "step_edges"]
@@ -154,11 +155,10 @@ def partition_outline(
     cm, Cm = cand[rows], C[rows]
     # Majority of the k nearest points (ties to the nearest): a boundary
     # smoother than the nearest point's Voronoi staircase.
-    votes = (cm[:, :, None] == cm[:, None, :]).sum(axis=2)
-    score = -votes * (kk + 1) + np.arange(kk)[None, :]
+    K = len(planes)
+    segidx = np.full((K, K), -1, dtype=np.int64)
+    seg, sign = np.zeros((0, 2, 2)), np.zeros(0, dtype=np.int64)
     if lines is not None and len(lines.lines) and len(rows):
-        K = len(planes)
-        segidx = np.full((K, K), -1)
         # One segment per plane pair, spanning all its pieces (a ridge cut
         # by a courtyard is collinear pieces).
         spans: dict = {}
@@ -172,28 +172,16 @@ def partition_outline(
             segidx[a, b] = segidx[b, a] = len(seg)
             seg.append(pts[[np.argmin(t), np.argmax(t)]])
             sign.append(cv)
-        seg, sign = np.asarray(seg), np.asarray(sign)
-        # Only candidate pairs joined by a line matter: gather those.
-        S = segidx[cm[:, :, None], cm[:, None, :]]
-        m, i, j = np.nonzero(S >= 0)
-        sv = S[m, i, j]
-        # The distance depends on the cell and the line only, the height on
-        # the cell and the candidate: computed once each, not per candidate
-        # pair (up to k² pairs per cell; 0.9 s of 2.5 s on Delft).
-        key = m * len(seg) + sv
-        ukey, back = np.unique(key, return_inverse=True)
-        um, us = ukey // len(seg), ukey % len(seg)
-        near = (_segment_distance(Cm[um], seg[us, 0], seg[us, 1]) <= line_tolerance)[back]
-        m, i, j, sv = m[near], i[near], j[near], sv[near]
-        z = plane_height(planes[cm], Cm[:, None, :])
-        zi, zj = z[m, i], z[m, j]
-        wrong = ((sign[sv] > 0) & (zi > zj)) | ((sign[sv] < 0) & (zi < zj))
-        viol = np.zeros(cm.shape, dtype=np.int64)
-        np.add.at(viol, (m[wrong], i[wrong]), 1)
-        # Fewest violations first, then the vote.
-        score = score + viol * (kk + 1) ** 2
+        seg, sign = np.asarray(seg), np.asarray(sign, dtype=np.int64)
+    # Only candidate pairs joined by a line matter, and only near the line:
+    # each cell's distance to each such line, then fewest violations first,
+    # then the vote (compiled, see rooftrace.roof._candidates).
+    ptr, line = _cell_lines(cm, segidx)
+    at = np.repeat(np.arange(len(rows)), np.diff(ptr))
+    near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
+    z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
     if len(rows):
-        choice[rows] = cm[np.arange(len(rows)), np.argmin(score, axis=1)]
+        choice[rows] = cm[np.arange(len(rows)), _cell_choice(cm, segidx, ptr, line, near, sign, z)]
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
