@@ -20,22 +20,32 @@ __all__: list[str] = []
 
 @njit(cache=True)
 def _cell_lines(cand, segidx):  # pragma: no cover - compiled
-    """Distinct lines between the candidate planes of each cell.
+    """Lines between the distinct candidate planes of each cell.
 
     Returns ``ptr`` (R+1,) and ``line`` (P,): the lines of cell r are
-    ``line[ptr[r]:ptr[r+1]]``, in order of first occurrence.
+    ``line[ptr[r]:ptr[r+1]]`` (each once; ``segidx`` is symmetric with -1 on
+    the diagonal, one line per plane pair).
     """
     n, k = cand.shape
-    seen = np.full(_n_lines(segidx), -1, dtype=np.int64)
     ptr = np.zeros(n + 1, dtype=np.int64)
     out = np.empty(16, dtype=np.int64)
+    distinct = np.empty(k, dtype=np.int64)
     m = 0
     for r in range(n):
+        nd = 0
         for i in range(k):
-            for j in range(k):
-                s = segidx[cand[r, i], cand[r, j]]
-                if s >= 0 and seen[s] != r:
-                    seen[s] = r
+            new = True
+            for a in range(nd):
+                if distinct[a] == cand[r, i]:
+                    new = False
+                    break
+            if new:
+                distinct[nd] = cand[r, i]
+                nd += 1
+        for a in range(nd):
+            for b in range(a + 1, nd):
+                s = segidx[distinct[a], distinct[b]]
+                if s >= 0:
                     if m == len(out):
                         bigger = np.empty(2 * len(out), dtype=np.int64)
                         bigger[:m] = out[:m]
@@ -74,6 +84,7 @@ def _cell_choice(cand, segidx, ptr, line, near, sign, z):  # pragma: no cover - 
             for j in range(k):
                 if cand[r, j] == cand[r, i]:
                     votes += 1
+                    continue  # one plane: same height, never a violation
                 s = segidx[cand[r, i], cand[r, j]]
                 if s >= 0 and near[pos[s]]:
                     if (sign[s] > 0 and z[r, i] > z[r, j]) or (sign[s] < 0 and z[r, i] < z[r, j]):
