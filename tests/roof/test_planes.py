@@ -172,3 +172,18 @@ def test_two_neighbourhoods_equal_two_queries(n_side):
         nn, wide = _two_neighbourhoods(tree, xyz, k)
         assert np.array_equal(nn, tree.query(xyz, k=k)[1].reshape(len(xyz), k))
         assert np.array_equal(wide, tree.query(xyz, k=min(2 * k, len(xyz)))[1].reshape(len(xyz), -1))
+
+
+def test_components_number_as_scipy():
+    """The union-find components give scipy's labels (int32, in order of the smallest node)."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    from rooftrace.roof._regions import _components
+
+    rng = np.random.default_rng(3)
+    for n, m in [(1, 0), (5, 0), (50, 20), (300, 250), (300, 900)]:
+        i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+        _, want = csgraph.connected_components(sparse.coo_matrix((np.ones(m), (i, j)), shape=(n, n)), directed=False)
+        got = _components(n, i, j)
+        assert got.dtype == want.dtype and np.array_equal(got, want)

@@ -3,9 +3,10 @@
 The segmentation is region growing on normals done as a graph problem: every
 point is linked to its k nearest neighbours when both neighbourhoods are
 planar, their normals agree and each lies on the other's local plane; the
-connected components of that graph (``scipy.sparse.csgraph``) are the seed
-regions.  Regions then go through rounds of least-squares refit and
-reassignment of every point to the best plane among its neighbours' planes,
+connected components of that graph (union-find, numbered as by
+``scipy.sparse.csgraph``) are the seed regions.  Regions then go through
+rounds of least-squares refit and reassignment of every point to the best
+plane among its neighbours' planes,
 which pulls the points near ridges (whose neighbourhoods straddle two planes
 and so were left out of the graph) onto the right plane.  Coplanar adjacent
 regions are merged and regions smaller than ``min_area`` are dropped.
@@ -22,8 +23,6 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
@@ -270,7 +269,7 @@ def segment_planes(
     distance : float
         The distance tolerance used (m).
     """
-    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _merge_coplanar, _rescue
+    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _components, _merge_coplanar, _rescue
 
     xyz = np.asarray(xyz, dtype=np.float64)
     N = len(xyz)
@@ -307,8 +306,7 @@ def segment_planes(
     # stricter edges (tighter angle, flatter neighbourhoods), down to 3 levels.
     bad_comp = None
     for level in range(4):
-        g = sparse.coo_matrix((np.ones(e.sum()), (i[e], j[e])), shape=(N, N))
-        _, comp = csgraph.connected_components(g, directed=False)
+        comp = _components(N, i[e], j[e])
         comp = np.where(planar, comp, -1)
         w = (comp >= 0).astype(float)
         size = np.bincount(np.maximum(comp, 0), weights=w)
