@@ -6,10 +6,10 @@ planar, their normals agree and each lies on the other's local plane; the
 connected components of that graph (union-find, numbered as by
 ``scipy.sparse.csgraph``) are the seed regions.  Regions then go through
 rounds of least-squares refit and reassignment of every point to the best
-plane among its neighbours' planes,
-which pulls the points near ridges (whose neighbourhoods straddle two planes
-and so were left out of the graph) onto the right plane.  Coplanar adjacent
-regions are merged and regions smaller than ``min_area`` are dropped.
+plane among its neighbours' planes, which pulls the points near ridges (whose
+neighbourhoods straddle two planes and so were left out of the graph) onto
+the right plane.  Coplanar adjacent regions are merged and regions smaller
+than ``min_area`` are dropped.
 
 Planes are fitted as ``z = p (x - cx) + q (y - cy) + r`` by ordinary least
 squares on heights: the ALS range error is close to vertical, so the height
@@ -202,10 +202,7 @@ def _two_neighbourhoods(tree: cKDTree, xyz: np.ndarray, k: int) -> tuple[np.ndar
     dist, wide = tree.query(xyz, k=min(2 * k, n))
     dist, wide = dist.reshape(n, -1), wide.reshape(n, -1)
     nn = wide[:, :k].copy()
-    if wide.shape[1] > k:
-        tied = (np.diff(dist[:, : k + 1], axis=1) <= 0).any(axis=1)
-    else:
-        tied = (np.diff(dist, axis=1) <= 0).any(axis=1)
+    tied = (np.diff(dist[:, : k + 1], axis=1) <= 0).any(axis=1)  # within the k, or the k-th with the next
     if tied.any():
         _, again = tree.query(xyz[tied], k=k)
         nn[tied] = again.reshape(-1, k)
