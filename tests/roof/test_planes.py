@@ -187,3 +187,20 @@ def test_components_number_as_scipy():
         _, want = csgraph.connected_components(sparse.coo_matrix((np.ones(m), (i, j)), shape=(n, n)), directed=False)
         got = _components(n, i, j)
         assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_fit_planes_sums_as_bincount():
+    """The compiled sums of fit_planes add in point order like np.bincount: centres, normal
+    equations and residual sums are bit-equal to the bincount form (here: centres and sigma)."""
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(500, 3)) * [20, 20, 2] + [84000.0, 447000.0, 10.0]
+    labels = rng.integers(-1, 6, len(xyz))
+    fit = fit_planes(xyz, labels)
+    ok = labels >= 0
+    lab, P = labels[ok], xyz[ok]
+    n = np.maximum(np.bincount(lab, minlength=6), 1)
+    centre = np.stack([np.bincount(lab, P[:, i], minlength=6) / n for i in range(3)], axis=1)
+    assert np.array_equal(fit.centre, centre[:, :2])
+    dx, dy = P[:, 0] - centre[lab, 0], P[:, 1] - centre[lab, 1]
+    res = P[:, 2] - (fit.pqr[lab, 0] * dx + fit.pqr[lab, 1] * dy + fit.pqr[lab, 2])
+    assert np.array_equal(fit.sigma, np.sqrt(np.bincount(lab, res * res, minlength=6) / np.maximum(n - 3, 1)))

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
+from rooftrace.roof._planefit import _normal_sums, _residual_sums
 
 __all__ = [
     "PlaneFit",
@@ -139,23 +140,15 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
         Planes with fewer than 3 points or a singular design (collinear
         points) have NaN parameters.
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     labels = np.asarray(labels)
     K = int(labels.max()) + 1 if n_planes is None else int(n_planes)
-    ok = labels >= 0
-    lab, P = labels[ok], xyz[ok]
-    n = np.bincount(lab, minlength=K).astype(np.int64)
-    nf = np.maximum(n, 1)
-    centre = np.stack([np.bincount(lab, P[:, i], minlength=K) / nf for i in range(3)], axis=1)
+    lab = np.ascontiguousarray(labels, dtype=np.int64)
+    if len(lab) and lab.max() >= K:
+        raise ValueError(f"fit_planes: labels up to {int(lab.max())} but n_planes={K}")
     # Centred design [x', y', 1]: well conditioned whatever the CRS offsets.
-    dx = P[:, 0] - centre[lab, 0]
-    dy = P[:, 1] - centre[lab, 1]
-    cols = [dx, dy, np.ones_like(dx)]
-    N = np.empty((K, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            N[:, i, j] = N[:, j, i] = np.bincount(lab, cols[i] * cols[j], minlength=K)
-    u = np.stack([np.bincount(lab, c * P[:, 2], minlength=K) for c in cols], axis=1)
+    # The sums per label are compiled (rooftrace.roof._planefit), in point order.
+    n, centre, N, u = _normal_sums(xyz, lab, K)
     good = n >= 3
     # A singular N means collinear points: no plane.
     good &= np.abs(np.linalg.det(N[:, :2, :2])) > 1e-9 * np.maximum(N[:, 0, 0] * N[:, 1, 1], 1e-30)
@@ -163,8 +156,7 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
     pqr = np.einsum("kij,kj->ki", Ninv, u)
-    res = P[:, 2] - (pqr[lab, 0] * dx + pqr[lab, 1] * dy + pqr[lab, 2])
-    rss = np.bincount(lab, res * res, minlength=K)
+    rss = _residual_sums(xyz, lab, centre, pqr)
     dof = np.maximum(n - 3, 1)
     sigma = np.sqrt(rss / dof)
     sigma[~good] = np.nan
