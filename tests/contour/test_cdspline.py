@@ -108,3 +108,34 @@ def test_ring_densifies_only_curved_segments():
     r = np.hypot(vertices[2:, 0], vertices[2:, 1])
     np.testing.assert_allclose(r, 5.0, atol=0.02)
     np.testing.assert_allclose(vertices[:, 2], 6.0, atol=1e-9)
+
+
+def test_span_basis_equals_the_vectorised_recursion():
+    """The compiled span basis gives the values of the numpy Cox-de Boor
+    recursion it replaced, bit for bit (right end included)."""
+    from rooftrace.contour.cdbasis import span_basis
+
+    def recursion(t, knots, degree):
+        n0 = len(knots) - 1
+        b = ((knots[:-1] <= t[:, None]) & (t[:, None] < knots[1:])).astype(np.float64)
+        at_end = t == knots[-1]
+        if at_end.any():
+            b[at_end] = 0.0
+            b[at_end, np.flatnonzero(knots[:-1] < knots[-1])[-1]] = 1.0
+        for p in range(1, degree + 1):
+            left_den = knots[p:n0] - knots[: n0 - p]
+            right_den = knots[p + 1: n0 + 1] - knots[1: n0 - p + 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                left = np.where(left_den > 0, (t[:, None] - knots[: n0 - p]) / left_den, 0.0)
+                right = np.where(right_den > 0, (knots[p + 1: n0 + 1] - t[:, None]) / right_den, 0.0)
+            b = left * b[:, :-1] + right * b[:, 1:]
+        return b
+
+    rng = np.random.default_rng(5)
+    for degree in range(1, 6):
+        b0, b1 = np.sort(rng.random(2))
+        knots = np.concatenate([np.full(degree + 1, b0), np.full(degree + 1, b1)])
+        t = np.concatenate([[b0], np.sort(rng.uniform(b0, b1, 50)), [b1]])
+        got, want = span_basis(t, knots, degree), recursion(t, knots, degree)
+        assert got.shape == want.shape == (52, degree + 1)
+        assert np.array_equal(got.view(np.int64), want.view(np.int64))

@@ -108,3 +108,35 @@ def test_outline_away_from_points_gives_no_faces():
     roof = roof_structure(xyz, far)
     assert roof.status in ("no_faces", "ok") and len(roof.planes) == 2
     assert all(shapely.force_2d(f).within(far.buffer(1e-6)) for f in roof.faces)
+
+
+def test_cell_choice_equals_the_pairwise_vote():
+    """The compiled candidate choice of partition_outline equals the (cells, k, k)
+    numpy form it replaced: fewest line violations, then most votes, then nearest."""
+    from rooftrace.roof._candidates import _cell_choice, _cell_lines
+
+    rng = np.random.default_rng(4)
+    K, k, n = 9, 8, 3000
+    segidx = np.full((K, K), -1, dtype=np.int64)
+    for s, (a, b) in enumerate([(0, 1), (1, 2), (2, 5), (3, 4), (6, 8), (0, 7)]):
+        segidx[a, b] = segidx[b, a] = s
+    sign = rng.choice([-1, 1], 6).astype(np.int64)
+    cm = rng.integers(0, K, (n, k)).astype(np.int64)
+    heights = rng.normal(size=(n, K))
+    z = np.take_along_axis(heights, cm, axis=1)  # one height per cell and plane, as plane_height gives
+    ptr, line = _cell_lines(cm, segidx)
+    near_cell_line = rng.random((n, 6)) < 0.6
+    near = near_cell_line[np.repeat(np.arange(n), np.diff(ptr)), line]
+
+    votes = (cm[:, :, None] == cm[:, None, :]).sum(axis=2)
+    S = segidx[cm[:, :, None], cm[:, None, :]]
+    m, i, j = np.nonzero(S >= 0)
+    sv = S[m, i, j]
+    keep = near_cell_line[m, sv]
+    m, i, j, sv = m[keep], i[keep], j[keep], sv[keep]
+    zi, zj = z[m, i], z[m, j]
+    wrong = ((sign[sv] > 0) & (zi > zj)) | ((sign[sv] < 0) & (zi < zj))
+    viol = np.zeros(cm.shape, dtype=np.int64)
+    np.add.at(viol, (m[wrong], i[wrong]), 1)
+    score = viol * (k + 1) ** 2 - votes * (k + 1) + np.arange(k)
+    assert np.array_equal(_cell_choice(cm, segidx, ptr, line, near, sign, z), np.argmin(score, axis=1))

@@ -153,3 +153,54 @@ def test_small_dormer_at_low_density_is_found():
     assert np.sum(np.abs(slope - 10) < 2) == 1
     k = int(np.flatnonzero(np.abs(slope - 10) < 2)[0])
     assert np.mean(face[labels == k] == 2) > 0.8 and np.sum(face[labels == k] == 2) > 0.8 * np.sum(face == 2)
+
+
+@pytest.mark.parametrize("n_side", [3, 5, 12])
+def test_two_neighbourhoods_equal_two_queries(n_side):
+    """One 2k query gives the k and 2k nearest neighbours of two queries,
+    also where distances tie (a grid with duplicated points)."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.planes import _two_neighbourhoods
+
+    g = np.mgrid[0:n_side, 0:n_side, 0:2].reshape(3, -1).T.astype(float)
+    rng = np.random.default_rng(2)
+    xyz = np.vstack([g, g[:5], g + rng.normal(0, 0.2, g.shape)])
+    tree = cKDTree(xyz)
+    for k in (1, 4, 16):
+        k = min(k, len(xyz))
+        nn, wide = _two_neighbourhoods(tree, xyz, k)
+        assert np.array_equal(nn, tree.query(xyz, k=k)[1].reshape(len(xyz), k))
+        assert np.array_equal(wide, tree.query(xyz, k=min(2 * k, len(xyz)))[1].reshape(len(xyz), -1))
+
+
+def test_components_number_as_scipy():
+    """The union-find components give scipy's labels (int32, in order of the smallest node)."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    from rooftrace.roof._regions import _components
+
+    rng = np.random.default_rng(3)
+    for n, m in [(1, 0), (5, 0), (50, 20), (300, 250), (300, 900)]:
+        i, j = rng.integers(0, n, m), rng.integers(0, n, m)
+        _, want = csgraph.connected_components(sparse.coo_matrix((np.ones(m), (i, j)), shape=(n, n)), directed=False)
+        got = _components(n, i, j)
+        assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_fit_planes_sums_as_bincount():
+    """The compiled sums of fit_planes add in point order like np.bincount: centres, normal
+    equations and residual sums are bit-equal to the bincount form (here: centres and sigma)."""
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(500, 3)) * [20, 20, 2] + [84000.0, 447000.0, 10.0]
+    labels = rng.integers(-1, 6, len(xyz))
+    fit = fit_planes(xyz, labels)
+    ok = labels >= 0
+    lab, P = labels[ok], xyz[ok]
+    n = np.maximum(np.bincount(lab, minlength=6), 1)
+    centre = np.stack([np.bincount(lab, P[:, i], minlength=6) / n for i in range(3)], axis=1)
+    assert np.array_equal(fit.centre, centre[:, :2])
+    dx, dy = P[:, 0] - centre[lab, 0], P[:, 1] - centre[lab, 1]
+    res = P[:, 2] - (fit.pqr[lab, 0] * dx + fit.pqr[lab, 1] * dy + fit.pqr[lab, 2])
+    assert np.array_equal(fit.sigma, np.sqrt(np.bincount(lab, res * res, minlength=6) / np.maximum(n - 3, 1)))

@@ -18,6 +18,7 @@ the same spline space.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from rooftrace.errors import GeometryError
 
@@ -41,22 +42,44 @@ def chord_parameters(points: np.ndarray, closed: bool = True) -> np.ndarray:
 
 def span_basis(t: np.ndarray, knots: np.ndarray, degree: int) -> np.ndarray:
     """B-spline basis of ``degree`` on ``knots`` at ``t`` (right end included); (len(t), len(knots)-degree-1)."""
+    # compiled: the CD-spline calls this for every span of every trial degree,
+    # thousands of small arrays per building (numpy's temporaries dominated)
+    return _span_basis(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(knots, dtype=np.float64),
+                       int(degree))
+
+
+@njit(cache=True, error_model="numpy")
+def _span_basis(t, knots, degree):  # pragma: no cover - compiled
+    # Cox-de Boor, row by row, with the float operations of the numpy form it
+    # replaced (each ratio only where its denominator is positive, else 0;
+    # left * b[c] + right * b[c + 1]), so the values are identical
     n0 = len(knots) - 1
-    last = knots[-1]
-    b = ((knots[:-1] <= t[:, None]) & (t[:, None] < knots[1:])).astype(np.float64)
-    at_end = t == last
-    if at_end.any():
-        j = np.flatnonzero(knots[:-1] < last)[-1]
-        b[at_end] = 0.0
-        b[at_end, j] = 1.0
-    for p in range(1, degree + 1):
-        left_den = knots[p:n0] - knots[: n0 - p]
-        right_den = knots[p + 1: n0 + 1] - knots[1: n0 - p + 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            left = np.where(left_den > 0, (t[:, None] - knots[: n0 - p]) / left_den, 0.0)
-            right = np.where(right_den > 0, (knots[p + 1: n0 + 1] - t[:, None]) / right_den, 0.0)
-        b = left * b[:, :-1] + right * b[:, 1:]
-    return b
+    last = knots[n0]
+    j_end = -1
+    for c in range(n0):
+        if knots[c] < last:
+            j_end = c
+    out = np.empty((len(t), n0 - degree))
+    b = np.empty(n0)
+    for r in range(len(t)):
+        x = t[r]
+        if x == last:
+            for c in range(n0):
+                b[c] = 0.0
+            b[j_end] = 1.0
+        else:
+            for c in range(n0):
+                b[c] = 1.0 if knots[c] <= x and x < knots[c + 1] else 0.0
+        for p in range(1, degree + 1):
+            for c in range(n0 - p):
+                left_den = knots[c + p] - knots[c]
+                right_den = knots[c + p + 1] - knots[c + 1]
+                left = (x - knots[c]) / left_den if left_den > 0 else 0.0
+                right = (knots[c + p + 1] - x) / right_den if right_den > 0 else 0.0
+                b[c] = left * b[c] + right * b[c + 1]
+        for c in range(n0 - degree):
+            out[r, c] = b[c]
+    return out
 
 
 def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) -> np.ndarray:
@@ -94,10 +117,11 @@ def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) ->
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     a = np.zeros((len(t), offsets[-1] + 1))
     span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
-    for k, d in enumerate(degrees):
+    # only the spans that hold parameters: a ring has dozens of segments and
+    # the overshoot test evaluates one of them at a time
+    for k in np.unique(span).tolist():
+        d = degrees[k]
         sel = span == k
-        if not sel.any():
-            continue
         knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
         a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = span_basis(t[sel], knots, d)
     if closed:

@@ -167,25 +167,70 @@ def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     n_ctrl = int(offsets[-1])
     bounds = np.append(np.searchsorted(t, breaks[:-1], side="left"), len(t))
-    rows, cols, vals = [], [], []
-    for k, d in enumerate(degrees):
-        lo, hi = bounds[k], bounds[k + 1]
-        key = (k, d, breaks[k], breaks[k + 1])
-        block = cache.get(key) if cache is not None else None
-        if block is None:
-            knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-            block = span_basis(t[lo:hi], knots, d)
-            if cache is not None:
-                cache[key] = block
-        rows.append(np.repeat(np.arange(lo, hi), d + 1))
-        cols.append(np.tile((np.arange(d + 1) + offsets[k]) % n_ctrl, hi - lo))  # last control point = first
-        vals.append(block.ravel())
+    vals = _span_values(t, breaks, degrees, bounds, cache)
+    rows, cols = _design_index(bounds, offsets)
     if n_ctrl <= _DENSE_UP_TO:
-        a = np.zeros((len(t), n_ctrl))
-        np.add.at(a, (np.concatenate(rows), np.concatenate(cols)), np.concatenate(vals))
-        return a
-    return sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(len(t), n_ctrl))
+        # bincount adds in input order from 0.0, as np.add.at did (the columns of a
+        # one-segment ring wrap onto column 0 and are summed), and is much faster
+        flat = np.bincount(rows * n_ctrl + cols, vals, minlength=len(t) * n_ctrl)
+        return flat.reshape(len(t), n_ctrl)
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(len(t), n_ctrl))
+
+
+def _span_values(t: np.ndarray, breaks: np.ndarray, degrees, bounds: np.ndarray, cache: dict | None) -> np.ndarray:
+    """The span-basis values of all spans, span by span (row-major within a span).
+
+    ``cache`` keeps each span's block under ``(k, d, breaks[k], breaks[k+1])``
+    and, under ``"last"``, the previous call's values: the F-test loop raises
+    one segment at a time, so only the spans whose degree changed are looked
+    up again and the rest is copied in slices (a loop over every span of every
+    trial took a tenth of the outline stage on Delft).
+    """
+    def block(k: int, d: int) -> np.ndarray:
+        key = (k, d, breaks[k], breaks[k + 1])
+        out = cache.get(key) if cache is not None else None
+        if out is None:
+            knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
+            out = span_basis(t[bounds[k]:bounds[k + 1]], knots, d).ravel()
+            if cache is not None:
+                cache[key] = out
+        return out
+
+    deg = np.asarray(degrees, dtype=np.int64)
+    last = cache.get("last") if cache is not None else None
+    if last is not None and len(last[0]) == len(deg) and np.array_equal(last[1], breaks) \
+            and np.array_equal(last[2], bounds):
+        last_deg, _, _, last_vals, last_start = last
+        pieces, pos = [], 0
+        for k in np.flatnonzero(last_deg != deg).tolist():
+            pieces += [last_vals[pos:last_start[k]], block(k, int(deg[k]))]
+            pos = last_start[k + 1]
+        pieces.append(last_vals[pos:])
+        vals = np.concatenate(pieces)
+    else:
+        vals = np.concatenate([block(k, int(d)) for k, d in enumerate(deg)])
+    if cache is not None:
+        start = np.concatenate([[0], np.cumsum(np.diff(bounds) * (deg + 1))])
+        cache["last"] = (deg, breaks.copy(), bounds, vals, start)
+    return vals
+
+
+def _design_index(bounds: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of every span-basis value, span by span, row-major within a span.
+
+    Row ``r`` of span k (``bounds[k] <= r < bounds[k+1]``) holds columns
+    ``offsets[k] .. offsets[k+1]`` modulo the control-point count (the last
+    control point is the first).  Built without a loop over the spans: a
+    building ring has dozens of them and the design is rebuilt for every
+    trial degree.
+    """
+    n_ctrl = int(offsets[-1])
+    counts = np.diff(bounds)
+    width = np.repeat(np.diff(offsets) + 1, counts)  # values per row
+    rows = np.repeat(np.arange(bounds[0], bounds[-1]), width)
+    first = np.repeat(np.repeat(offsets[:-1], counts), width)
+    within = np.arange(len(rows)) - np.repeat(np.cumsum(width) - width, width)
+    return rows, (first + within) % n_ctrl
 
 
 def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None,
@@ -325,7 +370,10 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         new = fit_cdspline(points, corners, trial, t=t, _cache=cache)
         history.append((trial.tolist(), new.sigma))
         seg_points = _segment_points(points, corners, k)
-        if _overshoot(new, k, seg_points) > max(options.max_overshoot, _overshoot(fit, k, seg_points)):
+        # the current curve's overshoot only matters when the raised one
+        # exceeds max_overshoot (evaluating it every time cost a tenth of the outline)
+        over = _overshoot(new, k, seg_points)
+        if over > options.max_overshoot and over > max(options.max_overshoot, _overshoot(fit, k, seg_points)):
             frozen[k] = True
             continue
         if options.test == "global":

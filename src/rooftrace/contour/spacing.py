@@ -91,9 +91,16 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     order = np.argsort(key, kind="stable")
     cell_ptr = np.zeros(nx * ny + 1, dtype=np.int64)
     np.cumsum(np.bincount(key, minlength=nx * ny), out=cell_ptr[1:])
-    adj_ptr, adj_idx = _csr(edges[:, 0], np.arange(len(edges)), n)
-    ps = _ps_avg(np.ascontiguousarray(xy, dtype=np.float64), float(radius), cell, nx, ny, cell_ptr, order,
-                 adj_ptr, adj_idx, edges[:, 1].copy(), lengths)
+    # the kernel works on the points in cell order (a cell's points are
+    # contiguous in memory, not scattered over the building); it visits them
+    # in the same order as before, so every sum is the same
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    adj_ptr, adj_idx = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
+    ps = np.empty(n)
+    ps[order] = _ps_avg(np.ascontiguousarray(xy[order], dtype=np.float64), float(radius),
+                        np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr, adj_idx, rank[edges[:, 1]],
+                        lengths)
     bad = ~np.isfinite(ps)
     if bad.any():
         touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
@@ -120,9 +127,10 @@ def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, order, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
-    # each edge is stored once, at its lower end point; it counts for point i
-    # when both end points are in i's ball (marked with i)
+def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
+    # points in cell order (cell_ptr indexes xy directly); each edge is stored
+    # once, at its lower end point; it counts for point i when both end
+    # points are in i's ball (marked with i)
     n = len(xy)
     r2 = radius * radius
     mark = np.full(n, -1, dtype=np.int64)
@@ -133,8 +141,7 @@ def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, order, adj_ptr, adj_edge, edge_h
         for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
             for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
                 c = cx * ny + cy
-                for p in range(cell_ptr[c], cell_ptr[c + 1]):
-                    j = order[p]
+                for j in range(cell_ptr[c], cell_ptr[c + 1]):
                     dx = xy[j, 0] - xy[i, 0]
                     dy = xy[j, 1] - xy[i, 1]
                     if dx * dx + dy * dy <= r2:

@@ -23,8 +23,9 @@ import shapely
 from rasterio import features
 from rasterio.transform import Affine
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, Polygon, shape
+from shapely.geometry import LineString, Polygon
 
+from rooftrace.roof._candidates import _cell_choice, _cell_lines
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "lift_to_plane", "step_edges"]
@@ -43,6 +44,12 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     t = np.clip((ap * ab).sum(axis=1) / L2, 0, 1)
     d = ap - t[:, None] * ab
     return np.hypot(d[:, 0], d[:, 1])
+
+
+def _polygon(rings: list) -> Polygon:
+    """The polygon of GeoJSON-like rings (as ``shapely.geometry.shape`` builds it, without its per-vertex loop)."""
+    rings = [np.asarray(r, dtype=np.float64) for r in rings]
+    return Polygon(rings[0], rings[1:])
 
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
@@ -148,11 +155,10 @@ def partition_outline(
     cm, Cm = cand[rows], C[rows]
     # Majority of the k nearest points (ties to the nearest): a boundary
     # smoother than the nearest point's Voronoi staircase.
-    votes = (cm[:, :, None] == cm[:, None, :]).sum(axis=2)
-    score = -votes * (kk + 1) + np.arange(kk)[None, :]
+    K = len(planes)
+    segidx = np.full((K, K), -1, dtype=np.int64)
+    seg, sign = np.zeros((0, 2, 2)), np.zeros(0, dtype=np.int64)
     if lines is not None and len(lines.lines) and len(rows):
-        K = len(planes)
-        segidx = np.full((K, K), -1)
         # One segment per plane pair, spanning all its pieces (a ridge cut
         # by a courtyard is collinear pieces).
         spans: dict = {}
@@ -166,29 +172,23 @@ def partition_outline(
             segidx[a, b] = segidx[b, a] = len(seg)
             seg.append(pts[[np.argmin(t), np.argmax(t)]])
             sign.append(cv)
-        seg, sign = np.asarray(seg), np.asarray(sign)
-        # Only candidate pairs joined by a line matter: gather those.
-        S = segidx[cm[:, :, None], cm[:, None, :]]
-        m, i, j = np.nonzero(S >= 0)
-        sv = S[m, i, j]
-        near = _segment_distance(Cm[m], seg[sv, 0], seg[sv, 1]) <= line_tolerance
-        m, i, j, sv = m[near], i[near], j[near], sv[near]
-        zi = plane_height(planes[cm[m, i]], Cm[m])
-        zj = plane_height(planes[cm[m, j]], Cm[m])
-        wrong = ((sign[sv] > 0) & (zi > zj)) | ((sign[sv] < 0) & (zi < zj))
-        viol = np.zeros(cm.shape, dtype=np.int64)
-        np.add.at(viol, (m[wrong], i[wrong]), 1)
-        # Fewest violations first, then the vote.
-        score = score + viol * (kk + 1) ** 2
+        seg, sign = np.asarray(seg), np.asarray(sign, dtype=np.int64)
+    # Only candidate pairs joined by a line matter, and only near the line:
+    # each cell's distance to each such line, then fewest violations first,
+    # then the vote (compiled, see rooftrace.roof._candidates).
+    ptr, line = _cell_lines(cm, segidx)
+    at = np.repeat(np.arange(len(rows)), np.diff(ptr))
+    near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
+    z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
     if len(rows):
-        choice[rows] = cm[np.arange(len(rows)), np.argmin(score, axis=1)]
+        choice[rows] = cm[np.arange(len(rows)), _cell_choice(cm, segidx, ptr, line, near, sign, z)]
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
     transform = Affine(cell, 0, x0, 0, -cell, y1)
     regions, ids = [], []
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
-        regions.append(shape(geom))
+        regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
     regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     polys, pids = [], []

@@ -3,12 +3,13 @@
 The segmentation is region growing on normals done as a graph problem: every
 point is linked to its k nearest neighbours when both neighbourhoods are
 planar, their normals agree and each lies on the other's local plane; the
-connected components of that graph (``scipy.sparse.csgraph``) are the seed
-regions.  Regions then go through rounds of least-squares refit and
-reassignment of every point to the best plane among its neighbours' planes,
-which pulls the points near ridges (whose neighbourhoods straddle two planes
-and so were left out of the graph) onto the right plane.  Coplanar adjacent
-regions are merged and regions smaller than ``min_area`` are dropped.
+connected components of that graph (union-find, numbered as by
+``scipy.sparse.csgraph``) are the seed regions.  Regions then go through
+rounds of least-squares refit and reassignment of every point to the best
+plane among its neighbours' planes, which pulls the points near ridges (whose
+neighbourhoods straddle two planes and so were left out of the graph) onto
+the right plane.  Coplanar adjacent regions are merged and regions smaller
+than ``min_area`` are dropped.
 
 Planes are fitted as ``z = p (x - cx) + q (y - cy) + r`` by ordinary least
 squares on heights: the ALS range error is close to vertical, so the height
@@ -22,11 +23,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
-from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
+from rooftrace.roof._planefit import _normal_sums, _residual_sums
 
 __all__ = [
     "PlaneFit",
@@ -108,7 +108,12 @@ def point_normals(xyz: np.ndarray, k: int = 16, tree: cKDTree | None = None):
     k = int(min(k, len(xyz)))
     tree = cKDTree(xyz) if tree is None else tree
     _, nn = tree.query(xyz, k=k)
-    nn = nn.reshape(len(xyz), k)
+    return _pca_normals(xyz, nn.reshape(len(xyz), k))
+
+
+def _pca_normals(xyz: np.ndarray, nn: np.ndarray):
+    """:func:`point_normals` from given neighbour indices (N, k)."""
+    k = nn.shape[1]
     nb = xyz[nn]
     nb = nb - nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb) / k
@@ -135,23 +140,15 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
         Planes with fewer than 3 points or a singular design (collinear
         points) have NaN parameters.
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
+    xyz = np.ascontiguousarray(xyz, dtype=np.float64)
     labels = np.asarray(labels)
     K = int(labels.max()) + 1 if n_planes is None else int(n_planes)
-    ok = labels >= 0
-    lab, P = labels[ok], xyz[ok]
-    n = np.bincount(lab, minlength=K).astype(np.int64)
-    nf = np.maximum(n, 1)
-    centre = np.stack([np.bincount(lab, P[:, i], minlength=K) / nf for i in range(3)], axis=1)
+    lab = np.ascontiguousarray(labels, dtype=np.int64)
+    if len(lab) and lab.max() >= K:
+        raise ValueError(f"fit_planes: labels up to {int(lab.max())} but n_planes={K}")
     # Centred design [x', y', 1]: well conditioned whatever the CRS offsets.
-    dx = P[:, 0] - centre[lab, 0]
-    dy = P[:, 1] - centre[lab, 1]
-    cols = [dx, dy, np.ones_like(dx)]
-    N = np.empty((K, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            N[:, i, j] = N[:, j, i] = np.bincount(lab, cols[i] * cols[j], minlength=K)
-    u = np.stack([np.bincount(lab, c * P[:, 2], minlength=K) for c in cols], axis=1)
+    # The sums per label are compiled (rooftrace.roof._planefit), in point order.
+    n, centre, N, u = _normal_sums(xyz, lab, K)
     good = n >= 3
     # A singular N means collinear points: no plane.
     good &= np.abs(np.linalg.det(N[:, :2, :2])) > 1e-9 * np.maximum(N[:, 0, 0] * N[:, 1, 1], 1e-30)
@@ -159,8 +156,7 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
     pqr = np.einsum("kij,kj->ki", Ninv, u)
-    res = P[:, 2] - (pqr[lab, 0] * dx + pqr[lab, 1] * dy + pqr[lab, 2])
-    rss = np.bincount(lab, res * res, minlength=K)
+    rss = _residual_sums(xyz, lab, centre, pqr)
     dof = np.maximum(n - 3, 1)
     sigma = np.sqrt(rss / dof)
     sigma[~good] = np.nan
@@ -183,6 +179,26 @@ def plane_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
     if planes.ndim == 2 and xy.ndim == 2 and planes.shape[0] != xy.shape[0]:
         return -(xy[:, :1] * planes[:, 0] + xy[:, 1:2] * planes[:, 1] + planes[:, 3]) / planes[:, 2]
     return -(xy[..., 0] * planes[..., 0] + xy[..., 1] * planes[..., 1] + planes[..., 3]) / planes[..., 2]
+
+
+def _two_neighbourhoods(tree: cKDTree, xyz: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k and the min(2k, N) nearest neighbours of every point, from one k-d tree query.
+
+    The first k of the 2k neighbours are the k nearest unless distances tie
+    within them (duplicate points, a grid); the order of tied neighbours
+    depends on the query's k, so those points are queried again with k and
+    the result equals two separate queries.  One query instead of two saved
+    a third of the normal estimation.
+    """
+    n = len(xyz)
+    dist, wide = tree.query(xyz, k=min(2 * k, n))
+    dist, wide = dist.reshape(n, -1), wide.reshape(n, -1)
+    nn = wide[:, :k].copy()
+    tied = (np.diff(dist[:, : k + 1], axis=1) <= 0).any(axis=1)  # within the k, or the k-th with the next
+    if tied.any():
+        _, again = tree.query(xyz[tied], k=k)
+        nn[tied] = again.reshape(-1, k)
+    return nn, wide
 
 
 def segment_planes(
@@ -242,7 +258,7 @@ def segment_planes(
     distance : float
         The distance tolerance used (m).
     """
-    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _merge_coplanar, _rescue
+    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _components, _merge_coplanar, _rescue
 
     xyz = np.asarray(xyz, dtype=np.float64)
     N = len(xyz)
@@ -250,7 +266,8 @@ def segment_planes(
     if N < min_pts:
         raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
     tree = cKDTree(xyz)
-    normals, rms, nn = point_normals(xyz, k, tree)
+    nn, nn_c = _two_neighbourhoods(tree, xyz, int(min(k, N)))
+    normals, rms, nn = _pca_normals(xyz, nn)
     kk = nn.shape[1]
     med = float(np.median(rms))
     noise = med * np.sqrt(kk / max(kk - 3, 1))
@@ -278,8 +295,7 @@ def segment_planes(
     # stricter edges (tighter angle, flatter neighbourhoods), down to 3 levels.
     bad_comp = None
     for level in range(4):
-        g = sparse.coo_matrix((np.ones(e.sum()), (i[e], j[e])), shape=(N, N))
-        _, comp = csgraph.connected_components(g, directed=False)
+        comp = _components(N, i[e], j[e])
         comp = np.where(planar, comp, -1)
         w = (comp >= 0).astype(float)
         size = np.bincount(np.maximum(comp, 0), weights=w)
@@ -306,7 +322,6 @@ def segment_planes(
     # Candidate planes for growing and reassignment come from a wider
     # neighbourhood (2k): on scan-line patterns the k nearest points of a
     # point can all lie on its own line, which may be wholly unassigned.
-    _, nn_c = tree.query(xyz, k=min(2 * kk, N))
     link = link or 2.5 * spacing
 
     def refine(labels, rounds):

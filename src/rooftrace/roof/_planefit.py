@@ -1,0 +1,75 @@
+"""Compiled sums of :func:`rooftrace.roof.planes.fit_planes`.
+
+The plane segmentation fits planes thousands of times per building (every
+refinement round, every coplanar-merge candidate, every RANSAC refit), most
+of them small; the ten ``np.bincount`` passes per fit cost more than the
+arithmetic.  These loops add the same products in the same order (point
+order, from 0.0, as ``np.bincount`` does), so the sums are identical.
+
+Private to :mod:`rooftrace.roof.planes`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__: list[str] = []
+
+
+@njit(cache=True)
+def _normal_sums(xyz, labels, K):  # pragma: no cover - compiled
+    """Counts (K,), centres (K, 3), normal matrices (K, 3, 3) and right-hand sides (K, 3).
+
+    Design ``[x - cx, y - cy, 1]`` per label, ``-1`` labels skipped.
+    """
+    n = np.zeros(K, dtype=np.int64)
+    s = np.zeros((K, 3))
+    for p in range(len(labels)):
+        lab = labels[p]
+        if lab >= 0:
+            n[lab] += 1
+            s[lab, 0] += xyz[p, 0]
+            s[lab, 1] += xyz[p, 1]
+            s[lab, 2] += xyz[p, 2]
+    centre = np.empty((K, 3))
+    for lab in range(K):
+        nf = max(n[lab], 1)
+        for c in range(3):
+            centre[lab, c] = s[lab, c] / nf
+    N = np.zeros((K, 3, 3))
+    u = np.zeros((K, 3))
+    for p in range(len(labels)):
+        lab = labels[p]
+        if lab >= 0:
+            dx = xyz[p, 0] - centre[lab, 0]
+            dy = xyz[p, 1] - centre[lab, 1]
+            z = xyz[p, 2]
+            N[lab, 0, 0] += dx * dx
+            N[lab, 0, 1] += dx * dy
+            N[lab, 0, 2] += dx
+            N[lab, 1, 1] += dy * dy
+            N[lab, 1, 2] += dy
+            N[lab, 2, 2] += 1.0
+            u[lab, 0] += dx * z
+            u[lab, 1] += dy * z
+            u[lab, 2] += z
+    for lab in range(K):
+        N[lab, 1, 0] = N[lab, 0, 1]
+        N[lab, 2, 0] = N[lab, 0, 2]
+        N[lab, 2, 1] = N[lab, 1, 2]
+    return n, centre, N, u
+
+
+@njit(cache=True)
+def _residual_sums(xyz, labels, centre, pqr):  # pragma: no cover - compiled
+    """Sum of squared height residuals per label, (K,)."""
+    rss = np.zeros(len(pqr))
+    for p in range(len(labels)):
+        lab = labels[p]
+        if lab >= 0:
+            dx = xyz[p, 0] - centre[lab, 0]
+            dy = xyz[p, 1] - centre[lab, 1]
+            res = xyz[p, 2] - (pqr[lab, 0] * dx + pqr[lab, 1] * dy + pqr[lab, 2])
+            rss[lab] += res * res
+    return rss
