@@ -3,7 +3,7 @@
 Usage (from the repository root)::
 
     .venv/bin/python benchmarks/bench_scale.py delft [--data ../shared/data]
-    .venv/bin/python benchmarks/bench_scale.py block --block /tmp/rooftrace-block [--tile-size 250 --workers 2]
+    .venv/bin/python benchmarks/bench_scale.py block --block /tmp/rooftrace-block [--tile-size 250] [--workers 2]
 
 ``delft`` runs the two Delft AHN3 tiles as one piece and as 2 x 2 tiles of
 250 m (60 m buffer) with 1 and 2 workers, and checks that the three outputs
@@ -178,17 +178,20 @@ def make_block(folder: Path, side: int = 3, size: float = 310.0, density: float 
             raise SystemExit("rooftrace simulate failed")
 
 
-def block(folder: Path, tile_size: float, workers: int, buffer: float) -> None:
+def block(folder: Path, tile_size: float | None, workers: int, buffer: float) -> None:
     make_block(folder)
     files = sorted(folder.glob("*/points.laz"))
     print(load())
     floor, n = decode_seconds(files)
     print(f"{len(files)} files, decode floor: {floor:.2f} s for {n:,} points ({n / floor:,.0f} points/s)")
     out = folder / "roofs.gpkg"
-    summary, wall, peak = run(["run", *map(str, files), "-o", str(out), "--overwrite", "--tile-size", str(tile_size),
+    size = [] if tile_size is None else ["--tile-size", str(tile_size)]
+    summary, wall, peak = run(["run", *map(str, files), "-o", str(out), "--overwrite", *size,
                                "--buffer", str(buffer), "--workers", str(workers)])
     print(HEADER)
-    print(row(f"{summary['tiles']} tiles of {tile_size:g} m, {workers} workers", n, wall, peak, floor, summary))
+    derived = " (derived)" if tile_size is None else ""
+    print(row(f"{summary['tiles']} tiles of {summary['tile_size']:g} m{derived}, {workers} workers", n, wall, peak,
+              floor, summary))
     print(load())
     print(f"\nstages:\n{stage_table(n, summary)}")
     print(f"\ntile points (with buffers): {summary['tile_points']:,}; parameter sample: {summary['sample_points']:,} "
@@ -203,7 +206,7 @@ def main() -> None:
     d.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
     b = sub.add_parser("block")
     b.add_argument("--block", type=Path, default=Path("/tmp/rooftrace-block"))
-    b.add_argument("--tile-size", type=float, default=250.0)
+    b.add_argument("--tile-size", type=float, default=None, help="default: derived from the density, as run's")
     b.add_argument("--buffer", type=float, default=60.0)
     b.add_argument("--workers", type=int, default=2)
     a = ap.parse_args()

@@ -165,6 +165,18 @@ def test_a_building_belongs_to_the_tile_holding_its_centre():
     assert owned.tolist() == [False, True]
 
 
+def test_the_default_tile_holds_about_three_million_points_with_its_buffer():
+    from rooftrace.tiling.split import TARGET_TILE_POINTS, derived_tile_size
+
+    box = (0.0, 0.0, 0.0, 1000.0, 1000.0, 50.0)
+    sizes = [derived_tile_size([int(d * 1e6)], [box], 60.0) for d in (2.0, 13.5, 30.0, 500.0)]
+    assert sizes == [1000.0, 350.0, 150.0, 100.0]  # sparse ... dense, clipped to 100-1000 m
+    assert (sizes[1] + 120) ** 2 * 13.5 <= TARGET_TILE_POINTS < (sizes[1] + 50 + 120) ** 2 * 13.5
+    # the densest file decides; a file without points does not count
+    assert derived_tile_size([2_000_000, 30_000_000, 0], [box, box, box], 60.0) == 150.0
+    assert derived_tile_size([0], [box], 60.0) == 200.0
+
+
 def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
     from rooftrace.tiling.tile import near_open_side
 

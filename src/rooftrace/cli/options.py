@@ -18,6 +18,6 @@ Quiet = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and er
 Seed = Annotated[int, typer.Option("--seed", min=0, help="Seed of everything random (>= 0).")]
 Workers = Annotated[int, typer.Option("--workers", min=1, help="Parallel workers (processes).")]
 Scheduler = Annotated[Optional[str], typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")]
-TileSize = Annotated[Optional[float], typer.Option("--tile-size", min=1.0, help="Tile side in metres (default: no tiling).")]
+TileSize = Annotated[Optional[float], typer.Option("--tile-size", min=1.0, help="Tile side in metres (default: no tiling; when tiling, about 3 M points a buffered tile).")]
 Buffer = Annotated[Optional[float], typer.Option("--buffer", min=0.0, help="Tile buffer in metres (default: derived).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Skip tiles finished by an earlier run into the same output.")]

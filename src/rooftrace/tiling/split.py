@@ -28,7 +28,8 @@ class TileOptions:
     Attributes
     ----------
     tile_size : float or None
-        Side of the square tile cores, metres.  ``None``: 200 m.
+        Side of the square tile cores, metres.  ``None``: derived from the
+        inputs' density (:func:`derived_tile_size`).
     buffer : float or None
         Buffer around each core, metres, rounded up so that the buffered
         tile follows the outlier filter's cell lines.  ``None``: 60 m, wider
@@ -73,13 +74,53 @@ class TileOptions:
             raise InputError(f"tiling: chunk_size must be >= 1 and sample_points >= 1000, got "
                              f"{self.chunk_size}, {self.sample_points}")
 
-    @property
-    def resolved_tile_size(self) -> float:
-        return 200.0 if self.tile_size is None else float(self.tile_size)
+    def resolved_tile_size(self, counts: Sequence[int] = (), boxes: Sequence[Sequence[float]] = ()) -> float:
+        """``tile_size``, or the one :func:`derived_tile_size` gives for these headers."""
+        if self.tile_size is not None:
+            return float(self.tile_size)
+        return derived_tile_size(counts, boxes, self.resolved_buffer)
 
     @property
     def resolved_buffer(self) -> float:
         return 60.0 if self.buffer is None else float(self.buffer)
+
+
+#: points a buffered tile holds, about, when the tile size is derived from the data: a tile's
+#: run then peaks near 3 GB (tiling/memory.py), and the buffers add 1.5-2x the work, not 2.6x
+#: as 200 m tiles with 60 m buffers do
+TARGET_TILE_POINTS = 3_000_000
+
+
+def derived_tile_size(counts: Sequence[int], boxes: Sequence[Sequence[float]], buffer: float) -> float:
+    """Tile side (m) whose buffered tile holds about :data:`TARGET_TILE_POINTS` at the inputs' density.
+
+    The density is the densest file's (header point count over its header
+    box), so that a file whose box is partly empty errs towards smaller
+    tiles.  The side is rounded down to 50 m and kept within 100-1000 m.
+    It depends on the headers only, so a run is the same whatever the
+    machine or the number of workers.
+
+    Parameters
+    ----------
+    counts : sequence of int
+        Points of each input file.
+    boxes : sequence of (xmin, ymin, zmin, xmax, ymax, zmax)
+        Header boxes (m).
+    buffer : float
+        Buffer around each tile core (m).
+
+    Examples
+    --------
+    >>> derived_tile_size([13_500_000], [(0, 0, 0, 1000, 1000, 50)], 60.0)  # 13.5 pts/m²
+    350.0
+    >>> derived_tile_size([], [], 60.0)
+    200.0
+    """
+    densities = [c / max((b[3] - b[0]) * (b[4] - b[1]), 1.0) for c, b in zip(counts, boxes) if c > 0]
+    if not densities:
+        return 200.0
+    side = np.sqrt(TARGET_TILE_POINTS / max(densities)) - 2.0 * buffer
+    return float(np.clip(np.floor(side / 50.0) * 50.0, 100.0, 1000.0))
 
 
 def tile_grid(bounds: Sequence[float], tile_size: float) -> tuple[np.ndarray, np.ndarray]:
@@ -256,7 +297,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     head = _scan_headers(paths)
     bounds = head["bounds"]
     origin = (bounds[0], bounds[1]) if origin is None else (float(origin[0]), float(origin[1]))
-    size, buf = options.resolved_tile_size, options.resolved_buffer
+    size, buf = options.resolved_tile_size(head["counts"], head["boxes"]), options.resolved_buffer
     xs, ys = tile_grid(bounds, size)
     rx = tile_cell_ranges(xs, size, buf, origin[0], cell)
     ry = tile_cell_ranges(ys, size, buf, origin[1], cell)
