@@ -154,3 +154,24 @@ def test_invalid_polygon_is_repaired_and_bad_type_refused(caplog):
     assert m["correctness"] == pytest.approx(1.0) and "invalid" in caplog.text
     with pytest.raises(TypeError, match="extracted"):
         evaluate([LineString([(0, 0), (1, 1)])], [])
+
+
+def test_errors_along_the_reference_walls_are_reported_apart():
+    """Eaves over a wall-line footprint are boundary FP; a missed building far from any other is not."""
+    from rooftrace.evaluate.metrics import boundary_errors
+
+    house, shed = box(0, 0, 10, 10), box(30, 0, 40, 10)
+    roof = box(-0.5, -0.5, 10.5, 10.5)  # 0.5 m eaves all round
+    m = evaluate([roof], [house, shed])
+    assert m["fp_area"] == pytest.approx(21.0) and m["fp_area_boundary"] == pytest.approx(21.0)
+    assert m["fn_area"] == pytest.approx(100.0)
+    # of the missed 10 x 10 m building only its 1 m rim is "boundary"
+    assert m["fn_area_boundary"] == pytest.approx(100.0 - 64.0)
+    assert m["boundary_band"] == 1.0 and {"fp_area_boundary", "fn_area_boundary"} <= set(SUMMARY_KEYS)
+    # an area of interest cutting through the house is no wall: the missed strip y 3..5 touches the cut at
+    # y = 5, but only its ends by the side walls (x 0..1 and 9..10) are boundary error
+    cut = evaluate([box(0, 0, 10, 3)], [house], aoi=box(-5, -5, 15, 5))
+    assert cut["fn_area"] == pytest.approx(20.0) and cut["fn_area_boundary"] == pytest.approx(4.0)
+    assert boundary_errors(box(0, 0, 1, 1), None) == {"fp_boundary": 0.0, "fn_boundary": 0.0}
+    with pytest.raises(ValueError, match="band"):
+        boundary_errors(roof, house, 0.0)

@@ -106,6 +106,8 @@ def _table(metrics: dict, out_dir: Path) -> None:
             text = str(v)
         elif key.startswith(("polis", "hausdorff", "rmse", "ridge_position")):
             text = f"{v:.3f} m"
+        elif "_area" in key:
+            text = f"{v:,.1f} m²"
         else:
             text = f"{100 * v:.1f} %"
         table.add_row(key, text)
@@ -138,6 +140,11 @@ def evaluate_cmd(
     ridge_buffer: Annotated[float, typer.Option("--ridge-buffer",
                                                 help="Buffer for the ridge scores, in metres (when both files have "
                                                      "a 'ridges' layer).", show_default=True)] = 0.5,
+    boundary_band: Annotated[float, typer.Option("--boundary-band",
+                                                 help="FP and FN within this distance (m) of a reference "
+                                                      "boundary are reported apart (fp_area_boundary, "
+                                                      "fn_area_boundary): where an outline runs, not which "
+                                                      "buildings were found.", show_default=True)] = 1.0,
     crs: opt.Crs = None,
     json_: opt.Json = False,
     overwrite: opt.Overwrite = False,
@@ -157,6 +164,8 @@ def evaluate_cmd(
         raise InputError(f"--min-overlap must be in (0, 1], got {min_overlap}")
     if not ridge_buffer > 0.0:
         raise InputError(f"--ridge-buffer must be a positive distance in metres, got {ridge_buffer}")
+    if not boundary_band > 0.0:
+        raise InputError(f"--boundary-band must be a positive distance in metres, got {boundary_band}")
     for path in (extracted, reference, aoi, points):
         if path is not None and not path.exists():
             raise InputError(f"{path}: no such file")
@@ -193,7 +202,7 @@ def evaluate_cmd(
 
     metrics = evaluate(ext, ref, aoi=area, extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
                        ridge_buffer=ridge_buffer, min_overlap=min_overlap, merge_blocks=not no_merge_blocks,
-                       extracted_ids=ext_ids, reference_ids=ref_ids)
+                       extracted_ids=ext_ids, reference_ids=ref_ids, boundary_band=boundary_band)
     metrics["inputs"] = {"extracted": str(extracted), "extracted_layer": ext_layer,
                          "reference": str(reference), "reference_layer": ref_layer,
                          "aoi": str(aoi) if aoi is not None else None,

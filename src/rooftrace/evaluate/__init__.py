@@ -18,6 +18,7 @@ import shapely
 from rooftrace.evaluate.matching import coverage, match_buildings
 from rooftrace.evaluate.metrics import (
     area_scores,
+    boundary_errors,
     hausdorff,
     polis,
     ridge_scores,
@@ -31,6 +32,7 @@ log = logging.getLogger(__name__)
 #: scene-level keys printed in summaries (the table and ``--json``), in order
 SUMMARY_KEYS = (
     "completeness", "correctness", "f_score", "quality",
+    "fn_area", "fp_area", "fn_area_boundary", "fp_area_boundary",
     "object_completeness", "object_correctness",
     "polis_mean", "polis_3d_mean", "hausdorff_mean", "rmse_x", "rmse_y", "rmse_z",
     "n_reference", "n_extracted", "n_matched",
@@ -136,6 +138,7 @@ def evaluate(
     merge_blocks: bool = True,
     extracted_ids: Sequence | None = None,
     reference_ids: Sequence | None = None,
+    boundary_band: float = 1.0,
 ) -> dict:
     """Evaluate extracted roof outlines against reference ones (thesis §3.5).
 
@@ -167,7 +170,10 @@ def evaluate(
         JSON-serialisable (NaN written as None). Scene-level area scores
         ``completeness``, ``correctness``, ``f_score``, ``quality`` (0–1; see
         :func:`~rooftrace.evaluate.metrics.area_scores` for empty inputs),
-        ``tp_area``, ``fn_area``, ``fp_area`` (m²); object-level counts
+        ``tp_area``, ``fn_area``, ``fp_area`` (m²) and the parts of the last
+        two within ``boundary_band`` of the reference boundary,
+        ``fn_area_boundary`` and ``fp_area_boundary``
+        (:func:`~rooftrace.evaluate.metrics.boundary_errors`); object-level counts
         ``n_reference``, ``n_extracted``, ``n_matched`` (matched units),
         ``n_reference_found`` and ``n_extracted_correct`` (buildings covered
         at least ``min_overlap`` by the other side), ``object_completeness``,
@@ -204,8 +210,12 @@ def evaluate(
         shapely.prepare(aoi)
 
     clip = (lambda g: shapely.intersection(g, aoi)) if aoi is not None else (lambda g: g)
-    scene = area_scores(clip(shapely.union_all(ext)) if len(ext) else None,
-                        clip(shapely.union_all(ref)) if len(ref) else None)
+    scene_ext = clip(shapely.union_all(ext)) if len(ext) else None
+    scene_ref = clip(shapely.union_all(ref)) if len(ref) else None
+    scene = area_scores(scene_ext, scene_ref)
+    # the band runs along the reference's own boundary, not along the AOI's cut through it
+    near = boundary_errors(scene_ext, scene_ref, boundary_band,
+                           boundary=shapely.union_all(ref).boundary if len(ref) else None)
 
     sel_e, sel_r = _in_aoi(ext, aoi), _in_aoi(ref, aoi)
     ext, ext_keep = ext[sel_e], ext_keep[sel_e]
@@ -234,6 +244,8 @@ def evaluate(
         "f_score": scene["f_score"],
         "quality": scene["quality"],
         "tp_area": scene["tp"], "fn_area": scene["fn"], "fp_area": scene["fp"],
+        "fn_area_boundary": near["fn_boundary"], "fp_area_boundary": near["fp_boundary"],
+        "boundary_band": float(boundary_band),
         "polis_mean": _nan_mean(polis_values),
         "polis_median": float(np.median(polis_values)) if polis_values else math.nan,
         "polis_3d_mean": _nan_mean(b["polis_3d"] for b in matched),

@@ -33,6 +33,7 @@ __all__ = [
     "rmse_xyz",
     "vertex_residuals",
     "area_scores",
+    "boundary_errors",
     "ridge_scores",
     "ring_vertices",
     "ring_segments",
@@ -269,6 +270,47 @@ def area_scores(extracted, reference) -> dict[str, float]:
         "fn": fn,
         "fp": fp,
     }
+
+
+def boundary_errors(extracted, reference, band: float = 1.0, *, boundary=None) -> dict[str, float]:
+    """The FP and FN area lying within ``band`` of the reference boundary.
+
+    These are errors of where the outline runs, not of which buildings were
+    found: against a footprint drawn at the walls (a cadastre), the eaves of
+    a correct roof outline are FP in this band; a missed or extra building
+    lies mostly outside it, unless it is narrower than twice the band (a
+    2.5 m garden shed lies wholly within 1 m of its walls).
+
+    Parameters
+    ----------
+    extracted, reference : Polygon, MultiPolygon, a sequence of them, or None
+    band : float, default 1.0
+        Half-width of the band around the reference boundary (CRS units, m).
+    boundary : geometry, optional
+        The lines the band runs along; default the reference's boundary.
+        When both sides were clipped to an area of interest, pass the
+        boundary of the unclipped reference, so that the cut is no boundary.
+
+    Returns
+    -------
+    dict
+        ``fp_boundary``, ``fn_boundary`` (CRS units²); 0 when either side is empty.
+
+    Examples
+    --------
+    >>> from shapely import box
+    >>> e = boundary_errors(box(-0.5, 0, 10, 10), box(0, 0, 10, 10))  # a 0.5 m eave on one side
+    >>> e["fp_boundary"], e["fn_boundary"]
+    (5.0, 0.0)
+    """
+    if not band > 0:
+        raise ValueError(f"band must be > 0, not {band}")
+    ext, ref = _polygonal(extracted, "extracted"), _polygonal(reference, "reference")
+    if ext is None or ref is None:
+        return {"fp_boundary": 0.0, "fn_boundary": 0.0}
+    near = shapely.buffer(ref.boundary if boundary is None else boundary, band)
+    return {"fp_boundary": float(shapely.difference(ext, ref).intersection(near).area),
+            "fn_boundary": float(shapely.difference(ref, ext).intersection(near).area)}
 
 
 def _lines(geoms, name: str) -> BaseGeometry | None:
