@@ -60,3 +60,12 @@ def test_a_cloud_that_does_not_fit_runs_in_tiles_with_the_same_buildings(scene, 
     a = read_layer(tmp_path / "whole.gpkg", "roof_outlines").geometries
     b = read_layer(tmp_path / "tiled.gpkg", "roof_outlines").geometries
     assert all(shapely.equals_exact(g, h, tolerance=1e-6) for g, h in zip(a, b))
+
+
+def test_info_says_whether_run_would_tile(scene, capsys, monkeypatch):
+    assert main(["info", str(scene / "points.laz"), "--json"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert first["run"]["tiled"] is False and first["points"] > 0
+    monkeypatch.setattr(memory, "available_bytes", lambda: memory.BASE_BYTES)
+    assert main(["info", str(scene / "points.laz"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["run"]["tiled"] is True

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+import pyproj
 
 from rooftrace.errors import InputError
 from rooftrace.io.points import read_points
@@ -45,3 +46,30 @@ def test_non_finite_text_coordinates(tmp_path):
     p.write_text("1 2 3\nnan 5 6\n7 inf 9\n")
     with pytest.raises(InputError, match="2 points have NaN"):
         read_points(p)
+
+
+def test_summarise_las_in_chunks_gives_what_reading_everything_gives(tmp_path):
+    """`rooftrace info` reads LAS/LAZ chunk by chunk; the figures must equal those of the whole cloud."""
+    from rooftrace.cloud import PointCloud
+    from rooftrace.io.las import write_las
+    from rooftrace.io.points import read_points, summarise_las
+
+    rng = np.random.default_rng(3)
+    paths = []
+    for k, n in enumerate((2500, 1700)):
+        xyz = rng.uniform([k * 100.0, 0, 0], [k * 100.0 + 50, 40, 12], (n, 3))
+        cls = rng.choice([1, 2, 6], n).astype(np.uint8)
+        paths.append(tmp_path / f"t{k}.laz")
+        write_las(paths[-1], PointCloud(xyz, {}, crs=pyproj.CRS("EPSG:28992")), classification=cls)
+    whole = read_points(paths)
+    s = summarise_las(paths, chunk_size=333)
+    assert s["points"] == len(whole) and s["crs"].equals(whole.crs)
+    np.testing.assert_allclose(s["bounds"], [*whole.xyz.min(axis=0), *whole.xyz.max(axis=0)])
+    values, counts = np.unique(whole.fields["classification"], return_counts=True)
+    assert s["classes"] == dict(zip(values.tolist(), counts.tolist()))
+    assert "classification" in s["dimensions"] and "x" not in s["dimensions"]
+    # the checks of read_points: a file in another CRS is refused
+    other = tmp_path / "l93.laz"
+    write_las(other, PointCloud(whole.xyz[:10], {}, crs=pyproj.CRS("EPSG:2154")))
+    with pytest.raises(InputError, match="differs from"):
+        summarise_las([paths[0], other])

@@ -14,6 +14,7 @@ import copy
 import logging
 import os
 import struct
+from collections.abc import Iterator
 from pathlib import Path
 
 import laspy
@@ -23,7 +24,8 @@ from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["read_las", "write_las", "las_crs", "check_point_count", "check_header_bounds", "LAS_SUFFIXES"]
+__all__ = ["read_las", "las_chunks", "chunk_xyz", "check_finite", "write_las", "las_crs", "check_point_count",
+           "check_header_bounds", "LAS_SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,64 @@ def las_crs(header: laspy.LasHeader, path: str = "") -> "pyproj.CRS | None":
     except Exception as exc:  # malformed VLRs are the file's fault, not ours
         log.warning("%s: cannot parse the CRS VLR (%s); treating the file as having no CRS", path, exc)
         return None
+
+
+def las_chunks(path: str | os.PathLike, chunk_size: int = _CHUNK) -> Iterator[tuple[laspy.LasHeader, laspy.ScaleAwarePointRecord]]:
+    """The points of a LAS/LAZ file, chunk by chunk, for reading files larger than memory.
+
+    Yields ``(header, chunk)``; a file without points yields one empty
+    chunk, so its dimensions are still known.  Coordinates are not checked
+    here (see :func:`read_las`).
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable, truncated or non-LAS files, and files holding
+        more or fewer points than their header announces.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    n = start = 0
+    try:
+        with laspy.open(path, laz_backend=_backend()) as reader:
+            header = reader.header
+            n = int(header.point_count)
+            check_point_count(path, header)
+            if n == 0:
+                yield header, laspy.ScaleAwarePointRecord.zeros(0, header=header)
+            for chunk in reader.chunk_iterator(chunk_size):
+                if start + len(chunk) > n:
+                    raise InputError(f"{path}: holds more points than its header says ({n}); the header is wrong")
+                start += len(chunk)
+                yield header, chunk
+    except InputError:
+        raise
+    except laspy.errors.LaspyException as exc:
+        if path.stat().st_size == 0:
+            raise InputError(f"{path}: the file is empty (0 bytes); re-download or re-export it") from None
+        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc}); check that it is LAS/LAZ, "
+                         "or re-export it") from None
+    except (OSError, ValueError, RuntimeError, EOFError, struct.error, IndexError, KeyError, OverflowError) as exc:
+        # laspy parses a damaged header or VLR with whatever exception the bytes lead to
+        raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
+                         "re-download or re-export it") from None
+    if start < n:
+        raise InputError(
+            f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
+        )
+
+
+def chunk_xyz(chunk: laspy.ScaleAwarePointRecord) -> np.ndarray:
+    """Scaled coordinates of a chunk, (M, 3) float64."""
+    return np.column_stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)]).astype(np.float64, copy=False)
+
+
+def check_finite(path: str | os.PathLike, xyz: np.ndarray) -> None:
+    """Refuse NaN or infinite coordinates, naming the file."""
+    bad = int((~np.isfinite(xyz).all(axis=1)).sum()) if len(xyz) else 0
+    if bad:
+        raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them (e.g. with a filter) and retry")
 
 
 def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
@@ -71,52 +131,24 @@ def read_las(path: str | os.PathLike, chunk_size: int = _CHUNK) -> PointCloud:
         coordinates.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    try:
-        with laspy.open(path, laz_backend=_backend()) as reader:
-            header = reader.header
+    header = xyz = None
+    fields: dict[str, np.ndarray] = {}
+    start = 0
+    for header, chunk in las_chunks(path, chunk_size):
+        if xyz is None:
             n = int(header.point_count)
-            check_point_count(path, header)
             names = [d for d in header.point_format.dimension_names if d not in _COORDS]
             xyz = np.empty((n, 3), np.float64)
-            fields: dict[str, np.ndarray] = {}
-            start = 0
-            for chunk in reader.chunk_iterator(chunk_size):
-                m = len(chunk)
-                if start + m > n:
-                    raise InputError(f"{path}: holds more points than its header says ({n}); the header is wrong")
-                xyz[start:start + m, 0] = chunk.x
-                xyz[start:start + m, 1] = chunk.y
-                xyz[start:start + m, 2] = chunk.z
-                for name in names:
-                    values = np.asarray(chunk[name])
-                    if name not in fields:
-                        fields[name] = np.empty(n, values.dtype)
-                    fields[name][start:start + m] = values
-                start += m
-            if n == 0:  # an empty file still has its dimensions, so a writer keeps them
-                empty = laspy.ScaleAwarePointRecord.zeros(0, header=header)
-                fields = {name: np.asarray(empty[name]) for name in names}
-    except InputError:
-        raise
-    except laspy.errors.LaspyException as exc:
-        if path.stat().st_size == 0:
-            raise InputError(f"{path}: the file is empty (0 bytes); re-download or re-export it") from None
-        raise InputError(f"{path}: not a readable LAS/LAZ file ({exc}); check that it is LAS/LAZ, "
-                         "or re-export it") from None
-    except (OSError, ValueError, RuntimeError, EOFError, struct.error, IndexError, KeyError, OverflowError) as exc:
-        # laspy parses a damaged header or VLR with whatever exception the bytes lead to
-        raise InputError(f"{path}: cannot read the point cloud, the file may be truncated or corrupt ({exc}); "
-                         "re-download or re-export it") from None
-    if start < n:
-        raise InputError(
-            f"{path}: truncated, the header announces {n} points but only {start} could be read; re-download or re-export the file"
-        )
-    if n and not np.isfinite(xyz).all():
-        bad = int((~np.isfinite(xyz).all(axis=1)).sum())
-        raise InputError(f"{path}: {bad} points have NaN or infinite coordinates; remove them (e.g. with a filter) and retry")
-    if n:
+        m = len(chunk)
+        xyz[start:start + m] = chunk_xyz(chunk)
+        for name in names:
+            values = np.asarray(chunk[name])
+            if name not in fields:
+                fields[name] = np.empty(n, values.dtype)
+            fields[name][start:start + m] = values
+        start += m
+    check_finite(path, xyz)
+    if len(xyz):
         check_header_bounds(path, header, xyz)
     tmpl = copy.deepcopy(header)
     return PointCloud(xyz, fields, crs=las_crs(header, str(path)), template=tmpl, sources=[str(path)])

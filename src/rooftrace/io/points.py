@@ -16,9 +16,17 @@ import pyproj
 
 from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
-from rooftrace.io.las import LAS_SUFFIXES, read_las
+from rooftrace.io.las import (
+    LAS_SUFFIXES,
+    check_finite,
+    check_header_bounds,
+    chunk_xyz,
+    las_chunks,
+    las_crs,
+    read_las,
+)
 
-__all__ = ["read_points", "read_ply", "read_text", "parse_crs", "POINT_SUFFIXES"]
+__all__ = ["read_points", "read_ply", "read_text", "parse_crs", "common_crs", "summarise_las", "POINT_SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -149,19 +157,73 @@ def read_points(
             c.crs = user_crs
         c.fields["source_index"] = np.full(len(c), i, np.uint16)
         clouds.append(c)
-    first = clouds[0]
-    for p, c in zip(paths[1:], clouds[1:]):
-        if (first.crs is None) != (c.crs is None) or (
-            first.crs is not None and not first.crs.equals(c.crs, ignore_axis_order=True)
-        ):
-            raise InputError(
-                f"{p}: CRS ({_crs_name(c.crs)}) differs from {paths[0]} ({_crs_name(first.crs)}); "
-                "reproject one of them or assign one with --crs"
-            )
+    common_crs(paths, [c.crs for c in clouds])
     cloud = PointCloud.concatenate(clouds)
     if require_points and len(cloud) == 0:
         raise InputError(f"{', '.join(map(str, paths))}: the point cloud is empty")
     return cloud
+
+
+def summarise_las(paths: Iterable[str | os.PathLike], crs: str | pyproj.CRS | None = None, *,
+                  chunk_size: int = 2_000_000) -> dict:
+    """Points, CRS, bounds, dimensions and class counts of LAS/LAZ files, read chunk by chunk.
+
+    Memory stays that of one chunk whatever the files' size, and the files
+    get the checks of :func:`read_points` (truncation, header counts and
+    bounds, finite coordinates, one CRS).
+
+    Returns
+    -------
+    dict
+        ``points``, ``crs`` (a pyproj.CRS or None), ``bounds`` (xmin, ymin,
+        zmin, xmax, ymax, zmax; zeros without points), ``dimensions`` (sorted
+        names besides x, y, z) and ``classes`` ({class: count}, only when
+        every file has a classification).
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no input files given")
+    user_crs = parse_crs(crs) if isinstance(crs, str) else crs
+    crss, dims, n = [], set(), 0
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    classes = np.zeros(256, np.int64)
+    classified = True
+    for p in paths:
+        if p.is_dir():
+            raise InputError(f"{p}: is a folder, expected a point cloud file")
+        first = True
+        for header, chunk in las_chunks(p, chunk_size):
+            if first:
+                names = set(header.point_format.dimension_names) - {"X", "Y", "Z"}
+                dims |= names
+                classified &= "classification" in names
+                crss.append(user_crs or las_crs(header, str(p)))
+                first = False
+            xyz = chunk_xyz(chunk)
+            check_finite(p, xyz)
+            if len(xyz):
+                check_header_bounds(p, header, xyz)
+                lo, hi = np.minimum(lo, xyz.min(axis=0)), np.maximum(hi, xyz.max(axis=0))
+                if "classification" in names:
+                    classes += np.bincount(np.asarray(chunk.classification, np.int64), minlength=256)[:256]
+            n += len(xyz)
+    out = {"points": n, "crs": common_crs(paths, crss),
+           "bounds": [float(v) for v in (*lo, *hi)] if n else [0.0] * 6, "dimensions": sorted(dims)}
+    if classified:
+        out["classes"] = {int(c): int(k) for c, k in enumerate(classes) if k}
+    return out
+
+
+def common_crs(paths: list[Path], crss: list) -> "pyproj.CRS | None":
+    """The one CRS of several files (after any ``--crs``); InputError naming the first file that differs."""
+    first = crss[0]
+    for p, c in zip(paths[1:], crss[1:]):
+        if (first is None) != (c is None) or (first is not None and not first.equals(c, ignore_axis_order=True)):
+            raise InputError(
+                f"{p}: CRS ({_crs_name(c)}) differs from {paths[0]} ({_crs_name(first)}); "
+                "reproject one of them or assign one with --crs"
+            )
+    return first
 
 
 def _crs_name(crs) -> str:
