@@ -69,3 +69,11 @@ def test_info_says_whether_run_would_tile(scene, capsys, monkeypatch):
     monkeypatch.setattr(memory, "available_bytes", lambda: memory.BASE_BYTES)
     assert main(["info", str(scene / "points.laz"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["run"]["tiled"] is True
+
+
+def test_detect_refuses_a_cloud_larger_than_memory_before_reading_it(scene, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(memory, "available_bytes", lambda: memory.BASE_BYTES)
+    out = tmp_path / "classified.laz"
+    assert main(["detect", str(scene / "points.laz"), "-o", str(out)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "error:" in err and "--classified" in err and not out.exists()

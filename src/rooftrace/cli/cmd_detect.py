@@ -17,6 +17,18 @@ log = logging.getLogger("rooftrace.cli")
 _NAMES = {1: "other", 2: "ground", 5: "high_vegetation", 6: "building", 7: "noise"}
 
 
+def _check_memory(inputs, where: str, output) -> None:
+    """Refuse, before reading, a cloud that cannot fit in memory in one piece (run classifies in tiles)."""
+    from rooftrace.errors import InputError
+    from rooftrace.tiling.memory import available_bytes, header_points, untiled_bytes
+
+    announced = header_points(inputs)
+    if announced and untiled_bytes(announced) > available_bytes():
+        raise InputError(f"{where}: {announced} points need about {untiled_bytes(announced) / 2**30:.1f} GiB in one "
+                         f"piece and {available_bytes() / 2**30:.1f} GiB are available; classify them in tiles with "
+                         f"'rooftrace run {' '.join(map(str, inputs))} -o OUT.gpkg --classified {output}'")
+
+
 @app.command("detect")
 def detect(
     inputs: opt.Inputs,
@@ -55,9 +67,10 @@ def detect(
         segment={"min_area": min_area, "min_height": min_height},
         ground={"seed_cell": seed_cell},
     )
+    where = ", ".join(map(str, inputs))
+    _check_memory(inputs, where, output)
     t0 = time.perf_counter()
     cloud = read_points(inputs, crs, require_points=False)
-    where = ", ".join(map(str, inputs))
     require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
     check_points(cloud.xyz, where)
     t_read = time.perf_counter() - t0
