@@ -105,65 +105,77 @@ def _scatter(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no c
 
 
 @numba.njit(cache=True)
-def _features(xyz: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+def _fixed_row(xyz, row, k, out_row):  # pragma: no cover - compiled
+    a, b, c, d, e, f = _scatter(xyz, row, k)
+    out_row[0], out_row[1], out_row[2] = _dimensionality(a, b, c, d, e, f)
+
+
+@numba.njit(cache=True)
+def _min_entropy_row(xyz, row, ks, out_row, lin_n, i):  # pragma: no cover - compiled
+    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy, and L at the last k; row sorted by distance."""
+    kmax = len(row)
+    # moments about the nearest point (the point itself; small numbers),
+    # accumulated as the neighbourhood grows
+    o = row[0]
+    sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
+    best = np.inf
+    c = 0
+    for j in range(kmax):
+        p = row[j]
+        x = xyz[p, 0] - xyz[o, 0]
+        y = xyz[p, 1] - xyz[o, 1]
+        z = xyz[p, 2] - xyz[o, 2]
+        sx += x
+        sy += y
+        sz += z
+        sxx += x * x
+        syy += y * y
+        szz += z * z
+        sxy += x * y
+        sxz += x * z
+        syz += y * z
+        if c < len(ks) and j + 1 == ks[c]:
+            m = j + 1.0
+            lin, pla, sph = _dimensionality(sxx - sx * sx / m, syy - sy * sy / m, szz - sz * sz / m,
+                                            sxy - sx * sy / m, sxz - sx * sz / m, syz - sy * sz / m)
+            e = _entropy(lin, pla, sph)
+            lin_n[i] = lin
+            if e < best:
+                best = e
+                out_row[0] = lin
+                out_row[1] = pla
+                out_row[2] = sph
+            c += 1
+
+
+@numba.njit(cache=True)
+def _normal_row(xyz, row, kn, out_row):  # pragma: no cover - compiled
+    a, b, c, d, e, f = _scatter(xyz, row, kn)
+    w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
+    nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    if nz < 0:
+        nx, ny, nz = -nx, -ny, -nz
+    out_row[0] = nx
+    out_row[1] = ny
+    out_row[2] = nz
+
+
+@numba.njit(cache=True, parallel=True)
+def _chunk_features(xyz, idx, ks, kn, lps, lin_n, normals):  # pragma: no cover - compiled
+    """Features of each row of ``idx`` (one pass; rows are independent, so threads give the serial result).
+
+    ``ks`` empty: the fixed size ``idx.shape[1]``; ``kn`` 0: no normals.
+    """
     n, k = idx.shape
-    for i in range(n):
-        a, b, c, d, e, f = _scatter(xyz, idx[i], k)
-        out[i, 0], out[i, 1], out[i, 2] = _dimensionality(a, b, c, d, e, f)
-
-
-@numba.njit(cache=True)
-def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray, out: np.ndarray,
-                          lin_n: np.ndarray) -> None:  # pragma: no cover - compiled
-    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy, and L at the last k; idx sorted by distance."""
-    n, kmax = idx.shape
-    for i in range(n):
-        # moments about the nearest point (the point itself; small numbers),
-        # accumulated as the neighbourhood grows
-        o = idx[i, 0]
-        sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
-        best = np.inf
-        c = 0
-        for j in range(kmax):
-            p = idx[i, j]
-            x = xyz[p, 0] - xyz[o, 0]
-            y = xyz[p, 1] - xyz[o, 1]
-            z = xyz[p, 2] - xyz[o, 2]
-            sx += x
-            sy += y
-            sz += z
-            sxx += x * x
-            syy += y * y
-            szz += z * z
-            sxy += x * y
-            sxz += x * z
-            syz += y * z
-            if c < len(ks) and j + 1 == ks[c]:
-                m = j + 1.0
-                lin, pla, sph = _dimensionality(sxx - sx * sx / m, syy - sy * sy / m, szz - sz * sz / m,
-                                                sxy - sx * sy / m, sxz - sx * sz / m, syz - sy * sz / m)
-                e = _entropy(lin, pla, sph)
-                lin_n[i] = lin
-                if e < best:
-                    best = e
-                    out[i, 0] = lin
-                    out[i, 1] = pla
-                    out[i, 2] = sph
-                c += 1
-
-
-@numba.njit(cache=True)
-def _normals(xyz: np.ndarray, idx: np.ndarray, kn: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    n = idx.shape[0]
-    for i in range(n):
-        a, b, c, d, e, f = _scatter(xyz, idx[i], kn)
-        w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
-        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
-        if nz < 0:
-            nx, ny, nz = -nx, -ny, -nz
-        out[i, 0] = nx
-        out[i, 1] = ny
-        out[i, 2] = nz
+    for i in numba.prange(n):
+        row = idx[i]
+        if len(ks) == 0:
+            _fixed_row(xyz, row, k, lps[i])
+            lin_n[i] = lps[i, 0]
+        else:
+            _min_entropy_row(xyz, row, ks, lps[i], lin_n, i)
+        if kn > 0:
+            _normal_row(xyz, row, kn, normals[i])
 
 
 def eigen_features(
@@ -242,20 +254,16 @@ def eigen_features(
     tree = cKDTree(local)
     lps = np.empty((n, 3))
     lin_n = np.empty(n)
+    ks = np.empty(0, np.int64) if ks is None else ks
+    kn = 0 if normal_neighbours is None else int(min(max(normal_neighbours, 3), k))
+    normals = np.empty((n if kn else 0, 3))
     for start in range(0, n, chunk):
         stop = min(start + chunk, n)
         _, idx = tree.query(local[start:stop], k=k, workers=-1)
         idx = np.ascontiguousarray(np.asarray(idx, np.int64).reshape(stop - start, k))
-        if ks is None:
-            _features(local, idx, lps[start:stop])
-            lin_n[start:stop] = lps[start:stop, 0]
-        else:
-            _min_entropy_features(local, idx, ks, lps[start:stop], lin_n[start:stop])
-        if normal_neighbours is not None:
-            kn = int(min(max(normal_neighbours, 3), k))
-            normals = np.empty((stop - start, 3))
-            _normals(local, np.ascontiguousarray(idx[:, :kn]), kn, normals)
-            out[start:stop, 4:] = normals
+        _chunk_features(local, idx, ks, kn, lps[start:stop], lin_n[start:stop], normals[start:stop])
+    if normal_neighbours is not None:
+        out[:, 4:] = normals
     out[:, :3] = lps
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(lps > 0, -lps * np.log(lps), 0.0)
