@@ -44,6 +44,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from rooftrace.config import optional
+from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group
 
 __all__ = ["SegmentOptions", "components", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
@@ -378,13 +379,10 @@ def order_labels(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
     if not valid.any():
         return out
     idx = np.flatnonzero(valid)
-    uniq, inv = np.unique(labels[idx], return_inverse=True)
-    # the lexicographically smallest (x, y, z) of each group is its key
-    order = np.lexsort((xyz[idx, 2], xyz[idx, 1], xyz[idx, 0]))
-    first = np.full(len(uniq), -1, np.int64)
-    seen = inv[order]
-    _, pos = np.unique(seen, return_index=True)
-    first[:] = order[pos]
+    uniq, inv = dense_unique(labels[idx])
+    # the lexicographically smallest (x, y, z) of each group is its key;
+    # one pass instead of a lexsort of every point
+    first = lowest_point_per_group(np.ascontiguousarray(xyz, np.float64), idx, inv, len(uniq))
     key = np.lexsort((xyz[idx[first], 2], xyz[idx[first], 1], xyz[idx[first], 0]))
     rank = np.empty(len(uniq), np.int64)
     rank[key] = np.arange(len(uniq))

@@ -1,0 +1,89 @@
+"""Compiled kernels of the detection stages (numba).
+
+Each replaces a sort or a Python loop over points by one pass, with the
+same result to the bit (ties are broken as the numpy code they replace
+breaks them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["dense_unique", "lowest_per_group", "lowest_point_per_group"]
+
+
+@njit(cache=True)
+def lowest_point_per_group(xyz: np.ndarray, rows: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:  # pragma: no cover
+    """Row of the lexicographically smallest (x, y, z) point of each group.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    rows : ndarray of shape (M,), int64
+        The points taking part (indices into ``xyz``).
+    group : ndarray of shape (M,), int64
+        Group (0..G-1) of each of them.
+    n_groups : int
+        G; every group has a point.
+
+    Returns
+    -------
+    ndarray of shape (G,), int64
+        Position in ``rows`` of each group's smallest point; of equal points
+        the first, as a stable ``np.lexsort((z, y, x))`` gives.
+    """
+    first = np.full(n_groups, -1, np.int64)
+    for m in range(len(rows)):
+        g = group[m]
+        b = first[g]
+        if b < 0:
+            first[g] = m
+            continue
+        p, q = rows[m], rows[b]
+        if xyz[p, 0] < xyz[q, 0] or (xyz[p, 0] == xyz[q, 0] and (
+                xyz[p, 1] < xyz[q, 1] or (xyz[p, 1] == xyz[q, 1] and xyz[p, 2] < xyz[q, 2]))):
+            first[g] = m
+    return first
+
+
+@njit(cache=True)
+def lowest_per_group(z: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:  # pragma: no cover
+    """Index of the lowest ``z`` of each group (0..G-1, each non-empty); of equal heights the first.
+
+    The same as the first of each group after ``np.lexsort((arange, z, group))``.
+    """
+    best = np.full(n_groups, -1, np.int64)
+    for i in range(len(z)):
+        g = group[i]
+        if best[g] < 0 or z[i] < z[best[g]]:
+            best[g] = i
+    return best
+
+
+def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` of integers, by counting when they are dense.
+
+    Parameters
+    ----------
+    values : ndarray of shape (N,), int
+        N >= 1.
+
+    Returns
+    -------
+    uniq : ndarray of shape (U,)
+        The distinct values, ascending (``values.dtype``).
+    inverse : ndarray of shape (N,), int64
+        Position of each value in ``uniq``.
+    """
+    lo, hi = int(values.min()), int(values.max())
+    if hi - lo > 4 * len(values) + 1024:
+        uniq, inv = np.unique(values, return_inverse=True)
+        return uniq, inv.ravel().astype(np.int64, copy=False)
+    # a count over the range instead of a sort
+    shifted = values - lo if lo else values
+    present = np.bincount(shifted, minlength=hi - lo + 1) > 0
+    uniq = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return (uniq + lo).astype(values.dtype, copy=False), lookup[shifted]
