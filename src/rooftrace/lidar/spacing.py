@@ -44,6 +44,15 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     return [np.flatnonzero(inverse == b) for b in best]
 
 
+def _unique_rows(xy: np.ndarray) -> np.ndarray:
+    """``np.unique(xy, axis=0)`` of finite (N, 2) floats: the distinct rows in (x, y) order, by one lexsort."""
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    s = xy[order]
+    keep = np.ones(len(s), bool)
+    keep[1:] = (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])
+    return s[keep]
+
+
 def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
     """Mean point spacing s_avg: the mean length of the Delaunay edges.
 
@@ -75,7 +84,7 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
     lengths = []
     for idx in _blocks(xy[:, :2], max_points):
         # Qhull loses points to round-off on large map coordinates: centre them
-        pts = np.unique(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4), axis=0)
+        pts = _unique_rows(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4))
         if len(pts) < 3:
             continue
         try:
@@ -85,7 +94,9 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
         s = tri.simplices
         e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
         e.sort(axis=1)
-        e = np.unique(e, axis=0)
+        # one int64 key per edge sorts as the (i, j) rows would
+        e = np.unique(e[:, 0].astype(np.int64) * len(pts) + e[:, 1])
+        e = np.column_stack([e // len(pts), e % len(pts)])
         ln = np.hypot(*(pts[e[:, 0]] - pts[e[:, 1]]).T)
         ln = ln[ln <= ln.mean() + 3 * ln.std()]
         lengths.append(ln)
