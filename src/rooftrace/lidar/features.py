@@ -253,28 +253,36 @@ def eigen_features(
         ks = np.arange(min(min_neighbours, k), k + 1, neighbour_step, dtype=np.int64)
         ks = np.unique(np.append(ks, k))  # the largest size is always tried
     local = xyz - xyz.mean(axis=0)
-    # the grid search gives cKDTree's neighbours in cKDTree's order, twice
-    # as fast; the tree only answers the rows where distances tie
-    grid = GridKnn(local, k) if n > k else None
-    tree = None
     lps = np.empty((n, 3))
     lin_n = np.empty(n)
     ks = np.empty(0, np.int64) if ks is None else ks
     kn = 0 if normal_neighbours is None else int(min(max(normal_neighbours, 3), k))
     normals = np.empty((n if kn else 0, 3))
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        tie = np.ones(stop - start, bool)
-        if grid is not None:
+    # the grid search gives cKDTree's neighbours in cKDTree's order, twice
+    # as fast; the rows where distances tie (their order is the tree's
+    # traversal) are redone from the tree once the grid is freed
+    redo = [np.arange(n)]
+    if n > k:
+        grid = GridKnn(local, k)
+        redo = []
+        for start in range(0, n, chunk):
+            stop = min(start + chunk, n)
             idx, tie = grid.query(np.arange(start, stop))
-        if tie.any():
-            tree = cKDTree(local) if tree is None else tree
-            _, near = tree.query(local[start:stop][tie], k=k, workers=-1)
-            near = np.asarray(near, np.int64).reshape(-1, k)
-            idx = near if grid is None else idx
-            idx[tie] = near
-        idx = np.ascontiguousarray(idx)
-        _chunk_features(local, idx, ks, kn, lps[start:stop], lin_n[start:stop], normals[start:stop])
+            _chunk_features(local, idx, ks, kn, lps[start:stop], lin_n[start:stop], normals[start:stop])
+            redo.append(start + np.flatnonzero(tie))
+        del grid
+    redo = np.concatenate(redo)
+    if len(redo):
+        tree = cKDTree(local)
+        for start in range(0, len(redo), chunk):
+            rows = redo[start:start + chunk]
+            _, idx = tree.query(local[rows], k=k, workers=-1)
+            idx = np.ascontiguousarray(np.asarray(idx, np.int64).reshape(len(rows), k))
+            part = np.empty((len(rows), 3)), np.empty(len(rows)), np.empty((len(rows) if kn else 0, 3))
+            _chunk_features(local, idx, ks, kn, *part)
+            lps[rows], lin_n[rows] = part[0], part[1]
+            if kn:
+                normals[rows] = part[2]
     if normal_neighbours is not None:
         out[:, 4:] = normals
     out[:, :3] = lps
