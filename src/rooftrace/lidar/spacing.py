@@ -15,6 +15,8 @@ import logging
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
+from rooftrace.lidar._kernels import dense_unique
+
 __all__ = ["mean_spacing", "point_density", "height_precision"]
 
 log = logging.getLogger(__name__)
@@ -36,7 +38,8 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     side = np.sqrt(area * per_block / n)
     ij = np.floor((xy - lo) / side).astype(np.int64)
     key = ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]
-    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    uniq, inverse = dense_unique(key)
+    counts = np.bincount(inverse)
     # blocks holding about the mean population: the densest ones are tree
     # crowns with several returns per pulse, the sparsest ones slivers at
     # the grid's edge, fringe or water
@@ -132,7 +135,7 @@ def point_density(xy: np.ndarray, cell: float = 2.0) -> float:
     if len(xy) == 0:
         raise ValueError("point density of an empty cloud")
     ij = np.floor((xy[:, :2] - xy[:, :2].min(axis=0)) / cell).astype(np.int64)
-    cells = len(np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]))
+    cells = len(dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])[0])
     return float(len(xy) / (cells * cell * cell))
 
 
@@ -174,7 +177,8 @@ def height_precision(
         cell = float(np.sqrt(20.0 / point_density(xyz[:, :2])))
     lo = xyz.min(axis=0)
     ij = np.floor((xyz[:, :2] - lo[:2]) / cell).astype(np.int64)
-    _, inv, counts = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True, return_counts=True)
+    _, inv = dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])
+    counts = np.bincount(inv)
     # centre each cell so the normal equations stay well conditioned
     centre = np.stack([np.bincount(inv, xyz[:, k]) / counts for k in range(3)], axis=1)
     d = xyz - centre[inv]
