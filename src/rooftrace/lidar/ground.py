@@ -295,8 +295,9 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     # per block: 0 densifying, 1 densifying after the border refit, 2 done
     block_side = opt.converged_block or 2.0 * opt.seed_cell
     bij = np.floor(cxyz[:, :2] / block_side).astype(np.int64)
-    _, block = np.unique(bij, axis=0, return_inverse=True)
-    block = block.ravel()
+    # rows (i, j) as one key in the same lexicographic order: counted, not row-sorted
+    bij -= bij.min(axis=0)
+    _, block = dense_unique(bij[:, 0] * (int(bij[:, 1].max()) + 1) + bij[:, 1])
     n_blocks = int(block.max(initial=-1)) + 1
     phase = np.zeros(n_blocks, np.int64)
     corner_block = block[seeds[nearest]]  # a border vertex follows the block of its seed
