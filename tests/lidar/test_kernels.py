@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar._kernels import GridKnn, dense_unique, lowest_per_group, lowest_point_per_group, pair_pull
+from rooftrace.lidar._kernels import (GridKnn, dense_unique, lowest_per_group, lowest_point_per_group, pair_pull,
+                                     sort_by_bucket)
 
 
 def _clouds(rng):
@@ -77,3 +78,11 @@ def test_pair_pull_is_bincount():
     count, got = pair_pull(xy, labels, pairs)
     assert np.array_equal(count, np.bincount(same.ravel(), minlength=300))
     assert np.array_equal(got, pull)
+
+
+def test_sort_by_bucket_is_lexsort():
+    rng = np.random.default_rng(8)
+    for key, values in ((rng.integers(-3, 9, 2000), rng.integers(0, 5, 2000) * 0.5),  # ties: index order
+                        (rng.integers(0, 10**9, 50), rng.normal(size=50)),  # wide range: np.lexsort itself
+                        (np.zeros(10, np.int64), np.array([0.0, -0.0] * 5))):
+        assert np.array_equal(sort_by_bucket(values, key), np.lexsort((values, key)))

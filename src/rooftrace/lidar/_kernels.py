@@ -11,7 +11,7 @@ import numpy as np
 import numba
 from numba import njit
 
-__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest"]
+__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest", "sort_by_bucket"]
 
 
 @njit(cache=True)
@@ -318,3 +318,47 @@ class GridKnn:
         tie = np.empty(len(rows), np.bool_)
         _knn_query(rows, self.xyz, *self._grid, self.x0, self.y0, self.side, self.nx, self.ny, self.k, out, tie)
         return out, tie
+
+
+@njit(cache=True)
+def _bucket_then_sort(key: np.ndarray, lo: int, span: int, values: np.ndarray) -> np.ndarray:  # pragma: no cover
+    count = np.zeros(span + 1, np.int64)
+    for i in range(len(key)):
+        count[key[i] - lo + 1] += 1
+    for b in range(span):
+        count[b + 1] += count[b]
+    fill = count[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        b = key[i] - lo
+        order[fill[b]] = i
+        fill[b] += 1
+    for b in range(span):
+        if count[b + 1] - count[b] > 1:
+            run = order[count[b]:count[b + 1]].copy()
+            order[count[b]:count[b + 1]] = run[np.argsort(values[run], kind="mergesort")]
+    return order
+
+
+def sort_by_bucket(values: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """``np.lexsort((values, key))`` for integer ``key`` of a small range (strips, cells): a counting sort, then each bucket.
+
+    Parameters
+    ----------
+    values : ndarray of shape (N,), float64
+        Finite secondary key.
+    key : ndarray of shape (N,), int
+        Primary key.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        The permutation; ties by index, as ``np.lexsort``.
+    """
+    if len(key) == 0:
+        return np.empty(0, np.int64)
+    lo, hi = int(key.min()), int(key.max())
+    if hi - lo > 4 * len(key) + 1024:
+        return np.lexsort((values, key))
+    return _bucket_then_sort(np.ascontiguousarray(key, np.int64), lo, hi - lo + 1,
+                             np.ascontiguousarray(values, np.float64))

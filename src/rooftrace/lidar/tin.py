@@ -34,7 +34,7 @@ import triangle as _triangle
 from numba import njit
 
 from rooftrace.errors import GeometryError
-from rooftrace.lidar._kernels import rotate_to_smallest
+from rooftrace.lidar._kernels import rotate_to_smallest, sort_by_bucket
 
 __all__ = ["triangulate", "locate", "serpentine_order"]
 
@@ -60,7 +60,7 @@ def serpentine_order(xy: np.ndarray, width: float, start: float | None = None) -
     """
     strip = np.floor((xy[:, 0] - (xy[:, 0].min() if start is None else start)) / width).astype(np.int64)
     y = np.where(strip % 2 == 0, xy[:, 1], -xy[:, 1])
-    return np.lexsort((y, strip))
+    return sort_by_bucket(y, strip)
 
 
 def triangulate(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
