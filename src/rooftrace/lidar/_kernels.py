@@ -11,7 +11,8 @@ import numpy as np
 import numba
 from numba import njit
 
-__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest", "sort_by_bucket"]
+__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest",
+           "sort_by_bucket"]
 
 
 @njit(cache=True)

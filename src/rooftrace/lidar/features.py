@@ -18,6 +18,11 @@ Two neighbourhoods:
   every scale and stays volumetric.  On Delft (AHN3) this moved the per-point
   building F1 from 0.933 to 0.950 (benchmarks/RESULTS.md).
 
+The neighbours are those of ``cKDTree.query``, in its order: an exact search
+on a plan grid finds them (:class:`rooftrace.lidar._kernels.GridKnn`, about
+twice as fast at N = 60) and the KD-tree answers the rows where two distances
+tie, whose order is its traversal's.
+
 References
 ----------
 Demantké, J., Mallet, C., David, N., Vallet, B. (2011). Dimensionality based
@@ -218,7 +223,7 @@ def eigen_features(
         look linear, so a roof's points may take a linear size (low entropy
         either way), while a wire is linear at N too.
     chunk : int, default 100000
-        Points per KD-tree query, to bound memory.
+        Points per neighbour query, to bound memory.
 
     Returns
     -------
