@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.config import optional
+from rooftrace.lidar._kernels import pair_pull
 
 __all__ = ["ClassifyOptions", "cluster_means", "interior_points", "kmeans_1d", "local_penetration", "penetration",
            "separate_buildings"]
@@ -224,10 +225,8 @@ def interior_points(xy: np.ndarray, labels: np.ndarray, pairs: np.ndarray, radiu
     xy = np.asarray(xy, dtype=np.float64)
     n = len(xy)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    pairs = pairs[labels[pairs[:, 0]] == labels[pairs[:, 1]]]
-    count = np.bincount(pairs.ravel(), minlength=n)
-    d = xy[pairs[:, 1]] - xy[pairs[:, 0]]
-    pull = np.stack([np.bincount(pairs[:, 0], d[:, j], n) - np.bincount(pairs[:, 1], d[:, j], n) for j in (0, 1)], 1)
+    count, pull = pair_pull(np.ascontiguousarray(xy), np.ascontiguousarray(labels, dtype=np.int64),
+                            np.ascontiguousarray(pairs))
     offset = np.hypot(pull[:, 0], pull[:, 1]) / np.maximum(count, 1)
     return (count >= 3) & (offset < max_offset * radius)
 

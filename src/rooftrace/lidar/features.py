@@ -18,6 +18,11 @@ Two neighbourhoods:
   every scale and stays volumetric.  On Delft (AHN3) this moved the per-point
   building F1 from 0.933 to 0.950 (benchmarks/RESULTS.md).
 
+The neighbours are those of ``cKDTree.query``, in its order: an exact search
+on a plan grid finds them (:class:`rooftrace.lidar._kernels.GridKnn`, about
+twice as fast at N = 60) and the KD-tree answers the rows where two distances
+tie, whose order is its traversal's.
+
 References
 ----------
 Demantké, J., Mallet, C., David, N., Vallet, B. (2011). Dimensionality based
@@ -35,6 +40,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 from scipy.spatial import cKDTree
+
+from rooftrace.lidar._kernels import GridKnn
 
 __all__ = ["eigen_features"]
 
@@ -105,65 +112,77 @@ def _scatter(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no c
 
 
 @numba.njit(cache=True)
-def _features(xyz: np.ndarray, idx: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled
+def _fixed_row(xyz, row, k, out_row):  # pragma: no cover - compiled
+    a, b, c, d, e, f = _scatter(xyz, row, k)
+    out_row[0], out_row[1], out_row[2] = _dimensionality(a, b, c, d, e, f)
+
+
+@numba.njit(cache=True)
+def _min_entropy_row(xyz, row, ks, out_row, lin_n, i):  # pragma: no cover - compiled
+    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy, and L at the last k; row sorted by distance."""
+    kmax = len(row)
+    # moments about the nearest point (the point itself; small numbers),
+    # accumulated as the neighbourhood grows
+    o = row[0]
+    sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
+    best = np.inf
+    c = 0
+    for j in range(kmax):
+        p = row[j]
+        x = xyz[p, 0] - xyz[o, 0]
+        y = xyz[p, 1] - xyz[o, 1]
+        z = xyz[p, 2] - xyz[o, 2]
+        sx += x
+        sy += y
+        sz += z
+        sxx += x * x
+        syy += y * y
+        szz += z * z
+        sxy += x * y
+        sxz += x * z
+        syz += y * z
+        if c < len(ks) and j + 1 == ks[c]:
+            m = j + 1.0
+            lin, pla, sph = _dimensionality(sxx - sx * sx / m, syy - sy * sy / m, szz - sz * sz / m,
+                                            sxy - sx * sy / m, sxz - sx * sz / m, syz - sy * sz / m)
+            e = _entropy(lin, pla, sph)
+            lin_n[i] = lin
+            if e < best:
+                best = e
+                out_row[0] = lin
+                out_row[1] = pla
+                out_row[2] = sph
+            c += 1
+
+
+@numba.njit(cache=True)
+def _normal_row(xyz, row, kn, out_row):  # pragma: no cover - compiled
+    a, b, c, d, e, f = _scatter(xyz, row, kn)
+    w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
+    nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    if nz < 0:
+        nx, ny, nz = -nx, -ny, -nz
+    out_row[0] = nx
+    out_row[1] = ny
+    out_row[2] = nz
+
+
+@numba.njit(cache=True, parallel=True)
+def _chunk_features(xyz, idx, ks, kn, lps, lin_n, normals):  # pragma: no cover - compiled
+    """Features of each row of ``idx`` (one pass; rows are independent, so threads give the serial result).
+
+    ``ks`` empty: the fixed size ``idx.shape[1]``; ``kn`` 0: no normals.
+    """
     n, k = idx.shape
-    for i in range(n):
-        a, b, c, d, e, f = _scatter(xyz, idx[i], k)
-        out[i, 0], out[i, 1], out[i, 2] = _dimensionality(a, b, c, d, e, f)
-
-
-@numba.njit(cache=True)
-def _min_entropy_features(xyz: np.ndarray, idx: np.ndarray, ks: np.ndarray, out: np.ndarray,
-                          lin_n: np.ndarray) -> None:  # pragma: no cover - compiled
-    """L, P, S at the k of ``ks`` (ascending) with the lowest entropy, and L at the last k; idx sorted by distance."""
-    n, kmax = idx.shape
-    for i in range(n):
-        # moments about the nearest point (the point itself; small numbers),
-        # accumulated as the neighbourhood grows
-        o = idx[i, 0]
-        sx = sy = sz = sxx = syy = szz = sxy = sxz = syz = 0.0
-        best = np.inf
-        c = 0
-        for j in range(kmax):
-            p = idx[i, j]
-            x = xyz[p, 0] - xyz[o, 0]
-            y = xyz[p, 1] - xyz[o, 1]
-            z = xyz[p, 2] - xyz[o, 2]
-            sx += x
-            sy += y
-            sz += z
-            sxx += x * x
-            syy += y * y
-            szz += z * z
-            sxy += x * y
-            sxz += x * z
-            syz += y * z
-            if c < len(ks) and j + 1 == ks[c]:
-                m = j + 1.0
-                lin, pla, sph = _dimensionality(sxx - sx * sx / m, syy - sy * sy / m, szz - sz * sz / m,
-                                                sxy - sx * sy / m, sxz - sx * sz / m, syz - sy * sz / m)
-                e = _entropy(lin, pla, sph)
-                lin_n[i] = lin
-                if e < best:
-                    best = e
-                    out[i, 0] = lin
-                    out[i, 1] = pla
-                    out[i, 2] = sph
-                c += 1
-
-
-@numba.njit(cache=True)
-def _normals(xyz: np.ndarray, idx: np.ndarray, kn: int, out: np.ndarray) -> None:  # pragma: no cover - compiled
-    n = idx.shape[0]
-    for i in range(n):
-        a, b, c, d, e, f = _scatter(xyz, idx[i], kn)
-        w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
-        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
-        if nz < 0:
-            nx, ny, nz = -nx, -ny, -nz
-        out[i, 0] = nx
-        out[i, 1] = ny
-        out[i, 2] = nz
+    for i in numba.prange(n):
+        row = idx[i]
+        if len(ks) == 0:
+            _fixed_row(xyz, row, k, lps[i])
+            lin_n[i] = lps[i, 0]
+        else:
+            _min_entropy_row(xyz, row, ks, lps[i], lin_n, i)
+        if kn > 0:
+            _normal_row(xyz, row, kn, normals[i])
 
 
 def eigen_features(
@@ -204,7 +223,7 @@ def eigen_features(
         look linear, so a roof's points may take a linear size (low entropy
         either way), while a wire is linear at N too.
     chunk : int, default 100000
-        Points per KD-tree query, to bound memory.
+        Points per neighbour query, to bound memory.
 
     Returns
     -------
@@ -239,23 +258,38 @@ def eigen_features(
         ks = np.arange(min(min_neighbours, k), k + 1, neighbour_step, dtype=np.int64)
         ks = np.unique(np.append(ks, k))  # the largest size is always tried
     local = xyz - xyz.mean(axis=0)
-    tree = cKDTree(local)
     lps = np.empty((n, 3))
     lin_n = np.empty(n)
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        _, idx = tree.query(local[start:stop], k=k, workers=-1)
-        idx = np.ascontiguousarray(np.asarray(idx, np.int64).reshape(stop - start, k))
-        if ks is None:
-            _features(local, idx, lps[start:stop])
-            lin_n[start:stop] = lps[start:stop, 0]
-        else:
-            _min_entropy_features(local, idx, ks, lps[start:stop], lin_n[start:stop])
-        if normal_neighbours is not None:
-            kn = int(min(max(normal_neighbours, 3), k))
-            normals = np.empty((stop - start, 3))
-            _normals(local, np.ascontiguousarray(idx[:, :kn]), kn, normals)
-            out[start:stop, 4:] = normals
+    ks = np.empty(0, np.int64) if ks is None else ks
+    kn = 0 if normal_neighbours is None else int(min(max(normal_neighbours, 3), k))
+    normals = np.empty((n if kn else 0, 3))
+    # the grid search gives cKDTree's neighbours in cKDTree's order, twice
+    # as fast; the rows where distances tie (their order is the tree's
+    # traversal) are redone from the tree once the grid is freed
+    redo = [np.arange(n)]
+    if n > k:
+        grid = GridKnn(local, k)
+        redo = []
+        for start in range(0, n, chunk):
+            stop = min(start + chunk, n)
+            idx, tie = grid.query(np.arange(start, stop))
+            _chunk_features(local, idx, ks, kn, lps[start:stop], lin_n[start:stop], normals[start:stop])
+            redo.append(start + np.flatnonzero(tie))
+        del grid
+    redo = np.concatenate(redo)
+    if len(redo):
+        tree = cKDTree(local)
+        for start in range(0, len(redo), chunk):
+            rows = redo[start:start + chunk]
+            _, idx = tree.query(local[rows], k=k, workers=-1)
+            idx = np.ascontiguousarray(np.asarray(idx, np.int64).reshape(len(rows), k))
+            part = np.empty((len(rows), 3)), np.empty(len(rows)), np.empty((len(rows) if kn else 0, 3))
+            _chunk_features(local, idx, ks, kn, *part)
+            lps[rows], lin_n[rows] = part[0], part[1]
+            if kn:
+                normals[rows] = part[2]
+    if normal_neighbours is not None:
+        out[:, 4:] = normals
     out[:, :3] = lps
     with np.errstate(divide="ignore", invalid="ignore"):
         terms = np.where(lps > 0, -lps * np.log(lps), 0.0)

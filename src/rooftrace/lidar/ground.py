@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
+from rooftrace.lidar._kernels import dense_unique, lowest_per_group
 from rooftrace.lidar.tin import locate, serpentine_order, triangulate
 
 __all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
@@ -107,12 +108,9 @@ def _cell_keys(xy: np.ndarray, origin: np.ndarray, cell: float) -> np.ndarray:
 
 
 def _lowest_per_cell(xyz: np.ndarray, origin: np.ndarray, cell: float) -> np.ndarray:
-    """Index of the lowest point in each occupied cell (ties: lowest index)."""
-    key = _cell_keys(xyz[:, :2], origin, cell)
-    order = np.lexsort((np.arange(len(xyz)), xyz[:, 2], key))
-    first = np.ones(len(order), bool)
-    first[1:] = key[order[1:]] != key[order[:-1]]
-    return order[first]
+    """Index of the lowest point in each occupied cell (ties: lowest index), by ascending cell key."""
+    cells, inv = dense_unique(_cell_keys(xyz[:, :2], origin, cell))
+    return lowest_per_group(np.ascontiguousarray(xyz[:, 2]), inv, len(cells))
 
 
 def _border(lo: np.ndarray, hi: np.ndarray, step: float) -> np.ndarray:
@@ -297,8 +295,9 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     # per block: 0 densifying, 1 densifying after the border refit, 2 done
     block_side = opt.converged_block or 2.0 * opt.seed_cell
     bij = np.floor(cxyz[:, :2] / block_side).astype(np.int64)
-    _, block = np.unique(bij, axis=0, return_inverse=True)
-    block = block.ravel()
+    # rows (i, j) as one key in the same lexicographic order: counted, not row-sorted
+    bij -= bij.min(axis=0)
+    _, block = dense_unique(bij[:, 0] * (int(bij[:, 1].max()) + 1) + bij[:, 1])
     n_blocks = int(block.max(initial=-1)) + 1
     phase = np.zeros(n_blocks, np.int64)
     corner_block = block[seeds[nearest]]  # a border vertex follows the block of its seed

@@ -13,6 +13,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from rooftrace.lidar._kernels import dense_unique
+
 __all__ = ["OutlierOptions", "histogram_outliers"]
 
 log = logging.getLogger(__name__)
@@ -94,14 +96,15 @@ def histogram_outliers(
     anchor = xyz[:, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
     ij = np.floor((xyz[:, :2] - anchor) / opt.cell).astype(np.int64)
     ij -= ij.min(axis=0)  # an explicit origin may lie inside the data
-    _, cell = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True)
+    _, cell = dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])
     ncell = cell.max() + 1
     zmin = np.full(ncell, np.inf)
     np.minimum.at(zmin, cell, xyz[:, 2])
     b = np.floor((xyz[:, 2] - zmin[cell]) / opt.bin_width).astype(np.int64)
     nbin = int(b.max()) + 1
     key = cell * nbin + b
-    ukey, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    ukey, inv = dense_unique(key)
+    counts = np.bincount(inv)
     full = counts >= opt.min_count
     kcell, kbin = ukey // nbin, ukey % nbin
     lo = np.full(ncell, np.iinfo(np.int64).max)

@@ -44,6 +44,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from rooftrace.config import optional
+from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group
 
 __all__ = ["SegmentOptions", "components", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
@@ -291,7 +292,9 @@ def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -
     la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
     ok = (la >= 0) & (lb >= 0) & (la != lb)
     ok[ok] &= members[la[ok]] & members[lb[ok]]
-    edges = np.unique(np.column_stack([la[ok], lb[ok]]), axis=0) if ok.any() else np.empty((0, 2), np.int64)
+    # one int64 key per edge: the same sorted unique edges as np.unique(axis=0), without its row sort
+    key = np.unique(la[ok].astype(np.int64) * k + lb[ok])
+    edges = np.column_stack([key // k, key % k])
     comp = components(k, edges)
     group = np.full(k, -1, np.int64)
     _, group[members] = np.unique(comp[members], return_inverse=True)
@@ -378,13 +381,10 @@ def order_labels(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
     if not valid.any():
         return out
     idx = np.flatnonzero(valid)
-    uniq, inv = np.unique(labels[idx], return_inverse=True)
-    # the lexicographically smallest (x, y, z) of each group is its key
-    order = np.lexsort((xyz[idx, 2], xyz[idx, 1], xyz[idx, 0]))
-    first = np.full(len(uniq), -1, np.int64)
-    seen = inv[order]
-    _, pos = np.unique(seen, return_index=True)
-    first[:] = order[pos]
+    uniq, inv = dense_unique(labels[idx])
+    # the lexicographically smallest (x, y, z) of each group is its key;
+    # one pass instead of a lexsort of every point
+    first = lowest_point_per_group(np.ascontiguousarray(xyz, np.float64), idx, inv, len(uniq))
     key = np.lexsort((xyz[idx[first], 2], xyz[idx[first], 1], xyz[idx[first], 0]))
     rank = np.empty(len(uniq), np.int64)
     rank[key] = np.arange(len(uniq))

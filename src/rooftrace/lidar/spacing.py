@@ -15,6 +15,8 @@ import logging
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
+from rooftrace.lidar._kernels import dense_unique
+
 __all__ = ["mean_spacing", "point_density", "height_precision"]
 
 log = logging.getLogger(__name__)
@@ -36,12 +38,22 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     side = np.sqrt(area * per_block / n)
     ij = np.floor((xy - lo) / side).astype(np.int64)
     key = ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]
-    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    uniq, inverse = dense_unique(key)
+    counts = np.bincount(inverse)
     # blocks holding about the mean population: the densest ones are tree
     # crowns with several returns per pulse, the sparsest ones slivers at
     # the grid's edge, fringe or water
     best = np.lexsort((uniq, np.abs(counts - per_block)))[:4]
     return [np.flatnonzero(inverse == b) for b in best]
+
+
+def _unique_rows(xy: np.ndarray) -> np.ndarray:
+    """``np.unique(xy, axis=0)`` of finite (N, 2) floats: the distinct rows in (x, y) order, by one lexsort."""
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    s = xy[order]
+    keep = np.ones(len(s), bool)
+    keep[1:] = (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])
+    return s[keep]
 
 
 def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
@@ -75,7 +87,7 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
     lengths = []
     for idx in _blocks(xy[:, :2], max_points):
         # Qhull loses points to round-off on large map coordinates: centre them
-        pts = np.unique(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4), axis=0)
+        pts = _unique_rows(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4))
         if len(pts) < 3:
             continue
         try:
@@ -85,7 +97,9 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
         s = tri.simplices
         e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
         e.sort(axis=1)
-        e = np.unique(e, axis=0)
+        # one int64 key per edge sorts as the (i, j) rows would
+        e = np.unique(e[:, 0].astype(np.int64) * len(pts) + e[:, 1])
+        e = np.column_stack([e // len(pts), e % len(pts)])
         ln = np.hypot(*(pts[e[:, 0]] - pts[e[:, 1]]).T)
         ln = ln[ln <= ln.mean() + 3 * ln.std()]
         lengths.append(ln)
@@ -121,7 +135,7 @@ def point_density(xy: np.ndarray, cell: float = 2.0) -> float:
     if len(xy) == 0:
         raise ValueError("point density of an empty cloud")
     ij = np.floor((xy[:, :2] - xy[:, :2].min(axis=0)) / cell).astype(np.int64)
-    cells = len(np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]))
+    cells = len(dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])[0])
     return float(len(xy) / (cells * cell * cell))
 
 
@@ -163,7 +177,8 @@ def height_precision(
         cell = float(np.sqrt(20.0 / point_density(xyz[:, :2])))
     lo = xyz.min(axis=0)
     ij = np.floor((xyz[:, :2] - lo[:2]) / cell).astype(np.int64)
-    _, inv, counts = np.unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1], return_inverse=True, return_counts=True)
+    _, inv = dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])
+    counts = np.bincount(inv)
     # centre each cell so the normal equations stay well conditioned
     centre = np.stack([np.bincount(inv, xyz[:, k]) / counts for k in range(3)], axis=1)
     d = xyz - centre[inv]

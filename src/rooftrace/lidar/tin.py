@@ -34,6 +34,7 @@ import triangle as _triangle
 from numba import njit
 
 from rooftrace.errors import GeometryError
+from rooftrace.lidar._kernels import rotate_to_smallest, sort_by_bucket
 
 __all__ = ["triangulate", "locate", "serpentine_order"]
 
@@ -59,7 +60,7 @@ def serpentine_order(xy: np.ndarray, width: float, start: float | None = None) -
     """
     strip = np.floor((xy[:, 0] - (xy[:, 0].min() if start is None else start)) / width).astype(np.int64)
     y = np.where(strip % 2 == 0, xy[:, 1], -xy[:, 1])
-    return np.lexsort((y, strip))
+    return sort_by_bucket(y, strip)
 
 
 def triangulate(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -98,13 +99,9 @@ def triangulate(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     out = _triangle.triangulate({"vertices": pts}, "Qzn") if len(pts) >= 3 else {}
     if "triangles" not in out or len(out["triangles"]) == 0:
         raise GeometryError(f"ground TIN: cannot triangulate {len(xy)} points (fewer than 3, or collinear)")
-    tris = out["triangles"].astype(np.int64)
-    nbrs = out["neighbors"].astype(np.int64)
     # rotate each triangle (and its neighbours with it) to start at its smallest vertex: keeps it CCW
-    shift = np.argmin(tris, axis=1)
-    cols = (shift[:, None] + np.arange(3)) % 3
-    rows = np.arange(len(tris))[:, None]
-    return order, tris[rows, cols], nbrs[rows, cols]
+    tris, nbrs = rotate_to_smallest(np.ascontiguousarray(out["triangles"]), np.ascontiguousarray(out["neighbors"]))
+    return order, tris, nbrs
 
 
 def locate(pts: np.ndarray, triangles: np.ndarray, neighbours: np.ndarray, query: np.ndarray) -> np.ndarray:

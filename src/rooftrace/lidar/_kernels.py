@@ -1,0 +1,365 @@
+"""Compiled kernels of the detection stages (numba).
+
+Each replaces a sort, a Python loop or a KD-tree query over points, with
+the same result to the bit (ties are broken as the numpy or scipy code
+they replace breaks them, or handed back to it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numba
+from numba import njit
+
+__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest",
+           "sort_by_bucket"]
+
+
+@njit(cache=True)
+def lowest_point_per_group(xyz: np.ndarray, rows: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:  # pragma: no cover
+    """Row of the lexicographically smallest (x, y, z) point of each group.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    rows : ndarray of shape (M,), int64
+        The points taking part (indices into ``xyz``).
+    group : ndarray of shape (M,), int64
+        Group (0..G-1) of each of them.
+    n_groups : int
+        G; every group has a point.
+
+    Returns
+    -------
+    ndarray of shape (G,), int64
+        Position in ``rows`` of each group's smallest point; of equal points
+        the first, as a stable ``np.lexsort((z, y, x))`` gives.
+    """
+    first = np.full(n_groups, -1, np.int64)
+    for m in range(len(rows)):
+        g = group[m]
+        b = first[g]
+        if b < 0:
+            first[g] = m
+            continue
+        p, q = rows[m], rows[b]
+        if xyz[p, 0] < xyz[q, 0] or (xyz[p, 0] == xyz[q, 0] and (
+                xyz[p, 1] < xyz[q, 1] or (xyz[p, 1] == xyz[q, 1] and xyz[p, 2] < xyz[q, 2]))):
+            first[g] = m
+    return first
+
+
+@njit(cache=True)
+def lowest_per_group(z: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:  # pragma: no cover
+    """Index of the lowest ``z`` of each group (0..G-1, each non-empty); of equal heights the first.
+
+    The same as the first of each group after ``np.lexsort((arange, z, group))``.
+    """
+    best = np.full(n_groups, -1, np.int64)
+    for i in range(len(z)):
+        g = group[i]
+        if best[g] < 0 or z[i] < z[best[g]]:
+            best[g] = i
+    return best
+
+
+def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` of integers, by counting when they are dense.
+
+    Parameters
+    ----------
+    values : ndarray of shape (N,), int
+        N >= 1.
+
+    Returns
+    -------
+    uniq : ndarray of shape (U,)
+        The distinct values, ascending (``values.dtype``).
+    inverse : ndarray of shape (N,), int64
+        Position of each value in ``uniq``.
+    """
+    lo, hi = int(values.min()), int(values.max())
+    if hi - lo > 4 * len(values) + 1024:
+        uniq, inv = np.unique(values, return_inverse=True)
+        return uniq, inv.ravel().astype(np.int64, copy=False)
+    # a count over the range instead of a sort
+    shifted = values - lo if lo else values
+    present = np.bincount(shifted, minlength=hi - lo + 1) > 0
+    uniq = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return (uniq + lo).astype(values.dtype, copy=False), lookup[shifted]
+
+
+@njit(cache=True)
+def rotate_to_smallest(tris: np.ndarray, nbrs: np.ndarray) -> tuple:  # pragma: no cover
+    """Each triangle (and its neighbours with it) rotated to start at its smallest vertex, as int64.
+
+    The same as ``tris[rows, (argmin(tris, 1)[:, None] + arange(3)) % 3]``
+    (and ``nbrs`` likewise) in one pass.
+    """
+    n = tris.shape[0]
+    t_out = np.empty((n, 3), np.int64)
+    n_out = np.empty((n, 3), np.int64)
+    for i in range(n):
+        s = 0
+        if tris[i, 1] < tris[i, s]:
+            s = 1
+        if tris[i, 2] < tris[i, s]:
+            s = 2
+        for j in range(3):
+            c = (s + j) % 3
+            t_out[i, j] = tris[i, c]
+            n_out[i, j] = nbrs[i, c]
+    return t_out, n_out
+
+
+@njit(cache=True)
+def pair_pull(xy: np.ndarray, labels: np.ndarray, pairs: np.ndarray) -> tuple:  # pragma: no cover
+    """Neighbour count and summed offsets of each point over the ``pairs`` within one label.
+
+    Returns ``count`` (N,) int64 and ``pull`` (N, 2) float64: for a pair
+    (i, j), ``d = xy[j] - xy[i]`` is added to i and subtracted from j.  The
+    sums run in pair order, as ``np.bincount(..., weights)`` adds, so the
+    result is the same to the bit as the bincounts of the same pairs.
+    """
+    n = len(xy)
+    count = np.zeros(n, np.int64)
+    plus = np.zeros((n, 2))
+    minus = np.zeros((n, 2))
+    for p in range(len(pairs)):
+        i, j = pairs[p, 0], pairs[p, 1]
+        if labels[i] != labels[j]:
+            continue
+        count[i] += 1
+        count[j] += 1
+        for c in range(2):
+            d = xy[j, c] - xy[i, c]
+            plus[i, c] += d
+            minus[j, c] += d
+    return count, plus - minus
+
+
+# --- exact k nearest neighbours on a plan grid --------------------------------
+#
+# cKDTree.query spends most of a k = 60 query in its heap of neighbours.
+# Here the points sit in plan cells, sorted by height within a cell; a query
+# visits the rings of cells around its own until the ring is farther than
+# its (k+1)-th neighbour, and skips the part of a cell out of reach in z.
+# The k + 1 nearest distances decide the neighbours and their order
+# uniquely unless two of them tie; such rows are flagged for the KD-tree
+# (its tie order follows its traversal; about 1 row in 5000).
+
+#: two squared distances closer than this (relative) count as a tie
+_TIE = 1e-12
+
+
+@njit(cache=True)
+def _knn_build(xyz, x0, y0, side, nx, ny):  # pragma: no cover - compiled
+    """Cell of each point and the points sorted by (cell, z): (cell, start, perm, X, Y, Z)."""
+    n = xyz.shape[0]
+    cell = np.empty(n, np.int64)
+    for i in range(n):
+        ix = min(max(int(np.floor((xyz[i, 0] - x0) / side)), 0), nx - 1)
+        iy = min(max(int(np.floor((xyz[i, 1] - y0) / side)), 0), ny - 1)
+        cell[i] = ix * ny + iy
+    by_z = np.argsort(xyz[:, 2], kind="mergesort")
+    start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        start[cell[i] + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    perm = np.empty(n, np.int64)
+    for t in range(n):
+        i = by_z[t]
+        perm[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    xs, ys, zs = np.empty(n), np.empty(n), np.empty(n)
+    for s in range(n):
+        xs[s] = xyz[perm[s], 0]
+        ys[s] = xyz[perm[s], 1]
+        zs[s] = xyz[perm[s], 2]
+    return cell, start, perm, xs, ys, zs
+
+
+@njit(cache=True)
+def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi):  # pragma: no cover
+    """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie."""
+    px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    cx = cell[i] // ny
+    cy = cell[i] - cx * ny
+    margin = 1e-9 * side  # a point may sit an ulp outside its cell
+    kk = k + 1
+    cnt = 0
+    worst = np.inf
+    ring = 0
+    while True:
+        if ring > 0:
+            gap = max((ring - 1) * side - margin, 0.0)
+            if gap * gap >= worst:
+                break
+            if cx - ring < 0 and cy - ring < 0 and cx + ring >= nx and cy + ring >= ny:
+                break
+        for gx in range(max(cx - ring, 0), min(cx + ring, nx - 1) + 1):
+            side_x = gx == cx - ring or gx == cx + ring
+            for gy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
+                if not side_x and gy != cy - ring and gy != cy + ring:
+                    continue  # inside the ring: visited already
+                # cells on the grid's border also hold the points clipped into them
+                if 0 < gx < nx - 1 and 0 < gy < ny - 1:
+                    bx = x0 + gx * side
+                    by = y0 + gy * side
+                    ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
+                    ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
+                    if ddx * ddx + ddy * ddy >= worst:
+                        continue
+                c = gx * ny + gy
+                a, b = start[c], start[c + 1]
+                if a < b and worst < np.inf:
+                    zlo = pz - np.sqrt(worst) * (1.0 + 1e-9)
+                    lo, hi = a, b
+                    while lo < hi:
+                        mid = (lo + hi) // 2
+                        if zs[mid] < zlo:
+                            lo = mid + 1
+                        else:
+                            hi = mid
+                    a = lo
+                for s in range(a, b):
+                    dz = zs[s] - pz
+                    if dz > 0.0 and dz * dz >= worst:
+                        break  # the rest of the cell is higher still
+                    dx = xs[s] - px
+                    dy = ys[s] - py
+                    # the same sum order as cKDTree's squared distance
+                    d = dx * dx + dy * dy + dz * dz
+                    if d < worst:
+                        if cnt < kk:
+                            p = cnt
+                            cnt += 1
+                        else:
+                            p = kk - 1
+                        while p > 0 and bd[p - 1] > d:
+                            bd[p] = bd[p - 1]
+                            bi[p] = bi[p - 1]
+                            p -= 1
+                        bd[p] = d
+                        bi[p] = perm[s]
+                        if cnt == kk:
+                            worst = bd[kk - 1]
+        ring += 1
+    for q in range(k):
+        if bd[q + 1] - bd[q] <= _TIE * bd[q + 1]:
+            return True
+    return False
+
+
+@njit(cache=True, parallel=True)
+def _knn_query(rows, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, out, tie):  # pragma: no cover
+    n = len(rows)
+    for b in numba.prange((n + 255) // 256):
+        bd = np.empty(k + 1)
+        bi = np.empty(k + 1, np.int64)
+        for r in range(b * 256, min(n, (b + 1) * 256)):
+            tie[r] = _knn_one(rows[r], xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi)
+            for q in range(k):
+                out[r, q] = bi[q]
+
+
+class GridKnn:
+    """Exact k nearest neighbours of points among themselves, on a plan grid.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m), N > k.
+    k : int
+        Neighbours per point, the point itself included.
+
+    Notes
+    -----
+    :meth:`query` returns the neighbours of ``cKDTree(xyz).query(xyz[rows],
+    k)`` in the same order, except in the rows it flags as ties.  The cell
+    side, about the distance of the k-th neighbour from the density of the
+    occupied 2 m cells, changes the speed only.
+    """
+
+    def __init__(self, xyz: np.ndarray, k: int) -> None:
+        self.xyz = np.ascontiguousarray(xyz, dtype=np.float64)
+        n = len(self.xyz)
+        if not n > k >= 1:
+            raise ValueError(f"GridKnn needs more than k = {k} >= 1 points, got {n}")
+        self.k = int(k)
+        lo = self.xyz[:, :2].min(axis=0)
+        span = self.xyz[:, :2].max(axis=0) - lo
+        ij = np.floor((self.xyz[:, :2] - lo) / 2.0).astype(np.int64)
+        occupied = len(dense_unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])[0])
+        side = float(np.sqrt(self.k * occupied * 4.0 / (np.pi * n)))
+        # at most ~4 cells a point: a sparse, wide cloud gets coarser cells
+        side = max(side, float(np.sqrt(span[0] * span[1] / (4.0 * n))), 1e-6)
+        self.side = side
+        self.x0, self.y0 = float(lo[0]), float(lo[1])
+        self.nx = int(span[0] // side) + 1
+        self.ny = int(span[1] // side) + 1
+        self._grid = _knn_build(self.xyz, self.x0, self.y0, side, self.nx, self.ny)
+
+    def query(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The k nearest points of the points ``rows``, nearest first.
+
+        Returns
+        -------
+        idx : ndarray of shape (R, k), int64
+        tie : ndarray of shape (R,), bool
+            Rows where two of the k + 1 nearest distances (nearly) tie:
+            their order is not unique, ask ``cKDTree.query``.
+        """
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        out = np.empty((len(rows), self.k), np.int64)
+        tie = np.empty(len(rows), np.bool_)
+        _knn_query(rows, self.xyz, *self._grid, self.x0, self.y0, self.side, self.nx, self.ny, self.k, out, tie)
+        return out, tie
+
+
+@njit(cache=True)
+def _bucket_then_sort(key: np.ndarray, lo: int, span: int, values: np.ndarray) -> np.ndarray:  # pragma: no cover
+    count = np.zeros(span + 1, np.int64)
+    for i in range(len(key)):
+        count[key[i] - lo + 1] += 1
+    for b in range(span):
+        count[b + 1] += count[b]
+    fill = count[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        b = key[i] - lo
+        order[fill[b]] = i
+        fill[b] += 1
+    for b in range(span):
+        if count[b + 1] - count[b] > 1:
+            run = order[count[b]:count[b + 1]].copy()
+            order[count[b]:count[b + 1]] = run[np.argsort(values[run], kind="mergesort")]
+    return order
+
+
+def sort_by_bucket(values: np.ndarray, key: np.ndarray) -> np.ndarray:
+    """``np.lexsort((values, key))`` for integer ``key`` of a small range (strips, cells): a counting sort, then each bucket.
+
+    Parameters
+    ----------
+    values : ndarray of shape (N,), float64
+        Finite secondary key.
+    key : ndarray of shape (N,), int
+        Primary key.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        The permutation; ties by index, as ``np.lexsort``.
+    """
+    if len(key) == 0:
+        return np.empty(0, np.int64)
+    lo, hi = int(key.min()), int(key.max())
+    if hi - lo > 4 * len(key) + 1024:
+        return np.lexsort((values, key))
+    return _bucket_then_sort(np.ascontiguousarray(key, np.int64), lo, hi - lo + 1,
+                             np.ascontiguousarray(values, np.float64))

@@ -1,0 +1,88 @@
+"""The compiled kernels give the bits of the numpy / scipy code they replace."""
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from rooftrace.lidar._kernels import (GridKnn, dense_unique, lowest_per_group, lowest_point_per_group, pair_pull,
+                                     sort_by_bucket)
+
+
+def _clouds(rng):
+    n = 1500
+    yield "roof", np.column_stack([rng.uniform(0, 40, (n, 2)), rng.normal(0, 0.02, n)])
+    yield "grid", rng.integers(0, 12, (n, 3)) * 0.25  # many exact ties
+    yield "stack", np.column_stack([np.zeros(n), np.zeros(n), rng.normal(size=n)])
+    yield "line", np.column_stack([rng.normal(size=n) * 100, np.zeros(n), rng.normal(size=n)])
+    yield "far", np.concatenate([rng.normal(size=(n // 2, 3)), rng.normal(size=(n // 2, 3)) + [5000, -3000, 50]])
+
+
+@pytest.mark.parametrize("k", [1, 12, 60])
+def test_grid_knn_is_ckdtree(k):
+    rng = np.random.default_rng(3)
+    for name, xyz in _clouds(rng):
+        xyz = xyz - xyz.mean(axis=0)
+        idx, tie = GridKnn(xyz, k).query(np.arange(len(xyz)))
+        _, ref = cKDTree(xyz).query(xyz, k=k)
+        ref = np.asarray(ref).reshape(len(xyz), k)
+        assert np.array_equal(idx[~tie], ref[~tie]), name
+        # only rows with equal distances may differ, and they are flagged
+        if name in ("roof", "stack", "line", "far"):
+            assert tie.mean() < 0.01, name
+
+
+def test_grid_knn_needs_more_than_k_points():
+    with pytest.raises(ValueError, match="more than k = 5"):
+        GridKnn(np.zeros((5, 3)), 5)
+
+
+def test_dense_unique_is_np_unique():
+    rng = np.random.default_rng(4)
+    for values in (rng.integers(0, 50, 1000), rng.integers(-7, 3, 100), rng.integers(0, 10**12, 300),
+                   rng.integers(0, 5, 10).astype(np.int32)):
+        uniq, inv = dense_unique(values)
+        ref_u, ref_i = np.unique(values, return_inverse=True)
+        assert np.array_equal(uniq, ref_u) and uniq.dtype == ref_u.dtype
+        assert np.array_equal(inv, ref_i.ravel())
+
+
+def test_lowest_per_group_is_lexsort():
+    rng = np.random.default_rng(5)
+    z = rng.integers(0, 4, 500).astype(float)  # ties: the first index wins
+    group = rng.integers(0, 30, 500)
+    _, group = np.unique(group, return_inverse=True)
+    order = np.lexsort((np.arange(500), z, group))
+    first = np.ones(500, bool)
+    first[1:] = group[order[1:]] != group[order[:-1]]
+    assert np.array_equal(lowest_per_group(z, group, group.max() + 1), order[first])
+
+
+def test_lowest_point_per_group_is_stable_lexsort():
+    rng = np.random.default_rng(6)
+    xyz = rng.integers(0, 3, (400, 3)).astype(float)
+    rows = np.flatnonzero(rng.random(400) < 0.7)
+    _, group = np.unique(rng.integers(0, 20, len(rows)), return_inverse=True)
+    order = np.lexsort((xyz[rows, 2], xyz[rows, 1], xyz[rows, 0]))
+    _, pos = np.unique(group[order], return_index=True)
+    assert np.array_equal(lowest_point_per_group(xyz, rows, group, group.max() + 1), order[pos])
+
+
+def test_pair_pull_is_bincount():
+    rng = np.random.default_rng(7)
+    xy = rng.normal(size=(300, 2)) * 3
+    labels = rng.integers(0, 3, 300)
+    pairs = cKDTree(xy).query_pairs(1.0, output_type="ndarray")
+    same = pairs[labels[pairs[:, 0]] == labels[pairs[:, 1]]]
+    d = xy[same[:, 1]] - xy[same[:, 0]]
+    pull = np.stack([np.bincount(same[:, 0], d[:, j], 300) - np.bincount(same[:, 1], d[:, j], 300) for j in (0, 1)], 1)
+    count, got = pair_pull(xy, labels, pairs)
+    assert np.array_equal(count, np.bincount(same.ravel(), minlength=300))
+    assert np.array_equal(got, pull)
+
+
+def test_sort_by_bucket_is_lexsort():
+    rng = np.random.default_rng(8)
+    for key, values in ((rng.integers(-3, 9, 2000), rng.integers(0, 5, 2000) * 0.5),  # ties: index order
+                        (rng.integers(0, 10**9, 50), rng.normal(size=50)),  # wide range: np.lexsort itself
+                        (np.zeros(10, np.int64), np.array([0.0, -0.0] * 5))):
+        assert np.array_equal(sort_by_bucket(values, key), np.lexsort((values, key)))
