@@ -80,7 +80,7 @@ def refine(
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.camera import read_camera
-    from rooftrace.io.checks import check_image_covers, check_same_crs, require_metric_crs
+    from rooftrace.io.checks import check_image_covers, check_image_size, check_same_crs, require_metric_crs
     from rooftrace.io.raster import read_image
     from rooftrace.io.vector import Layer, read_layer, write_layers
     from rooftrace.refine import RefineOptions, refine_buildings
@@ -111,9 +111,7 @@ def refine(
     vertices[np.isnan(vertices[:, 2]), 2] = 0.0
     check_image_covers(cam, vertices, str(image))
     grey = read_image(image)
-    if grey.shape[::-1] != tuple(cam.image_size):
-        raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
-                         f"{cam.image_size[0]} x {cam.image_size[1]}")
+    check_image_size(grey.shape[::-1], cam, str(image), str(camera))
     if not len(vertices):
         # no buildings upstream is a result, not a mistake: pass the empty layers on
         log.warning("%s: the roof_outlines layer has no outlines; writing empty layers to %s", outlines_path, output)

@@ -40,7 +40,9 @@ def run(
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.checks import check_image_covers, check_points, check_same_crs, require_metric_crs
+    from rooftrace.io.checks import (
+        check_image_covers, check_image_size, check_points, check_same_crs, require_metric_crs,
+    )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import run_pipeline
@@ -95,9 +97,7 @@ def run(
         check_same_crs(cloud.crs, cam.crs, where, str(camera))
         check_image_covers(cam, cloud.xyz, str(image))
         grey = read_image(image)
-        if grey.shape[::-1] != tuple(cam.image_size):
-            raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
-                             f"{cam.image_size[0]} x {cam.image_size[1]}")
+        check_image_size(grey.shape[::-1], cam, str(image), str(camera))
 
     if len(cloud) == 0:
         _write_empty(output, classified, cloud, overwrite, json_, where)

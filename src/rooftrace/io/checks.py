@@ -13,7 +13,7 @@ import numpy as np
 
 from rooftrace.errors import InputError
 
-__all__ = ["require_metric_crs", "check_same_crs", "check_image_covers", "check_points"]
+__all__ = ["require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size", "check_points"]
 
 #: a cloud narrower than this across its main direction (metres) is a line, not an area
 _MIN_WIDTH = 0.01
@@ -116,6 +116,13 @@ def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float 
         raise InputError(f"{where}: the image does not cover the data ({100 * fraction:.1f} % of it projects "
                          "inside the image); check the image, the camera file and the CRS")
     return fraction
+
+
+def check_image_size(size: tuple[int, int], camera, image: str, camera_file: str) -> None:
+    """Refuse an image whose (width, height) in pixels is not the one its camera file gives."""
+    if tuple(int(v) for v in size) != tuple(int(v) for v in camera.image_size):
+        raise InputError(f"{image}: image is {size[0]} x {size[1]} px but {camera_file} says "
+                         f"{camera.image_size[0]} x {camera.image_size[1]}")
 
 
 def check_points(xyz: np.ndarray, where: str, what: str = "the point cloud") -> None:

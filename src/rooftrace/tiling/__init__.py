@@ -152,13 +152,12 @@ def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path,
                    quiet: bool):
     """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
     from rooftrace.cli.app import reporter_for
+    from rooftrace.io.checks import check_image_size
     from rooftrace.io.raster import read_image
     from rooftrace.pipeline import refine_layers
 
     grey = read_image(image)
-    if grey.shape[::-1] != tuple(cam.image_size):  # the file changed since the check
-        raise InputError(f"{image}: image is {grey.shape[1]} x {grey.shape[0]} px but {camera} says "
-                         f"{cam.image_size[0]} x {cam.image_size[1]}")
+    check_image_size(grey.shape[::-1], cam, str(image), str(camera))  # the file may have changed since the check
     points = join_neighbourhoods(results)
     planes = merged_planes(results, building_numbers(results))
     reporter = reporter_for(quiet)

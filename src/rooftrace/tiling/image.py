@@ -34,8 +34,6 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from rooftrace.errors import InputError
-
 __all__ = ["check_image_inputs", "image_fingerprint", "neighbourhood_points", "cut_neighbourhoods",
            "join_neighbourhoods", "merged_planes"]
 
@@ -90,16 +88,13 @@ def check_image_inputs(image: Path, camera: Path, crs, head: dict[str, Any], whe
         header is read here.
     """
     from rooftrace.io.camera import read_camera
-    from rooftrace.io.checks import check_image_covers, check_same_crs
+    from rooftrace.io.checks import check_image_covers, check_image_size, check_same_crs
     from rooftrace.io.raster import read_raster_meta
 
     cam = read_camera(camera, image)
     check_same_crs(crs, cam.crs, where, str(camera))
     check_image_covers(cam, _header_grid(head["boxes"], head["counts"]), str(image))
-    size = tuple(int(v) for v in read_raster_meta(image).size)
-    if size != tuple(int(v) for v in cam.image_size):
-        raise InputError(f"{image}: image is {size[0]} x {size[1]} px but {camera} says "
-                         f"{cam.image_size[0]} x {cam.image_size[1]}")
+    check_image_size(read_raster_meta(image).size, cam, str(image), str(camera))
     return cam
 
 
