@@ -179,13 +179,13 @@ def test_components_number_as_scipy():
     from scipy import sparse
     from scipy.sparse import csgraph
 
-    from rooftrace.roof._regions import _components
+    from rooftrace.graph import components
 
     rng = np.random.default_rng(3)
     for n, m in [(1, 0), (5, 0), (50, 20), (300, 250), (300, 900)]:
         i, j = rng.integers(0, n, m), rng.integers(0, n, m)
         _, want = csgraph.connected_components(sparse.coo_matrix((np.ones(m), (i, j)), shape=(n, n)), directed=False)
-        got = _components(n, i, j)
+        got = components(n, np.column_stack([i, j]))
         assert got.dtype == want.dtype and np.array_equal(got, want)
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import numba
 from numba import njit
 
-__all__ = ["GridKnn", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull", "rotate_to_smallest",
-           "sort_by_bucket"]
+__all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull",
+           "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
 @njit(cache=True)
@@ -89,6 +89,25 @@ def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     uniq = np.flatnonzero(present)
     lookup = np.cumsum(present) - 1
     return (uniq + lo).astype(values.dtype, copy=False), lookup[shifted]
+
+
+def unique_pairs(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``np.unique(np.column_stack([a, b]), axis=0)`` of integers in [0, n), by one int64 key per pair.
+
+    Returns the distinct (a, b) pairs as (U, 2) int64, in (a, b) order.
+    """
+    key = np.unique(np.asarray(a, dtype=np.int64) * n + np.asarray(b, dtype=np.int64))
+    return np.column_stack([key // n, key % n])
+
+
+def dense_cells(ij: np.ndarray) -> np.ndarray:
+    """Index (0..C-1) of each row's integer cell (i, j), cells numbered in (i, j) order, by counting.
+
+    ``np.unique(ij, axis=0, return_inverse=True)[1]``: the grids of the
+    outlier filter, the ground blocks and the spacing estimates.
+    """
+    ij = ij - ij.min(axis=0)
+    return dense_unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])[1]
 
 
 @njit(cache=True)
@@ -294,7 +313,7 @@ class GridKnn:
         lo = self.xyz[:, :2].min(axis=0)
         span = self.xyz[:, :2].max(axis=0) - lo
         ij = np.floor((self.xyz[:, :2] - lo) / 2.0).astype(np.int64)
-        occupied = len(dense_unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])[0])
+        occupied = int(dense_cells(ij).max()) + 1
         side = float(np.sqrt(self.k * occupied * 4.0 / (np.pi * n)))
         # at most ~4 cells a point: a sparse, wide cloud gets coarser cells
         side = max(side, float(np.sqrt(span[0] * span[1] / (4.0 * n))), 1e-6)

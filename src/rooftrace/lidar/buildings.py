@@ -25,8 +25,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from rooftrace.graph import components
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, local_penetration, penetration
-from rooftrace.lidar.segment import SegmentOptions, components, merge_touching
+from rooftrace.lidar.segment import SegmentOptions, merge_touching
 
 __all__ = ["assemble_buildings"]
 

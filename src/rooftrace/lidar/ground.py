@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
-from rooftrace.lidar._kernels import dense_unique, lowest_per_group
+from rooftrace.lidar._kernels import dense_cells, dense_unique, lowest_per_group
 from rooftrace.lidar.tin import locate, serpentine_order, triangulate
 
 __all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
@@ -295,9 +295,7 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     # per block: 0 densifying, 1 densifying after the border refit, 2 done
     block_side = opt.converged_block or 2.0 * opt.seed_cell
     bij = np.floor(cxyz[:, :2] / block_side).astype(np.int64)
-    # rows (i, j) as one key in the same lexicographic order: counted, not row-sorted
-    bij -= bij.min(axis=0)
-    _, block = dense_unique(bij[:, 0] * (int(bij[:, 1].max()) + 1) + bij[:, 1])
+    block = dense_cells(bij)
     n_blocks = int(block.max(initial=-1)) + 1
     phase = np.zeros(n_blocks, np.int64)
     corner_block = block[seeds[nearest]]  # a border vertex follows the block of its seed

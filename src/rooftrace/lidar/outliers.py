@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rooftrace.lidar._kernels import dense_unique
+from rooftrace.lidar._kernels import dense_cells, dense_unique
 
 __all__ = ["OutlierOptions", "histogram_outliers"]
 
@@ -95,8 +95,7 @@ def histogram_outliers(
         return noise
     anchor = xyz[:, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
     ij = np.floor((xyz[:, :2] - anchor) / opt.cell).astype(np.int64)
-    ij -= ij.min(axis=0)  # an explicit origin may lie inside the data
-    _, cell = dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])
+    cell = dense_cells(ij)  # shifted to start at 0: an explicit origin may lie inside the data
     ncell = cell.max() + 1
     zmin = np.full(ncell, np.inf)
     np.minimum.at(zmin, cell, xyz[:, 2])

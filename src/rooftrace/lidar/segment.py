@@ -39,14 +39,13 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from rooftrace.config import optional
-from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group
+from rooftrace.graph import components
+from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group, unique_pairs
 
-__all__ = ["SegmentOptions", "components", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
+__all__ = ["SegmentOptions", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
 log = logging.getLogger(__name__)
 
@@ -186,12 +185,6 @@ def link_pairs(xy: np.ndarray, link_distance: float) -> np.ndarray:
     return tree.query_pairs(link_distance, output_type="ndarray").astype(np.int64, copy=False)
 
 
-def components(n: int, pairs: np.ndarray) -> np.ndarray:
-    """Connected component (0..C-1) of each of ``n`` nodes linked by ``pairs`` (P, 2)."""
-    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
-
-
 #: pairs tested at once by :func:`region_growing`
 _PAIR_CHUNK = 2_000_000
 
@@ -271,6 +264,14 @@ def region_growing(
     return order_labels(xyz, labels)
 
 
+def _between(labels: np.ndarray, pairs: np.ndarray, first: np.ndarray, second: np.ndarray) -> tuple:
+    """Clusters at both ends of each pair, and which pairs join a ``first`` cluster to another, ``second`` one."""
+    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    ok = (la >= 0) & (lb >= 0) & (la != lb)
+    ok[ok] &= first[la[ok]] & second[lb[ok]]
+    return la, lb, ok
+
+
 def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -> np.ndarray:
     """Merge clusters that touch in plan into groups (buildings).
 
@@ -289,13 +290,8 @@ def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -
         Group index per cluster (0..G-1 over members), -1 for non-members.
     """
     k = len(members)
-    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
-    ok = (la >= 0) & (lb >= 0) & (la != lb)
-    ok[ok] &= members[la[ok]] & members[lb[ok]]
-    # one int64 key per edge: the same sorted unique edges as np.unique(axis=0), without its row sort
-    key = np.unique(la[ok].astype(np.int64) * k + lb[ok])
-    edges = np.column_stack([key // k, key % k])
-    comp = components(k, edges)
+    la, lb, ok = _between(labels, pairs, members, members)
+    comp = components(k, unique_pairs(la[ok], lb[ok], k))
     group = np.full(k, -1, np.int64)
     _, group[members] = np.unique(comp[members], return_inverse=True)
     return group
@@ -320,9 +316,7 @@ def contact_share(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray, ot
     """
     members, others = np.asarray(members, bool), np.asarray(others, bool)
     k = len(members)
-    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
-    ok = (la >= 0) & (lb >= 0) & (la != lb)
-    ok[ok] &= members[la[ok]] & others[lb[ok]]
+    _, _, ok = _between(labels, pairs, members, others)
     touched = np.zeros(len(labels), bool)
     touched[pairs[ok, 0]] = True
     size = np.bincount(labels[labels >= 0], minlength=k)

@@ -15,7 +15,7 @@ import logging
 import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
-from rooftrace.lidar._kernels import dense_unique
+from rooftrace.lidar._kernels import dense_cells, unique_pairs
 
 __all__ = ["mean_spacing", "point_density", "height_precision"]
 
@@ -37,13 +37,12 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     per_block = max_points // 4
     side = np.sqrt(area * per_block / n)
     ij = np.floor((xy - lo) / side).astype(np.int64)
-    key = ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1]
-    uniq, inverse = dense_unique(key)
+    inverse = dense_cells(ij)
     counts = np.bincount(inverse)
     # blocks holding about the mean population: the densest ones are tree
     # crowns with several returns per pulse, the sparsest ones slivers at
-    # the grid's edge, fringe or water
-    best = np.lexsort((uniq, np.abs(counts - per_block)))[:4]
+    # the grid's edge, fringe or water (ties: the first in (i, j) order)
+    best = np.lexsort((np.arange(len(counts)), np.abs(counts - per_block)))[:4]
     return [np.flatnonzero(inverse == b) for b in best]
 
 
@@ -97,9 +96,7 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
         s = tri.simplices
         e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
         e.sort(axis=1)
-        # one int64 key per edge sorts as the (i, j) rows would
-        e = np.unique(e[:, 0].astype(np.int64) * len(pts) + e[:, 1])
-        e = np.column_stack([e // len(pts), e % len(pts)])
+        e = unique_pairs(e[:, 0], e[:, 1], len(pts))
         ln = np.hypot(*(pts[e[:, 0]] - pts[e[:, 1]]).T)
         ln = ln[ln <= ln.mean() + 3 * ln.std()]
         lengths.append(ln)
@@ -135,7 +132,7 @@ def point_density(xy: np.ndarray, cell: float = 2.0) -> float:
     if len(xy) == 0:
         raise ValueError("point density of an empty cloud")
     ij = np.floor((xy[:, :2] - xy[:, :2].min(axis=0)) / cell).astype(np.int64)
-    cells = len(dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])[0])
+    cells = int(dense_cells(ij).max()) + 1
     return float(len(xy) / (cells * cell * cell))
 
 
@@ -177,7 +174,7 @@ def height_precision(
         cell = float(np.sqrt(20.0 / point_density(xyz[:, :2])))
     lo = xyz.min(axis=0)
     ij = np.floor((xyz[:, :2] - lo[:2]) / cell).astype(np.int64)
-    _, inv = dense_unique(ij[:, 0] * (ij[:, 1].max() + 1) + ij[:, 1])
+    inv = dense_cells(ij)
     counts = np.bincount(inv)
     # centre each cell so the normal equations stay well conditioned
     centre = np.stack([np.bincount(inv, xyz[:, k]) / counts for k in range(3)], axis=1)

@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
+from rooftrace.graph import components
 from rooftrace.roof.planes import fit_planes, plane_height
 
 __all__: list[str] = []
@@ -61,7 +62,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
     if len(un) < floor:
         return labels, False
     ij = cKDTree(xyz[un]).query_pairs(link, output_type="ndarray")
-    comp = _components(len(un), ij[:, 0], ij[:, 1])
+    comp = components(len(un), ij)
     nxt, added = labels.max() + 1, False
     cos_max = np.cos(np.radians(max_slope))
     for c in np.flatnonzero(np.bincount(comp) >= floor):
@@ -95,7 +96,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             # only a dense, well-fitting one (not scattered clutter).
             sub = np.flatnonzero(inl)
             pq = cKDTree(P[sub, :2]).query_pairs(link, output_type="ndarray")
-            cc = _components(len(sub), pq[:, 0], pq[:, 1])
+            cc = components(len(sub), pq)
             inl = np.zeros(len(P), dtype=bool)
             inl[sub[cc == np.argmax(np.bincount(cc))]] = True
             if inl.sum() < floor:
@@ -159,48 +160,6 @@ def _best_candidate_kernel(xyz, nn, labels, planes, tol, margin):  # pragma: no 
     return out
 
 
-def _components(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """Connected components of the undirected graph with edges ``(i[e], j[e])`` on ``n`` nodes.
-
-    The labels of ``scipy.sparse.csgraph.connected_components(..., directed=False)``
-    (int32, numbered in the order of each component's smallest node), without
-    building a sparse matrix: the plane segmentation labels many small graphs
-    (one per region level, RANSAC candidate and merge round), where the
-    matrix conversions cost more than the search.
-    """
-    return _components_kernel(int(n), np.ascontiguousarray(i, dtype=np.int64), np.ascontiguousarray(j, dtype=np.int64))
-
-
-@njit(cache=True)
-def _find(parent, v):  # pragma: no cover - compiled
-    while parent[v] != v:
-        parent[v] = parent[parent[v]]
-        v = parent[v]
-    return v
-
-
-@njit(cache=True)
-def _components_kernel(n, i, j):  # pragma: no cover - compiled
-    # union-find; the smaller root wins, so a root is its component's smallest node
-    parent = np.arange(n)
-    for e in range(len(i)):
-        a, b = _find(parent, i[e]), _find(parent, j[e])
-        if a < b:
-            parent[b] = a
-        elif b < a:
-            parent[a] = b
-    labels = np.empty(n, dtype=np.int32)
-    nxt = 0
-    for v in range(n):
-        r = _find(parent, v)
-        if r == v:
-            labels[v] = nxt
-            nxt += 1
-        else:
-            labels[v] = labels[r]
-    return labels
-
-
 def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
     """Union adjacent labels (points within ``link`` m in plan) whose planes agree."""
     K = len(fit.planes)
@@ -227,7 +186,7 @@ def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
         ok[idx] = joint.sigma[0] <= min(1.3 * max(fit.sigma[i], fit.sigma[j]), tol)
     if not ok.any():
         return labels, False
-    comp = _components(K, pairs[ok, 0], pairs[ok, 1])
+    comp = components(K, pairs[ok])
     out = np.where(labels >= 0, comp[np.maximum(labels, 0)], -1)
     _, out_c = np.unique(out, return_inverse=True)
     out_c = out_c.reshape(out.shape) - (1 if (out < 0).any() else 0)

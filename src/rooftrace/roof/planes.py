@@ -258,7 +258,8 @@ def segment_planes(
     distance : float
         The distance tolerance used (m).
     """
-    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _components, _merge_coplanar, _rescue
+    from rooftrace.graph import components
+    from rooftrace.roof._regions import _best_candidate, _big_enough, _compact, _merge_coplanar, _rescue
 
     xyz = np.asarray(xyz, dtype=np.float64)
     N = len(xyz)
@@ -295,7 +296,7 @@ def segment_planes(
     # stricter edges (tighter angle, flatter neighbourhoods), down to 3 levels.
     bad_comp = None
     for level in range(4):
-        comp = _components(N, i[e], j[e])
+        comp = components(N, np.column_stack([i[e], j[e]]))
         comp = np.where(planar, comp, -1)
         w = (comp >= 0).astype(float)
         size = np.bincount(np.maximum(comp, 0), weights=w)

@@ -269,8 +269,7 @@ def _merge_junctions(out: IntersectionLines, planes: np.ndarray, on_outline: lis
     """
     if len(out.lines) < 2:
         return
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from rooftrace.graph import components
 
     ends = np.array([np.asarray(g.coords)[[0, -1]] for g in out.lines]).reshape(-1, 3)
     free = ~np.asarray(on_outline, dtype=bool).ravel()
@@ -281,7 +280,7 @@ def _merge_junctions(out: IntersectionLines, planes: np.ndarray, on_outline: lis
     if len(ij) == 0:
         return
     n = len(idx)
-    _, comp = connected_components(coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n)), directed=False)
+    comp = components(n, ij)
     coords = ends.copy()
     for c in np.unique(comp):
         members = idx[comp == c]
