@@ -139,6 +139,10 @@ class AlphaShape:
         90th percentile over the Delaunay edges of length / (2 alpha): how
         nearly the sampling's own gaps fill the alpha disk (about 0.5-0.65 on
         AHN3, 0.86 between the demo's scan lines at alpha scale 1).
+    scale : float
+        The factor the spacings were multiplied by (``options.scale`` times
+        the caller's ``alpha_scale``): ``spacing * scale`` is each point's
+        alpha radius, metres.
     """
 
     rings: list[np.ndarray]
@@ -147,6 +151,7 @@ class AlphaShape:
     spacing: np.ndarray
     dropped_area: float = 0.0
     gap_fill: float = float("nan")
+    scale: float = 1.0
 
 
 def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
@@ -405,5 +410,6 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     log.debug("alpha shape: %d rings traced, outer of %.1f m², %d holes kept", len(rings), outer_areas.max(), len(holes))
     dropped = float(outer_areas.sum() - outer_areas.max())
     gap_fill = float(np.percentile(lengths / (2.0 * alpha), 90))
-    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill)
+    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill,
+                      alpha_scale)
 

@@ -18,9 +18,10 @@ from scipy.spatial import QhullError
 from threadpoolctl import threadpool_limits
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
-from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
+from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_shape
 from rooftrace.contour.cdspline import CDSplineOptions
 from rooftrace.contour.knots import spline_outline
+from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.contour.repair import make_valid_outline
@@ -111,12 +112,18 @@ class RoofOutline:
         (invalid rings fixed by make_valid), 'multipart' (the points fall
         apart into several parts even with alpha tripled; the largest is
         kept), 'unregularised' (the CD-spline
-        collapsed the outer ring; the alpha-shape ring is kept), or why there is no outline
-        ('too_few_points', 'collinear', 'no_ring', ...).
+        collapsed the outer ring; the alpha-shape ring is kept), 'alpha_fallback' (the configured
+        strategy's outline covered too few of the points; ``alpha_strategy`` names the one used),
+        'low_coverage' (no strategy covers 99 % of the points; the best is kept), or why there is
+        no outline ('too_few_points', 'collinear', 'no_ring', ...).
     z_min, z_mean, z_max : float
         Heights of the building's points, metres.
     sigma : float
         Residual standard deviation of the CD-spline fit of the outer ring, metres.
+    coverage : float
+        Share of the building's plan positions inside the polygon or within
+        their alpha radius of it (:func:`~rooftrace.contour.coverage.outline_coverage`);
+        below 0.99 the status says so.
     """
 
     building_id: int
@@ -131,6 +138,7 @@ class RoofOutline:
     z_mean: float = float("nan")
     z_max: float = float("nan")
     sigma: float = float("nan")
+    coverage: float = float("nan")
 
     @property
     def area(self) -> float:
@@ -168,7 +176,15 @@ def _simple(vertices: np.ndarray) -> bool:
 
 
 def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None) -> RoofOutline:
-    """Regularised 3D roof outline of one building.
+    """Regularised 3D roof outline of one building, checked to cover the building's points.
+
+    The outline (with its holes, after regularisation) must cover
+    :data:`~rooftrace.contour.coverage.MIN_COVERAGE` of the building's points
+    (inside or within the local alpha, :func:`~rooftrace.contour.coverage.outline_coverage`).
+    When the configured alpha strategy breaks that, the other strategies are
+    tried in turn (point → building → global) and the first that holds is
+    kept with status ``alpha_fallback``; when none holds, the one covering the
+    most is kept with status ``low_coverage``.
 
     Parameters
     ----------
@@ -189,8 +205,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     ValueError
         ``xyz`` is not of shape (N, 3).
     GeometryError
-        Too few points, collinear points, or no closed ring even with alpha
-        tripled; the message is the status.
+        Too few points, collinear points, or no closed ring with any strategy
+        even with alpha tripled; the message is the status.
 
     Examples
     --------
@@ -198,8 +214,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     >>> g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T  # points 0..9.9 x 0..5.7 m
     >>> xyz = np.column_stack([g, np.full(len(g), 5.0)])
     >>> out = trace_outline(xyz)
-    >>> out.status, len(out.corners[0]), out.degrees, round(out.area)
-    ('ok', 4, [[1, 1, 1, 1]], 57)
+    >>> out.status, len(out.corners[0]), out.degrees, round(out.area), out.coverage
+    ('ok', 4, [[1, 1, 1, 1]], 57, 1.0)
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
@@ -213,11 +229,57 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
+    best, first_error = None, None
+    for k, strategy in enumerate(_fallback_strategies(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
+        trial = options if k == 0 else dataclasses.replace(
+            options, alpha=dataclasses.replace(options.alpha, strategy=strategy))
+        try:
+            shape, status = _alpha_shape(pts, trial.alpha, mean_spacing)
+        except GeometryError as exc:
+            if str(exc) != "no_ring":
+                raise
+            first_error = first_error or exc
+            continue
+        # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
+        # of the building (a ring dropped, the shape fallen apart) is not worth regularising
+        rings = [pts[r, :2] for r in shape.rings]
+        covered = outline_coverage(shapely.Polygon(rings[0], rings[1:]), pts[:, :2], shape.spacing * shape.scale)
+        if best is None or covered > best[0]:
+            best = (covered, k, trial, shape, status)
+        if covered >= MIN_COVERAGE:
+            break
+    if best is None:
+        raise first_error
+    covered, k, trial, shape, status = best
+    outline = _outline(pts, origin, shape, status, trial, regularise=True)
+    if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
+        # the regularisation gave up points the alpha shape holds (a corner cut off): keep the alpha shape's rings
+        outline = _outline(pts, origin, shape, "unregularised", trial, regularise=False)
+    if outline.coverage < MIN_COVERAGE and outline.status != "multipart":
+        outline.status = "low_coverage"
+    elif k > 0:
+        outline.status = "alpha_fallback"
+    z = xyz[:, 2]
+    outline.n_points, outline.z_min, outline.z_mean, outline.z_max = len(xyz), float(z.min()), float(z.mean()), \
+        float(z.max())
+    return outline
+
+
+def _fallback_strategies(strategy: str, mean_spacing: float | None, alpha: float | None) -> list[str]:
+    """The configured strategy, then the others from the most local alpha to the least."""
+    order = [strategy] + [s for s in ("point", "building", "global") if s != strategy]
+    if mean_spacing is None and alpha is None and strategy != "global":
+        order.remove("global")  # without a cloud spacing 'global' is 'building'
+    return order
+
+
+def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None) -> tuple[AlphaShape, str]:
+    """The alpha shape of the outline points, alpha enlarged until it closes, holds together and bridges the sampling."""
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
         try:
-            trial = alpha_shape(pts[:, :2], options.alpha, mean_spacing=mean_spacing, alpha_scale=scale)
+            trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
@@ -231,26 +293,34 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
             status = "alpha_enlarged"
             continue
         main_area = abs(_area(pts[trial.rings[0], :2]))
-        if trial.dropped_area <= max(options.alpha.min_hole_area, 0.05 * main_area):
+        if trial.dropped_area <= max(options.min_hole_area, 0.05 * main_area):
             shape = trial
             break
         # the building fell apart into several rings: a larger alpha joins them
         status = "alpha_enlarged"
     if shape is None:
         raise GeometryError("no_ring")
-    if shape.dropped_area > max(options.alpha.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
+    if shape.dropped_area > max(options.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
         status = "multipart"
+    return shape, status
+
+
+def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str, options: OutlineOptions, *,
+             regularise: bool) -> RoofOutline:
+    """The outline from an alpha shape's rings, regularised or as traced, its coverage measured."""
     rings, degrees, corners = [], [], []
     sigma = float("nan")
     for i, ring in enumerate(shape.rings):
         spacing = float(np.median(shape.spacing[ring]))
-        try:
-            vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
-        except GeometryError:
-            vertices = None
+        vertices = None
+        if regularise:
+            try:
+                vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
+            except GeometryError:
+                vertices = None
         if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:
-            # regularisation collapsed the ring: keep the alpha-shape ring as it is
-            if i > 0:
+            # not regularised, or the regularisation collapsed the ring: keep the alpha-shape ring as it is
+            if i > 0 and regularise:
                 continue
             vertices, corner_index, deg, s = pts[ring], np.arange(len(ring)), [1] * len(ring), 0.0
             status = "unregularised"
@@ -266,9 +336,10 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         status = "repaired"
     if polygon is None or polygon.is_empty:
         raise GeometryError("degenerate_outline")
-    z = xyz[:, 2]
-    return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(xyz), status,
-                       float(z.min()), float(z.mean()), float(z.max()), sigma)
+    # a point may lie outside by its alpha radius: the shape cuts in between points that far apart
+    coverage = outline_coverage(polygon, pts[:, :2] + origin[:2], shape.spacing * shape.scale)
+    return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(pts), status, sigma=sigma,
+                       coverage=coverage)
 
 
 def _area(xy: np.ndarray) -> float:
@@ -313,6 +384,10 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
             try:
                 outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
                 outline.building_id = int(bid)
+                if outline.status in ("alpha_fallback", "low_coverage"):
+                    log.warning("building %d: the %s alpha's outline covers too few of its %d points; %s (%s alpha, "
+                                "coverage %.3f)", bid, options.alpha.strategy, len(idx), outline.status,
+                                outline.alpha_strategy, outline.coverage)
             except (GeometryError, ValueError, np.linalg.LinAlgError, QhullError, MemoryError) as exc:
                 if not isinstance(exc, GeometryError):  # a bug, but one building must not stop a city
                     log.warning("building %d: outline failed (%s: %s)", bid, type(exc).__name__, exc)
@@ -333,7 +408,8 @@ def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list
     Attributes: building_id, n_points, alpha_strategy, alpha, area (m²),
     z_min, z_mean, z_max (m), n_corners, degrees (per ring the segment
     degrees joined by ',' and rings joined by ';', e.g. ``"1,1,2,1;1,1,1,1"``),
-    sigma (m), status, plus ``extra_attributes``.
+    sigma (m), status, coverage (share of the building's points the outline
+    covers), plus ``extra_attributes``.
     """
     attrs: dict[str, list] = {
         "building_id": [o.building_id for o in outlines],
@@ -348,6 +424,7 @@ def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list
         "degrees": [";".join(",".join(map(str, d)) for d in o.degrees) for o in outlines],
         "sigma": [o.sigma for o in outlines],
         "status": [o.status for o in outlines],
+        "coverage": [o.coverage for o in outlines],
     }
     for key, values in (extra_attributes or {}).items():
         if len(values) != len(outlines):
