@@ -182,9 +182,12 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     :data:`~rooftrace.contour.coverage.MIN_COVERAGE` of the building's points
     (inside or within the local alpha, :func:`~rooftrace.contour.coverage.outline_coverage`).
     When the configured alpha strategy breaks that, the other strategies are
-    tried in turn (point → building → global) and the first that holds is
-    kept with status ``alpha_fallback``; when none holds, the one covering the
-    most is kept with status ``low_coverage``.
+    tried in turn (point → building → global), then the configured one with
+    alpha doubled and tripled; the first that holds is kept with status
+    ``alpha_fallback``.  When the regularisation gives up points the alpha
+    shape holds, the alpha shape's rings are kept (``unregularised``).  When
+    nothing holds, the outline covering the most is kept with status
+    ``low_coverage`` (or ``multipart``, when the building's points fall apart).
 
     Parameters
     ----------
@@ -230,9 +233,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if len(pts) < 3:
         raise GeometryError("too_few_points")
     best, first_error = None, None
-    for k, strategy in enumerate(_fallback_strategies(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
-        trial = options if k == 0 else dataclasses.replace(
-            options, alpha=dataclasses.replace(options.alpha, strategy=strategy))
+    for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
+        trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
+            options.alpha, strategy=strategy, scale=options.alpha.scale * enlarge))
         try:
             shape, status = _alpha_shape(pts, trial.alpha, mean_spacing)
         except GeometryError as exc:
@@ -243,7 +246,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
         # of the building (a ring dropped, the shape fallen apart) is not worth regularising
         rings = [pts[r, :2] for r in shape.rings]
-        covered = outline_coverage(shapely.Polygon(rings[0], rings[1:]), pts[:, :2], shape.spacing * shape.scale)
+        traced = shapely.Polygon(rings[0], rings[1:])
+        traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
+        covered = outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
         if best is None or covered > best[0]:
             best = (covered, k, trial, shape, status)
         if covered >= MIN_COVERAGE:
@@ -265,12 +270,14 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     return outline
 
 
-def _fallback_strategies(strategy: str, mean_spacing: float | None, alpha: float | None) -> list[str]:
-    """The configured strategy, then the others from the most local alpha to the least."""
+def _fallbacks(strategy: str, mean_spacing: float | None, alpha: float | None) -> list[tuple[str, float]]:
+    """(strategy, alpha enlargement) to try in turn: the configured one, the others from the most local
+    alpha to the least, then the configured one with alpha doubled and tripled (a few points farther
+    apart than any of the alphas: a small building's stray point)."""
     order = [strategy] + [s for s in ("point", "building", "global") if s != strategy]
     if mean_spacing is None and alpha is None and strategy != "global":
         order.remove("global")  # without a cloud spacing 'global' is 'building'
-    return order
+    return [(s, 1.0) for s in order] + [(strategy, 2.0), (strategy, 3.0)]
 
 
 def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None) -> tuple[AlphaShape, str]:
