@@ -7,6 +7,9 @@ after and comparing::
     .venv/bin/python benchmarks/compare_outputs.py dump /tmp/after      # on the new one
     .venv/bin/python benchmarks/compare_outputs.py compare /tmp/before /tmp/after
 
+or dump the sources of another commit without checking it out
+(``git archive main src | tar -x -C /tmp/main`` then ``--src /tmp/main/src``).
+
 The runs: the demo scene (simulate, run with the image, evaluate), AHN3 Delft
 (``run`` untiled and tiled, with the classified points, and ``evaluate``
 against the BGT footprints), one IGN LiDAR HD tile (``run`` with the
@@ -56,10 +59,10 @@ def _runs(out: Path) -> dict[str, list[str]]:
     }
 
 
-def dump(out: Path, only: list[str] | None) -> int:
+def dump(out: Path, only: list[str] | None, src: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "ortho.json").write_text(json.dumps({"type": "orthophoto"}))
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    env = {**os.environ, "PYTHONPATH": str(src)}
     status = 0
     for name, args in _runs(out).items():
         if only and name not in only:
@@ -184,12 +187,14 @@ def main(argv: list[str] | None = None) -> int:
     p_dump = sub.add_parser("dump", help="run every case into a folder")
     p_dump.add_argument("out", type=Path)
     p_dump.add_argument("--only", nargs="*", help="names of the runs to do (default: all)")
+    p_dump.add_argument("--src", type=Path, default=ROOT / "src",
+                        help="the rooftrace sources to run (default: this checkout's; e.g. an export of main)")
     p_cmp = sub.add_parser("compare", help="compare two dumps at tolerance 0")
     p_cmp.add_argument("a", type=Path)
     p_cmp.add_argument("b", type=Path)
     args = parser.parse_args(argv)
     if args.cmd == "dump":
-        return dump(args.out, args.only)
+        return dump(args.out, args.only, args.src.resolve())
     return compare(args.a, args.b)
 
 
