@@ -19,6 +19,7 @@ except ImportError:  # pragma: no cover
     from click import exceptions as click_exc
 
 from rooftrace.cli.app import STATE, app
+from rooftrace.cli.interrupt import interrupt_handlers
 from rooftrace.errors import InputError
 
 # command modules register themselves on ``app`` when imported (one line each)
@@ -63,12 +64,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console script)."""
     logging.captureWarnings(True)
     try:
-        rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
+        with interrupt_handlers():
+            rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
         code = rv if isinstance(rv, int) else 0
     except typer.Exit as exc:
         code = exc.exit_code
-    except typer.Abort:
-        _error("aborted")
+    except typer.Abort:  # click's name for a KeyboardInterrupt (no handler installed, e.g. a thread)
+        _error("interrupted")
         code = 130
     except click_exc.UsageError as exc:
         if type(exc).__name__ == "NoArgsIsHelpError" and exc.ctx is not None:
