@@ -18,6 +18,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 import numpy as np
 import shapely
 
@@ -26,7 +28,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from rooftrace.io.vector import read_layer  # noqa: E402
 
-DELFT = ROOT.parent / "shared" / "data" / "3dfier_delft_ahn3_bgt"
+DELFT = _data.DATA / "3dfier_delft_ahn3_bgt"
 SHIFTS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4)
 
 

@@ -31,6 +31,8 @@ import os
 import time
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 import numpy as np
 import pyogrio
 import shapely
@@ -174,7 +176,7 @@ def report_city3d(folder: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument("--data", default=str(_data.DATA))
     args = ap.parse_args()
     data = Path(args.data)
     delft = data / "3dfier_delft_ahn3_bgt"

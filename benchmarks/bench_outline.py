@@ -15,6 +15,8 @@ import sys
 import time
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 import numpy as np
 import shapely
 
@@ -25,7 +27,7 @@ from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa:
 from rooftrace.contour.outline import OutlineOptions, outline_buildings, trace_outline  # noqa: E402
 from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data"
+DATA = _data.DATA
 CITY3D = DATA / "city3d_ahn3_single_buildings" / "instances_002"
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 

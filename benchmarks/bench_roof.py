@@ -40,6 +40,8 @@ import shapely
 
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 from rooftrace.evaluate.metrics import ridge_scores
 from rooftrace.roof import RoofOptions, roof_structure
 from rooftrace.roof import models
@@ -108,7 +110,7 @@ def summarise(rows: list[dict]) -> dict:
     }
 
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = _data.DATA
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 IGN = DATA / "ign_montpellier_lidarhd_bdortho"
 

@@ -34,6 +34,8 @@ import threading
 import time
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 import laspy
 import numpy as np
 import psutil
@@ -203,7 +205,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="what", required=True)
     d = sub.add_parser("delft")
-    d.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    d.add_argument("--data", type=Path, default=_data.DATA)
     b = sub.add_parser("block")
     b.add_argument("--block", type=Path, default=Path("/tmp/rooftrace-block"))
     b.add_argument("--tile-size", type=float, default=None, help="default: derived from the density, as run's")

@@ -19,6 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -30,7 +32,7 @@ import shapely  # noqa: E402
 from rooftrace.io.vector import read_layer  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-IGN = ROOT.parent / "shared" / "data" / "ign_montpellier_lidarhd_bdortho"
+IGN = _data.DATA / "ign_montpellier_lidarhd_bdortho"
 RT = str(Path(sys.executable).with_name("rooftrace"))
 
 
