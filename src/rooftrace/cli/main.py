@@ -96,6 +96,10 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         _error(f"internal failure ({type(exc).__name__}: {exc}); rerun with -v for the traceback and report it")
         code = 1
+    finally:
+        atomic = sys.modules.get("rooftrace.io.atomic")
+        if atomic is not None:  # a command that failed leaves no temporary file (a demo's unfinished folder)
+            atomic.remove_temporary()
     return _exit(code, argv)
 
 

@@ -23,8 +23,8 @@ from typing import Iterator
 
 from rooftrace.errors import InputError, OutputExistsError
 
-__all__ = ["atomic_path", "check_output", "hold_signal", "remove_temporary", "temporary_path", "track",
-           "uninterrupted", "untrack"]
+__all__ = ["atomic_path", "check_output", "hold_signal", "remove_temporary", "replace_folder", "temporary_path",
+           "track", "uninterrupted", "untrack"]
 
 #: temporary files and folders of the writes under way, removed on an interrupt
 _TEMPORARY: set[Path] = set()
@@ -149,3 +149,24 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
         if tmp.exists():
             shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
         untrack(tmp)
+
+
+def replace_folder(built: str | os.PathLike, path: str | os.PathLike) -> Path:
+    """Put the folder ``built`` (made by :func:`temporary_path` beside ``path``) in the place of ``path``.
+
+    The earlier folder, if any, is first renamed aside and removed only once
+    the new one is in place, so no file of it survives among the new ones and
+    an interrupt leaves one whole folder, the old or the new.
+    """
+    built, path = Path(built), Path(path)
+    with uninterrupted():
+        aside = None
+        if path.exists():
+            aside = temporary_path(path.with_name(path.name + ".old"))
+            os.replace(path, aside)
+        os.replace(built, path)
+        untrack(built)
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
+            untrack(aside)
+    return path
