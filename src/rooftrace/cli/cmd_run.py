@@ -18,8 +18,8 @@ log = logging.getLogger("rooftrace.cli")
 def run(
     inputs: opt.Inputs,
     output: opt.Output,
-    image: Annotated[Path | None, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
-    camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of the image.")] = None,
+    image: opt.Image = None,
+    camera: opt.Camera = None,
     alpha: Annotated[str | None, typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
     classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
@@ -36,7 +36,14 @@ def run(
     quiet: opt.Quiet = False,
 ) -> None:
     """Detect buildings, trace and regularise roof outlines, find roof planes and ridges;
-    refine them with the image when --image and --camera are given."""
+    refine them with the image when --image is given.
+
+    \b
+    An orthophoto (a georeferenced GeoTIFF) needs no camera file:
+      rooftrace run tile.laz --image ortho.tif -o roofs.gpkg
+    An aerial frame image needs its orientation:
+      rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
+    """
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
@@ -55,8 +62,8 @@ def run(
     setup_logging(quiet)
     if alpha is not None and alpha not in ("global", "building", "point"):
         raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     if output.suffix.lower() != ".gpkg":
         raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
     check_output(output, overwrite)
@@ -94,14 +101,14 @@ def run(
     check_points(cloud.xyz, where)
     grey = cam = None
     if image is not None:
-        from rooftrace.io.camera import read_camera
+        from rooftrace.io.camera import image_camera
         from rooftrace.io.raster import read_image
 
-        cam = read_camera(camera, image)
-        check_same_crs(cloud.crs, cam.crs, where, str(camera))
+        cam = image_camera(image, camera)
+        check_same_crs(cloud.crs, cam.crs, where, str(camera or image))
         check_image_covers(cam, cloud.xyz, str(image))
         grey = read_image(image)
-        check_image_size(grey.shape[::-1], cam, str(image), str(camera))
+        check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
 
     if len(cloud) == 0:
         _write_empty(output, classified, cloud, overwrite, json_, where)

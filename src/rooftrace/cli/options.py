@@ -22,3 +22,8 @@ TileSize = Annotated[float | None, typer.Option("--tile-size", min=1.0, help=(
     "Tile side in metres (default: no tiling; when tiling, about 3 M points a buffered tile)."))]
 Buffer = Annotated[float | None, typer.Option("--buffer", min=0.0, help="Tile buffer in metres (default: derived).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Skip tiles finished by an earlier run into the same output.")]
+IMAGE_HELP = "Aerial image: an orthophoto (georeferenced GeoTIFF, no camera file needed) or a frame image (give --camera)."
+Image = Annotated[Path | None, typer.Option("--image", help=IMAGE_HELP, show_default=False)]
+Camera = Annotated[Path | None, typer.Option("--camera", help=(
+    "camera.json of a frame image (optional for an orthophoto: its GeoTIFF georeference is the camera)."),
+    show_default=False)]

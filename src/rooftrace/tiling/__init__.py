@@ -201,7 +201,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     crs, config, alpha, planes, seed, overwrite, quiet
         As ``rooftrace run``.
     image, camera : path-like, optional
-        Aerial image and its ``camera.json``: the merged buildings are
+        Aerial image and its ``camera.json`` (None for a georeferenced
+        orthophoto, whose GeoTIFF is its camera): the merged buildings are
         refined with it in one pass, as an untiled run refines them
         (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
     classified : path-like, optional
@@ -230,8 +231,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
     from rooftrace.refine import RefineOptions
 
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     output = check_output(output, overwrite)
     if config:
         validate_config(config)
@@ -263,7 +264,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     cam = None
     if image is not None:
         # the untiled run's checks, on the headers, before minutes of tile work
-        cam = check_image_inputs(Path(image), Path(camera), crs_obj, head, ", ".join(map(str, paths)))
+        cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
+                                 ", ".join(map(str, paths)))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
@@ -273,7 +275,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
             "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
-            **({"image": image_fingerprint(Path(image), Path(camera))} if image is not None else {})}
+            **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
+               if image is not None else {})}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -325,7 +328,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
                             "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
         t0 = time.perf_counter()
-        refined, layers = _refine_merged(layers, results, Path(image), Path(camera), cam, cfg, seed, quiet)
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, quiet)
         timings["refine"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     write_layers(output, layers, crs_obj, overwrite=overwrite)
