@@ -3,7 +3,7 @@
 import laspy
 import numpy as np
 
-from rooftrace.tile_points import core_labels, merge_labels, write_classified
+from rooftrace.tiling.classified import core_labels, merge_labels, write_classified
 
 
 def test_core_labels_keep_the_core_and_index_the_keys():
