@@ -4,23 +4,18 @@ Each tile labels the points of its core (the buffers belong to other
 tiles' cores), with the classes of its detection and, for building
 points, the building's sort key (its lowest point, the key the merge numbers
 buildings by).  The merge gathers the labels by the points' global index
-(their order in the input files) and writes one LAS/LAZ chunk by chunk,
-copying every input dimension, so memory stays at a few bytes per point
-plus one chunk.
+(their order in the input files); :func:`rooftrace.io.las.write_las_labels`
+writes them with every input dimension, chunk by chunk, so memory stays at
+a few bytes per point plus one chunk.
 """
 
 from __future__ import annotations
 
-import copy
-import os
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
-from rooftrace.errors import InputError
-
-__all__ = ["core_labels", "merge_labels", "check_point_formats", "write_classified"]
+__all__ = ["core_labels", "merge_labels"]
 
 
 def core_labels(gidx: np.ndarray, xy: np.ndarray, core: Sequence[float], classification: np.ndarray,
@@ -73,65 +68,3 @@ def merge_labels(parts: Sequence[dict], new_id: dict[tuple, int], n_points: int)
         classification[part["gidx"]] = part["classification"]
         building_id[part["gidx"]] = table[part["key_index"]]  # -1 picks the trailing 0
     return classification, building_id
-
-
-def check_point_formats(paths: Sequence[Path]) -> None:
-    """Refuse inputs of different point formats: one classified file keeps the dimensions of all."""
-    import laspy
-
-    formats = {}
-    for p in paths:
-        with laspy.open(p) as reader:
-            formats[p] = reader.header.point_format.id
-    if len(set(formats.values())) > 1:
-        listing = ", ".join(f"{p.name}: {f}" for p, f in formats.items())
-        raise InputError(f"--classified with tiles needs inputs of one LAS point format ({listing}); convert them "
-                         "to one format (e.g. las2las -set_point_type) or write the classified points per file "
-                         "with 'rooftrace detect'")
-
-
-def write_classified(paths: Sequence[Path], output: str | os.PathLike, classification: np.ndarray,
-                     building_id: np.ndarray, *, crs=None, overwrite: bool = False,
-                     chunk_size: int = 1_000_000) -> Path:
-    """Write the input points with new classes and a ``building_id`` extra dimension, chunk by chunk.
-
-    Every dimension of the inputs is kept; the first file gives the point
-    format, version, scales and offsets (coordinates of the other files are
-    re-quantised to them).
-    """
-    import laspy
-
-    from rooftrace.io.atomic import atomic_path
-    from rooftrace.io.las import _backend
-
-    output = Path(output)
-    with laspy.open(paths[0]) as first:
-        # the first header as it is: its VLRs carry the extra dimensions' descriptions
-        header = copy.deepcopy(first.header)
-    header.point_count = 0
-    if "building_id" not in header.point_format.dimension_names:
-        header.add_extra_dims([laspy.ExtraBytesParams(name="building_id", type=np.int32)])
-    if crs is not None:
-        header.add_crs(crs)
-    names = [d for d in header.point_format.dimension_names
-             if d not in ("X", "Y", "Z", "classification", "building_id")]
-    start = 0
-    with atomic_path(output, overwrite) as tmp:
-        compress = output.suffix.lower() == ".laz"
-        with laspy.open(tmp, mode="w", header=header, do_compress=compress,
-                        laz_backend=_backend() if compress else None) as writer:
-            for p in paths:
-                with laspy.open(p, laz_backend=_backend()) as reader:
-                    for chunk in reader.chunk_iterator(chunk_size):
-                        n = len(chunk)
-                        out = laspy.ScaleAwarePointRecord.zeros(n, header=header)
-                        have = set(chunk.point_format.dimension_names)
-                        for name in names:
-                            if name in have:
-                                out[name] = chunk[name]
-                        out.x, out.y, out.z = chunk.x, chunk.y, chunk.z
-                        out.classification = classification[start:start + n]
-                        out["building_id"] = building_id[start:start + n]
-                        writer.write_points(out)
-                        start += n
-    return output
