@@ -22,3 +22,16 @@ TileSize = Annotated[float | None, typer.Option("--tile-size", min=1.0, help=(
     "Tile side in metres (default: no tiling; when tiling, about 3 M points a buffered tile)."))]
 Buffer = Annotated[float | None, typer.Option("--buffer", min=0.0, help="Tile buffer in metres (default: derived).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Skip tiles finished by an earlier run into the same output.")]
+
+
+def _alpha_strategy(value: str | None) -> str | None:
+    from rooftrace.contour.alpha_shape import STRATEGIES
+    from rooftrace.errors import InputError
+
+    if value is not None and value not in STRATEGIES:
+        raise InputError(f"--alpha must be {', '.join(STRATEGIES[:-1])} or {STRATEGIES[-1]}, got {value!r}")
+    return value
+
+
+Alpha = Annotated[str | None, typer.Option(
+    "--alpha", callback=_alpha_strategy, help="Alpha-shape strategy: global (S1), building (S2) or point (S3).")]
