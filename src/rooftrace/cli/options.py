@@ -27,3 +27,16 @@ Image = Annotated[Path | None, typer.Option("--image", help=IMAGE_HELP, show_def
 Camera = Annotated[Path | None, typer.Option("--camera", help=(
     "camera.json of a frame image (optional for an orthophoto: its GeoTIFF georeference is the camera)."),
     show_default=False)]
+
+
+def _alpha_strategy(value: str | None) -> str | None:
+    from rooftrace.contour.alpha_shape import STRATEGIES
+    from rooftrace.errors import InputError
+
+    if value is not None and value not in STRATEGIES:
+        raise InputError(f"--alpha must be {', '.join(STRATEGIES[:-1])} or {STRATEGIES[-1]}, got {value!r}")
+    return value
+
+
+Alpha = Annotated[str | None, typer.Option(
+    "--alpha", callback=_alpha_strategy, help="Alpha-shape strategy: global (S1), building (S2) or point (S3).")]

@@ -247,7 +247,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         raise InputError("no input files given")
     head = _scan_headers(paths)
     if classified is not None:
-        from rooftrace.tile_points import check_point_formats
+        from rooftrace.io.las import check_point_formats
 
         classified = check_output(classified, overwrite)
         check_point_formats(paths)
