@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _results import record  # noqa: E402
-from rooftrace.contour.alpha_shape import mean_spacing  # noqa: E402
+from rooftrace.contour.spacing import building_mean_spacing as mean_spacing  # noqa: E402
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, connected_buildings, outline_buildings  # noqa: E402
 from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402

@@ -1,31 +1,27 @@
 """The real datasets as buildings (points and ids) for the outline invariant's tests and benchmark.
 
 Buildings are the provider's class 6 split into connected components at
-2 s_avg (>= 10 points), as ``rooftrace outline`` does without building ids;
-City3D clouds are one building each.
+2 s_avg, as ``rooftrace outline`` does without building ids
+(:func:`rooftrace.contour.buildings.classified_buildings`); City3D clouds are
+one building each.
 """
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
-
 import numpy as np
 
-from rooftrace.contour.alpha_shape import mean_spacing
-from rooftrace.contour.outline import connected_buildings
+from rooftrace.contour.buildings import classified_buildings
+from rooftrace.contour.spacing import building_mean_spacing
+from tests.conftest import CITY3D, DELFT, IGN
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
-DELFT = DATA / "3dfier_delft_ahn3_bgt"
-CITY3D = DATA / "city3d_ahn3_single_buildings"
-IGN = DATA / "ign_montpellier_lidarhd_bdortho"
+__all__ = ["DELFT", "CITY3D", "IGN", "class6_buildings", "delft_cloud", "thinned", "ign_tiles", "city3d_buildings"]
 
 
 def class6_buildings(cloud) -> tuple[np.ndarray, np.ndarray, float]:
     """(xyz, building ids, s_avg) of a cloud's class-6 points."""
-    xyz = cloud.xyz[cloud.fields["classification"] == 6]
-    spacing = mean_spacing(xyz[:, :2])
-    return xyz, connected_buildings(xyz[:, :2], 2.0 * spacing, min_points=10), spacing
+    xyz, ids = classified_buildings(cloud.xyz, cloud.fields["classification"])
+    return xyz, ids, building_mean_spacing(xyz[:, :2])
 
 
 def delft_cloud():
@@ -60,5 +56,5 @@ def city3d_buildings() -> tuple[np.ndarray, np.ndarray, float, list]:
         v = PlyData.read(str(folder / f["properties"]["instance_ply"]))["vertex"]
         clouds.append(np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64))
     ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
-    spacing = float(np.median([mean_spacing(c[:, :2]) for c in clouds]))
+    spacing = float(np.median([building_mean_spacing(c[:, :2]) for c in clouds]))
     return np.concatenate(clouds), ids, spacing, [shapely.geometry.shape(f["geometry"]) for f in feats]

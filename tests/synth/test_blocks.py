@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import shapely
 
-from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape, mean_spacing
+from rooftrace.contour.alpha_shape import AlphaOptions
+from rooftrace.contour.spacing import building_mean_spacing as mean_spacing
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
 from rooftrace.contour.outline import OutlineOptions, connected_buildings, outline_buildings
 from rooftrace.synth import SceneOptions, simulate_scene

@@ -33,18 +33,13 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.contour.spacing import building_alpha, delaunay_edges, delaunay_mesh, mean_spacing, point_spacing
+from rooftrace.contour.spacing import building_alpha, delaunay_mesh, point_spacing
 from rooftrace.errors import GeometryError
 
 __all__ = [
     "AlphaOptions",
     "AlphaShape",
     "alpha_shape",
-    "delaunay_edges",
-    "delaunay_mesh",
-    "mean_spacing",
-    "building_alpha",
-    "point_spacing",
     "boundary_edges",
     "triangle_boundary",
     "repair_boundary",

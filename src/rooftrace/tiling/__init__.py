@@ -55,24 +55,41 @@ import os
 import pickle
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from rooftrace.errors import InputError
-
-from rooftrace.tiling.split import (  # noqa: F401
-    POINT_DTYPE, TileOptions, _load_cloud, _scan_headers, _write_json, sample_windows, split_to_tiles,
-    tile_cell_ranges, tile_grid,
-)
-from rooftrace.tiling.tile import (  # noqa: F401
-    _core, _extent, _write_classified, building_numbers, estimate_parameters, merge_tiles, owned_buildings,
-    process_tile,
-)
 from rooftrace.tiling.image import (
-    check_image_inputs, cut_neighbourhoods, image_fingerprint, join_neighbourhoods, merged_planes,
+    check_image_inputs,
+    cut_neighbourhoods,
+    image_fingerprint,
+    join_neighbourhoods,
+    merged_planes,
+)
+from rooftrace.tiling.split import (  # noqa: F401
+    POINT_DTYPE,
+    TileOptions,
+    _load_cloud,
+    _scan_headers,
+    _write_json,
+    sample_windows,
+    split_to_tiles,
+    tile_cell_ranges,
+    tile_grid,
+)
+from rooftrace.tiling.tile import (
+    _core,
+    _extent,
+    _write_classified,
+    building_numbers,
+    estimate_parameters,
+    merge_tiles,
+    owned_buildings,
+    process_tile,
 )
 
 __all__ = [
@@ -184,7 +201,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     crs, config, alpha, planes, seed, overwrite, quiet
         As ``rooftrace run``.
     image, camera : path-like, optional
-        Aerial image and its ``camera.json``: the merged buildings are
+        Aerial image and its ``camera.json`` (None for a georeferenced
+        orthophoto, whose GeoTIFF is its camera): the merged buildings are
         refined with it in one pass, as an untiled run refines them
         (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
     classified : path-like, optional
@@ -205,16 +223,16 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     killed, for ``--resume``; it is removed after a successful merge.
     """
     from rooftrace.cli.app import reporter_for
+    from rooftrace.config import validate_config
     from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
-    from rooftrace.config import validate_config
     from rooftrace.refine import RefineOptions
 
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     output = check_output(output, overwrite)
     if config:
         validate_config(config)
@@ -229,7 +247,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         raise InputError("no input files given")
     head = _scan_headers(paths)
     if classified is not None:
-        from rooftrace.tile_points import check_point_formats
+        from rooftrace.io.las import check_point_formats
 
         classified = check_output(classified, overwrite)
         check_point_formats(paths)
@@ -246,7 +264,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     cam = None
     if image is not None:
         # the untiled run's checks, on the headers, before minutes of tile work
-        cam = check_image_inputs(Path(image), Path(camera), crs_obj, head, ", ".join(map(str, paths)))
+        cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
+                                 ", ".join(map(str, paths)))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
@@ -256,7 +275,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
             "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
-            **({"image": image_fingerprint(Path(image), Path(camera))} if image is not None else {})}
+            **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
+               if image is not None else {})}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -308,7 +328,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
                             "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
         t0 = time.perf_counter()
-        refined, layers = _refine_merged(layers, results, Path(image), Path(camera), cam, cfg, seed, quiet)
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, quiet)
         timings["refine"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     write_layers(output, layers, crs_obj, overwrite=overwrite)
