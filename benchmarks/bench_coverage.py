@@ -1,6 +1,7 @@
 """Outline coverage: does every outline hold its building's points?  Alpha strategies and boundaries compared.
 
     .venv/bin/python benchmarks/bench_coverage.py [delft delft3 ign city3d blocks blocks-large poisson]
+    .venv/bin/python benchmarks/bench_coverage.py cpu      # Delft outline stage CPU time, triangle vs edge
 
 Per dataset and variant: buildings, how many outlines cover < 99 % of their
 building's points (within the outline's alpha), the smallest coverage, how
@@ -131,5 +132,25 @@ def main(names):
         record("coverage", name, rows)
 
 
+def cpu(repeats: int = 3) -> None:
+    """CPU seconds (process time, load-independent) of ``outline_buildings`` on Delft, the boundaries alternating."""
+    xyz, ids, spacing = realdata.class6_buildings(realdata.delft_cloud())
+    outline_buildings(xyz[ids == 1], ids[ids == 1], mean_spacing=spacing)  # numba compilation
+    times: dict[str, list[float]] = {"point, triangle (default)": [], "point, edge (thesis test)": []}
+    for _ in range(repeats):
+        for variant in times:
+            t0 = time.process_time()
+            outline_buildings(xyz, ids, OutlineOptions.from_config({}, **VARIANTS[variant]), mean_spacing=spacing)
+            times[variant].append(time.process_time() - t0)
+    rows = []
+    for variant, t in times.items():
+        print(f"{variant:32s} CPU s {' '.join(f'{x:.2f}' for x in t)}  median {np.median(t):.2f}")
+        rows.append({"method": variant, "metric": "outline_cpu_s_median", "value": float(np.median(t)), "unit": "s"})
+    record("coverage", "delft-outline-cpu", rows)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["delft", "delft3", "ign", "city3d", "blocks", "poisson"])
+    if sys.argv[1:] == ["cpu"]:
+        cpu()
+    else:
+        main(sys.argv[1:] or ["delft", "delft3", "ign", "city3d", "blocks", "poisson"])

@@ -20,7 +20,7 @@ SeedOpt = Annotated[int | None, typer.Option("--seed", min=0, help="Seed of ever
 Ortho = Annotated[bool, typer.Option("--orthophoto", help="Render a true orthophoto GeoTIFF instead of a frame image.")]
 Perturb = Annotated[float | None, typer.Option(
     "--perturb-camera", min=0.01, help="Also write camera_perturbed.json, off by about this many pixels.")]
-SceneKind = Annotated[Optional[str], typer.Option(
+SceneKind = Annotated[str | None, typer.Option(
     "--scene", help="Buildings: 'default' (the house mix) or 'blocks' (city blocks around courtyards). [default: default]")]
 NoImage = Annotated[bool, typer.Option("--no-image", help="Skip the image (LiDAR and truth only).")]
 PowerLine = Annotated[bool, typer.Option("--power-line", help="Add a power line (ASPRS class 14 in the truth).")]
