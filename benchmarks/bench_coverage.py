@@ -38,11 +38,11 @@ from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402
 from tests.contour import realdata  # noqa: E402
 
 VARIANTS = {
-    "point, triangle (default)": {},
-    "point, edge (thesis test)": {"boundary": "edge"},
+    "point, triangle, alpha x1.5 (default)": {},
+    "point, triangle, alpha x1.25": {"scale": 1.25},
+    "point, edge, alpha x1.25 (former default)": {"boundary": "edge", "scale": 1.25},
     "building, triangle": {"strategy": "building"},
     "global, triangle": {"strategy": "global"},
-    "point, triangle, alpha x1.5": {"scale": 1.5},
     "point, triangle, alpha x1": {"scale": 1.0},
     "point, edge, alpha x1 (thesis)": {"boundary": "edge", "scale": 1.0},
 }
@@ -105,7 +105,7 @@ def _reference_scores(kind, truth, outlines):
 
 
 def main(names):
-    print(f"{'dataset':13s} {'variant':32s} {'bldg':>5s} {'<99%':>5s} {'min cov':>8s} {'fallbk':>6s} {'unreg':>6s} "
+    print(f"{'dataset':13s} {'variant':42s} {'bldg':>5s} {'<99%':>5s} {'min cov':>8s} {'fallbk':>6s} {'unreg':>6s} "
           f"{'F':>7s} {'PoLiS':>6s} {'time s':>7s}")
     for name, xyz, ids, spacing, (kind, truth) in _datasets(names):
         rows = []
@@ -117,7 +117,7 @@ def main(names):
             status = Counter(o.status for o in outs)
             f, d = _reference_scores(kind, truth, outs)
             low = int((cov < MIN_COVERAGE).sum())
-            print(f"{name:13s} {variant:32s} {len(outs):5d} {low:5d} {cov.min():8.4f} {status['alpha_fallback']:6d} "
+            print(f"{name:13s} {variant:42s} {len(outs):5d} {low:5d} {cov.min():8.4f} {status['alpha_fallback']:6d} "
                   f"{status['unregularised']:6d} {f if f is not None else float('nan'):7.4f} "
                   f"{d if d is not None else float('nan'):6.3f} {dt:7.1f}", flush=True)
             rows += [{"method": variant, "metric": "buildings_below_99", "value": low, "target": "0"},
@@ -136,7 +136,8 @@ def cpu(repeats: int = 3) -> None:
     """CPU seconds (process time, load-independent) of ``outline_buildings`` on Delft, the boundaries alternating."""
     xyz, ids, spacing = realdata.class6_buildings(realdata.delft_cloud())
     outline_buildings(xyz[ids == 1], ids[ids == 1], mean_spacing=spacing)  # numba compilation
-    times: dict[str, list[float]] = {"point, triangle (default)": [], "point, edge (thesis test)": []}
+    times: dict[str, list[float]] = {"point, triangle, alpha x1.5 (default)": [],
+                                     "point, edge, alpha x1.25 (former default)": []}
     for _ in range(repeats):
         for variant in times:
             t0 = time.process_time()
@@ -144,7 +145,7 @@ def cpu(repeats: int = 3) -> None:
             times[variant].append(time.process_time() - t0)
     rows = []
     for variant, t in times.items():
-        print(f"{variant:32s} CPU s {' '.join(f'{x:.2f}' for x in t)}  median {np.median(t):.2f}")
+        print(f"{variant:42s} CPU s {' '.join(f'{x:.2f}' for x in t)}  median {np.median(t):.2f}")
         rows.append({"method": variant, "metric": "outline_cpu_s_median", "value": float(np.median(t)), "unit": "s"})
     record("coverage", "delft-outline-cpu", rows)
 

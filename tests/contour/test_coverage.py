@@ -26,11 +26,11 @@ def test_outline_coverage_counts_holes_as_outside_and_takes_per_point_tolerances
 
 
 def test_per_edge_alpha_silently_loses_a_courtyard_block():
-    # the issue's failure at the default alpha (x 1.25): 9 800 points of an 80 m block around a
-    # courtyard, irregularly sampled at 3 pts/m².  The thesis' edge test with per-edge alphas breaks
-    # the outer boundary, the gap repair deletes it, a sliver is left, and nothing looks wrong
+    # the issue's failure at the former default (edge test, alpha x 1.25): 9 800 points of an 80 m
+    # block around a courtyard, irregularly sampled at 3 pts/m².  The thesis' edge test with per-edge
+    # alphas breaks the outer boundary, the gap repair deletes it, a sliver is left, nothing looks wrong
     xyz = sample_random(courtyard_blocks(1, 80.0), 3.0, seed=2)
-    shape, status = _alpha_shape(xyz, AlphaOptions(boundary="edge"), None)
+    shape, status = _alpha_shape(xyz, AlphaOptions(boundary="edge", scale=1.25), None)
     rings = [xyz[r, :2] for r in shape.rings]
     assert status == "ok" and outline_coverage(shapely.Polygon(rings[0], rings[1:]), xyz, 1.0) < 0.01
     # the union of triangles judged with one alpha each cannot open: the whole block, courtyard as a hole
@@ -43,7 +43,7 @@ def test_per_edge_alpha_silently_loses_a_courtyard_block():
 
 def test_a_strategy_that_loses_points_falls_back_and_says_so(caplog):
     xyz = sample_random(courtyard_blocks(1, 80.0), 3.0, seed=2)
-    options = OutlineOptions.from_config({}, boundary="edge")
+    options = OutlineOptions.from_config({}, boundary="edge", scale=1.25)
     with caplog.at_level(logging.WARNING, logger="rooftrace.contour.outline"):
         (out,) = outline_buildings(xyz, np.ones(len(xyz), int), options)
     assert out.status == "alpha_fallback" and out.alpha_strategy == "building"
