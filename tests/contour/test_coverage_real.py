@@ -20,8 +20,11 @@ def _check(xyz: np.ndarray, ids: np.ndarray, spacing: float) -> list:
     outlines = outline_buildings(xyz, ids, mean_spacing=spacing)
     assert len(outlines) == ids.max()
     for o in outlines:
-        assert o.polygon is not None, (o.building_id, o.status)
         pts = xyz[ids == o.building_id]
+        if o.polygon is None and len(pts) < 10:  # a few stray points (components from 3 points): no outline, said so
+            assert o.status in ("too_few_points", "collinear", "no_ring")
+            continue
+        assert o.polygon is not None, (o.building_id, o.status)
         covered = outline_coverage(o.polygon, pts, o.alpha)
         assert covered >= MIN_COVERAGE and o.coverage >= MIN_COVERAGE, (o.building_id, len(pts), o.status, covered)
         assert o.status != "low_coverage"

@@ -392,9 +392,9 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
                 outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
                 outline.building_id = int(bid)
                 if outline.status in ("alpha_fallback", "low_coverage"):
-                    log.warning("building %d: the %s alpha's outline covers too few of its %d points; %s (%s alpha, "
-                                "coverage %.3f)", bid, options.alpha.strategy, len(idx), outline.status,
-                                outline.alpha_strategy, outline.coverage)
+                    log.warning("building %d: the %s alpha's shape does not hold 99 %% of its %d points; %s: %s alpha "
+                                "%.2f m, coverage %.3f", bid, options.alpha.strategy, len(idx), outline.status,
+                                outline.alpha_strategy, outline.alpha, outline.coverage)
             except (GeometryError, ValueError, np.linalg.LinAlgError, QhullError, MemoryError) as exc:
                 if not isinstance(exc, GeometryError):  # a bug, but one building must not stop a city
                     log.warning("building %d: outline failed (%s: %s)", bid, type(exc).__name__, exc)
