@@ -112,7 +112,8 @@ class RoofOutline:
         (invalid rings fixed by make_valid), 'multipart' (the points fall
         apart into several parts even with alpha tripled; the largest is
         kept), 'unregularised' (the CD-spline
-        collapsed the outer ring; the alpha-shape ring is kept), 'alpha_fallback' (the configured
+        collapsed the outer ring, or the regularised outline left out points the alpha shape holds;
+        the alpha-shape rings are kept), 'alpha_fallback' (the configured
         strategy's outline covered too few of the points; ``alpha_strategy`` names the one used),
         'low_coverage' (no strategy covers 99 % of the points; the best is kept), or why there is
         no outline ('too_few_points', 'collinear', 'no_ring', ...).
