@@ -32,13 +32,12 @@ import json
 import time
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
+import _data
 from rooftrace.image.candidates import CandidateOptions, extract_candidates
 from rooftrace.synth import SceneOptions, simulate_scene
 

@@ -18,10 +18,10 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import numpy as np
 import shapely
+
+import _data
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))

@@ -31,12 +31,11 @@ import os
 import time
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import numpy as np
 import pyogrio
 import shapely
 
+import _data
 from rooftrace.io.points import read_points
 from rooftrace.lidar.detect import detect_buildings
 from rooftrace.lidar.ground import grid_minimum_ground

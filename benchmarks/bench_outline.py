@@ -15,16 +15,16 @@ import sys
 import time
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import numpy as np
 import shapely
+
+import _data
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, outline_buildings, trace_outline  # noqa: E402
+from rooftrace.contour.spacing import building_mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402
 
 DATA = _data.DATA

@@ -34,12 +34,12 @@ import threading
 import time
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import laspy
 import numpy as np
 import psutil
 import shapely
+
+import _data
 
 ROOT = Path(__file__).resolve().parents[1]
 RT = str(Path(sys.executable).with_name("rooftrace"))

@@ -19,17 +19,17 @@ import sys
 import tempfile
 from pathlib import Path
 
-import _data  # noqa: E402  (the benchmarks' folder is on sys.path when a script runs)
-
 import matplotlib
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import rasterio  # noqa: E402
-import shapely  # noqa: E402
+import _data
 
-from rooftrace.io.vector import read_layer  # noqa: E402
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import rasterio
+import shapely
+
+from rooftrace.io.vector import read_layer
 
 ROOT = Path(__file__).resolve().parents[1]
 IGN = _data.DATA / "ign_montpellier_lidarhd_bdortho"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -20,9 +20,9 @@ def run(
     output: opt.Output,
     image: opt.Image = None,
     camera: opt.Camera = None,
-    alpha: Annotated[Optional[str], typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
+    alpha: opt.Alpha = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
-    classified: Annotated[Optional[Path], typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     seed: opt.Seed = 0,
@@ -45,10 +45,15 @@ def run(
       rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
     """
     from rooftrace.config import load_config
+    from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import (
-        check_image_covers, check_image_size, check_points, check_same_crs, require_metric_crs,
+        check_image_covers,
+        check_image_size,
+        check_points,
+        check_same_crs,
+        require_metric_crs,
     )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
@@ -56,8 +61,6 @@ def run(
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
-    if alpha is not None and alpha not in ("global", "building", "point"):
-        raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
     if camera is not None and image is None:
         raise InputError("--camera needs --image: give the image the camera file describes")
     if output.suffix.lower() != ".gpkg":
@@ -122,12 +125,10 @@ def run(
         write_las(classified, cloud, classification=result.detection.classification,
                   building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(output), **result.summary()}
-    failed = [o.building_id for o in result.outlines if o.polygon is None]
     if not result.outlines:
         log.warning("%s: no buildings found; the layers of %s are empty", where, output)
-    elif failed:
-        log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s", len(failed),
-                    len(result.outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
+    else:
+        warn_failed_outlines(result.outlines)
     if json_:
         emit_json(summary)
     else:

@@ -20,7 +20,7 @@ import contextlib
 import os
 import signal
 import sys
-from typing import Iterator
+from collections.abc import Iterator
 
 __all__ = ["EXIT_CODES", "install_handlers", "interrupt_handlers"]
 

@@ -18,8 +18,8 @@ import os
 import shutil
 import signal
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from rooftrace.errors import InputError, OutputExistsError
 
@@ -140,9 +140,8 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
         if not tmp.exists():
             raise RuntimeError(f"writer produced no file for {path}")
         with uninterrupted():  # an interrupt leaves the old output or the whole new one
-            if tmp.is_dir():
-                if path.exists():
-                    shutil.rmtree(path) if path.is_dir() else path.unlink()
+            if tmp.is_dir() and path.exists():
+                shutil.rmtree(path) if path.is_dir() else path.unlink()
             os.replace(tmp, path)
             untrack(tmp)
     finally:

@@ -7,8 +7,9 @@ import logging
 import os
 import pickle
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -130,7 +131,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         filter lays its border (see :class:`DerivedParams`).
     classified : bool, default False
         Also keep the labels of the core points (``results/<key>.labels.npz``,
-        :func:`rooftrace.tile_points.core_labels`) for the classified LAZ.
+        :func:`rooftrace.tiling.classified.core_labels`) for the classified LAZ.
     refine_context : float, optional
         ``[refine] context`` (m) of a run with an image: also keep the roof
         planes of the owned buildings and the points around them that the
@@ -223,7 +224,7 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
     """Store what the parent's image refinement needs of the buildings this tile owns."""
     from rooftrace.tiling.image import neighbourhood_points
 
-    keep = set(int(b) for b in keep_ids)
+    keep = {int(b) for b in keep_ids}
     result["planes"] = {int(s.building_id): np.asarray(s.planes, float) for s in run_out.structures
                         if int(s.building_id) in keep}
     polygons = [o.polygon for o in run_out.outlines if int(o.building_id) in keep]
@@ -232,7 +233,8 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
 
 
 def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
-    from rooftrace.tile_points import merge_labels, write_classified
+    from rooftrace.io.las import write_las_labels
+    from rooftrace.tiling.classified import merge_labels
 
     new_id = {key: n for key, _, _, n in building_numbers(results)}
     parts = []
@@ -240,11 +242,11 @@ def _write_classified(paths, out, results, result_paths, n_points, crs, overwrit
         with np.load(Path(r).with_suffix(".labels.npz")) as z:
             parts.append({name: z[name] for name in z.files})
     classes, building_id = merge_labels(parts, new_id, n_points)
-    write_classified(paths, out, classes, building_id, crs=crs, overwrite=overwrite)
+    write_las_labels(paths, out, classes, building_id, crs=crs, overwrite=overwrite)
 
 
 def _save_labels(path: Path, cloud, core: Sequence[float], labelled) -> None:
-    from rooftrace.tile_points import core_labels
+    from rooftrace.tiling.classified import core_labels
 
     if labelled is None:  # too few points to detect anything: unclassified
         n = len(cloud)
