@@ -110,3 +110,25 @@ def test_replace_folder_leaves_nothing_of_the_old_one(tmp_path):
     assert replace_folder(new, old) == old
     assert sorted(p.name for p in old.iterdir()) == ["report.html"]
     assert [p.name for p in tmp_path.iterdir()] == ["out"] and new not in _TEMPORARY
+
+
+def test_outputs_committed_together_or_not_at_all(tmp_path):
+    from rooftrace.io.atomic import _TEMPORARY, commit_together
+
+    a, b = tmp_path / "roofs.gpkg", tmp_path / "points.laz"
+    a.write_bytes(b"old a")
+    b.write_bytes(b"old b")
+    with pytest.raises(RuntimeError, match="second writer"):
+        with commit_together():
+            with atomic_path(a, overwrite=True) as tmp:
+                tmp.write_bytes(b"new a")
+            assert a.read_bytes() == b"old a"  # written, not yet in place
+            with atomic_path(b, overwrite=True) as tmp:
+                raise RuntimeError("second writer failed")
+    assert (a.read_bytes(), b.read_bytes()) == (b"old a", b"old b")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["points.laz", "roofs.gpkg"] and not _TEMPORARY
+    with commit_together():
+        for path in (a, b):
+            with atomic_path(path, overwrite=True) as tmp:
+                tmp.write_bytes(b"new")
+    assert a.read_bytes() == b.read_bytes() == b"new" and not _TEMPORARY

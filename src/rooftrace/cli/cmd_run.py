@@ -47,7 +47,7 @@ def run(
     from rooftrace.config import load_config
     from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import (
         check_image_covers,
         check_image_size,
@@ -118,12 +118,13 @@ def run(
                               seed=seed, reporter=reporter)
     finally:
         reporter.close()
-    write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():  # both outputs new, or both as they were
+        write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=result.detection.classification,
-                  building_id=result.detection.building_id, overwrite=overwrite)
+            write_las(classified, cloud, classification=result.detection.classification,
+                      building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(output), **result.summary()}
     if not result.outlines:
         log.warning("%s: no buildings found; the layers of %s are empty", where, output)
@@ -144,12 +145,13 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
     from rooftrace.pipeline import building_layers
 
     log.warning("%s: no points; writing empty layers to %s", where, output)
-    write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():
+        write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
-                  overwrite=overwrite)
+            write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                      overwrite=overwrite)
     if json_:
         emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})

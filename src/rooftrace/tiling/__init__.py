@@ -224,7 +224,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     """
     from rooftrace.cli.app import reporter_for
     from rooftrace.config import validate_config
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
@@ -330,13 +330,14 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         t0 = time.perf_counter()
         refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, quiet)
         timings["refine"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    write_layers(output, layers, crs_obj, overwrite=overwrite)
-    timings["merge"] = merge_seconds + time.perf_counter() - t0
-    if classified is not None:
+    with commit_together():  # the layers and the classified points new, or both as they were
         t0 = time.perf_counter()
-        _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
-        timings["classified"] = time.perf_counter() - t0
+        write_layers(output, layers, crs_obj, overwrite=overwrite)
+        timings["merge"] = merge_seconds + time.perf_counter() - t0
+        if classified is not None:
+            t0 = time.perf_counter()
+            _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+            timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:
         for k, v in res["timings"].items():
