@@ -14,7 +14,8 @@ output.  A run passes when it exits 130 (SIGINT) or 143 (SIGTERM) with
 exactly ``error: interrupted`` on stderr, or finished (exit 0) before its
 signal; its folder holds no temporary file (a tiled run keeps
 ``OUTPUT.parts`` for ``--resume``); and each output is the earlier one, or
-absent, or a whole new one (all layers, as many buildings as the reference).
+absent, or a whole new one (all layers, as many buildings as the reference),
+the GeoPackage and the classified points both new or both old.
 The latency is the time from the signal to the process's exit.
 ``tests/cli/test_interrupt.py`` is the same check, 8 interrupts of a small scene.
 """
@@ -77,6 +78,9 @@ def problems(code: int, err: str, signum: int, folder: Path, existing: bool, bui
             found.append(f"{path.name}: {'missing' if existing else 'unexpected'}")
         elif code == 0 and path.read_bytes() == GOOD:
             found.append(f"{path.name} not replaced by a finished run")
+    new = [path.exists() and path.read_bytes() != GOOD for path in outputs]
+    if existing and new[0] != new[1]:  # renamed into place together (rooftrace.io.atomic.commit_together)
+        found.append("one output replaced, the other not")
     left = {p.name for p in folder.iterdir()} - {p.name for p in outputs} - {"roofs.gpkg.parts"}
     if left:
         found.append(f"left {sorted(left)}")

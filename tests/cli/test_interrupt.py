@@ -67,6 +67,8 @@ def check_interrupted(proc: subprocess.Popen, signum: int, outputs: list, existi
                 assert len(laspy.read(path).points) > 0
         else:
             assert path.exists() == existing
+    if existing:  # renamed into place together, or neither
+        assert len({path.read_bytes() == GOOD for path in outputs if path.exists()}) == 1
     # no temporary file; a tiled run keeps its run folder for --resume
     left = {p.name for p in folder.iterdir()} - {p.name for p in outputs} - {"roofs.gpkg.parts"}
     assert not left, left
