@@ -86,7 +86,7 @@ def test_sigint_and_sigterm_at_random_moments(tmp_path):
         signum = (signal.SIGINT, signal.SIGTERM)[i % 2]
         existing, tiled, classified = i % 4 in (2, 3), i in (5, 6), i % 3 == 0
         proc, outputs = start_run(src, folder, existing=existing, tiled=tiled, classified=classified)
-        runs.append((float(rng.uniform(0.4, 6.0)), proc, signum, outputs, existing))
+        runs.append((float(rng.uniform(0.4, 3.0)), proc, signum, outputs, existing))
     t0 = time.monotonic()
     for moment, proc, signum, _, _ in sorted(runs, key=lambda r: r[0]):
         time.sleep(max(0.0, t0 + moment - time.monotonic()))
