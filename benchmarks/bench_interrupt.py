@@ -31,10 +31,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 import _data  # the benchmarks' folder is on sys.path when a script runs
 import _results
-
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = b"an earlier result"

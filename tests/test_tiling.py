@@ -178,7 +178,7 @@ def test_the_default_tile_holds_about_three_million_points_with_its_buffer():
 
 
 def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
-    from rooftrace.tiling.tile import near_open_side
+    from rooftrace.tiling.split import near_open_side
 
     # a 100 x 10 m tile box in a 200 x 10 m input: only its east side has data beyond it
     boxes = np.array([[1.0, 5, 3, 6], [97, 5, 99, 6], [50, 8.5, 52, 9.5], [40, 2, 60, 4]])

@@ -118,13 +118,12 @@ def test_outputs_committed_together_or_not_at_all(tmp_path):
     a, b = tmp_path / "roofs.gpkg", tmp_path / "points.laz"
     a.write_bytes(b"old a")
     b.write_bytes(b"old b")
-    with pytest.raises(RuntimeError, match="second writer"):
-        with commit_together():
-            with atomic_path(a, overwrite=True) as tmp:
-                tmp.write_bytes(b"new a")
-            assert a.read_bytes() == b"old a"  # written, not yet in place
-            with atomic_path(b, overwrite=True) as tmp:
-                raise RuntimeError("second writer failed")
+    with pytest.raises(RuntimeError, match="second writer"), commit_together():
+        with atomic_path(a, overwrite=True) as tmp:
+            tmp.write_bytes(b"new a")
+        assert a.read_bytes() == b"old a"  # written, not yet in place
+        with atomic_path(b, overwrite=True) as tmp:
+            raise RuntimeError("second writer failed")
     assert (a.read_bytes(), b.read_bytes()) == (b"old a", b"old b")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["points.laz", "roofs.gpkg"] and not _TEMPORARY
     with commit_together():

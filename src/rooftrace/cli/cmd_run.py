@@ -84,10 +84,14 @@ def run(
     if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
-        summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                        scheduler=scheduler, resume=resume),
-                            crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified)
+        reporter = reporter_for(quiet)
+        try:
+            summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
+                                                            scheduler=scheduler, resume=resume),
+                                crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
+                                seed=seed, overwrite=overwrite, reporter=reporter, classified=classified)
+        finally:
+            reporter.close()
         if not summary.get("buildings"):
             log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
         if json_:
@@ -141,6 +145,7 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
     """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
     import numpy as np
 
+    from rooftrace.io.atomic import commit_together
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
