@@ -40,8 +40,8 @@ def start_run(src, folder, *, existing: bool, tiled: bool, classified: bool) -> 
         args += ["--classified", str(outputs[1])]
     if tiled:
         args += ["--workers", "2", "--tile-size", "20"]
-    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
-    proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    # the user's environment as it is (no PYTHONWARNINGS=ignore): a warning on stderr is a failure
+    proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
     return proc, outputs
 
 
