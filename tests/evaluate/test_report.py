@@ -110,7 +110,7 @@ def test_building_table_fits_the_page(scene):
     head = re.search(r'<table class="units"><thead><tr>(.*?)</tr>', text).group(1)
     # 2D outlines: no PoLiS 3D nor RMSE z column; ids of both sides in one column; x and y in one RMSE
     assert "PoLiS 3D" not in head and "RMSE z" not in head and "RMSE xy" in head
-    assert head.count("<th") == 14
+    assert head.count("<th") == 12
     assert "0 → 0" in text and "– → 7" in text
 
 

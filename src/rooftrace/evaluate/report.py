@@ -64,25 +64,24 @@ _SUMMARY = (
     ("n_ridges_reference", "Reference ridges", ""),
     ("n_ridges_extracted", "Extracted ridges", ""),
 )
-# the building table, compact enough for the page: (header, cell function, unit, metric key);
-# a column whose cells are all empty (no z, no corners) is left out
+# the building table, compact enough for the page: (header, cell function, unit, metric key); pairs
+# of shares share a column ("98.5 / 99.7"); a column whose cells are all empty (no z) is left out
 _COLUMNS = (
     ("unit", lambda b: b["unit"], "", "unit"),
     ("status", lambda b: b["status"].replace("_", " "), "", "status"),
     ("reference → extracted", lambda b: _ids(b), "ids", "reference_ids"),
     ("area ref. (m²)", lambda b: b["area_reference"], "a", "area_reference"),
-    ("compl.", lambda b: b["completeness"], "%", "completeness"),
-    ("corr.", lambda b: b["correctness"], "%", "correctness"),
-    ("quality", lambda b: b["quality"], "%", "quality"),
+    ("compl. / corr. (%)", lambda b: (b["completeness"], b["correctness"]), "%/", "completeness"),
+    ("quality (%)", lambda b: b["quality"], "%.", "quality"),
     ("PoLiS (m)", lambda b: b["polis"], "m", "polis"),
     ("PoLiS 3D (m)", lambda b: b["polis_3d"], "m", "polis_3d"),
-    ("Haus­dorff (m)", lambda b: b["hausdorff"], "m", "hausdorff"),
+    ("Haus\u00addorff (m)", lambda b: b["hausdorff"], "m", "hausdorff"),
     ("RMSE xy (m)", lambda b: _hypot(b.get("rmse_x"), b.get("rmse_y")), "m", "rmse_x"),
     ("RMSE z (m)", lambda b: b["rmse_z"], "m", "rmse_z"),
     ("corners ext. / ref.", lambda b: _corner_counts(b), "", "n_corners"),
-    ("corner compl.", lambda b: b.get("corner_completeness"), "%", "corner_completeness"),
-    ("corner corr.", lambda b: b.get("corner_correctness"), "%", "corner_correctness"),
-    ("corner offset (m)", lambda b: b.get("corner_offset"), "m", "corner_offset"),
+    ("corner compl. / corr. (%)", lambda b: (b.get("corner_completeness"), b.get("corner_correctness")), "%/",
+     "n_corners"),
+    ("corner offset (m)", lambda b: b.get("corner_offset"), "m", "n_corners"),
 )
 _MAX_ROWS = 500
 _CSS = """
@@ -94,6 +93,7 @@ th{background:#f4f5f7;position:sticky;top:0} td:first-child,th:first-child{text-
 .summary td:first-child{font-weight:600} .summary th{text-align:right} .note{color:#666;font-size:.9em}
 .counts{font-size:1.05em}
 table.units{width:100%;font-size:.8em} .units td,.units th{padding:.2em .35em}
+@media (max-width:1000px){table.units{font-size:.68em} .units td,.units th{padding:.15em .2em}}
 .units th{white-space:normal;vertical-align:bottom;hyphens:auto}
 .units th.ids{text-align:left} .units td.ids{white-space:normal;text-align:left;max-width:14em;overflow-wrap:anywhere}
 .missed{color:#b30000} .false_positive{color:#c25e00}
@@ -106,6 +106,10 @@ def _fmt(value, unit: str) -> str:
         return "–"
     if isinstance(value, list):
         return ", ".join(str(v) for v in value[:4]) + (" …" if len(value) > 4 else "")
+    if unit == "%/":  # two shares in one cell, the unit in the header
+        return " / ".join(_fmt(v, "%.") for v in value)
+    if unit == "%.":
+        return f"{100 * value:.1f}"
     if unit == "%":
         return f"{100 * value:.1f}\u00a0%"
     if unit == "m":
