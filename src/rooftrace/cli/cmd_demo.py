@@ -35,7 +35,7 @@ def demo(
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.vector import read_layer, write_layers
-    from rooftrace.pipeline import run_pipeline
+    from rooftrace.pipeline import building_layers, run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
     setup_logging(quiet)
@@ -72,8 +72,11 @@ def demo(
     lidar_outlines = lidar_only = None
     if result.refined is not None:
         # what the image adds: the same scores for the LiDAR-only outlines of this run
-        lidar_outlines = [o.polygon for o in result.outlines]
-        lidar_only = evaluate(lidar_outlines, list(truth.geometries))
+        lidar_layers = building_layers(result.outlines, result.structures)
+        lidar_outlines = list(lidar_layers["roof_outlines"].geometries)
+        lidar_only = evaluate(lidar_outlines, list(truth.geometries),
+                              extracted_ridges=list(lidar_layers["ridges"].geometries),
+                              reference_ridges=reference_ridges)
         metrics["compare"] = {"label": "LiDAR only", **lidar_only}
     with atomic_path(output / "metrics.json", overwrite=True) as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, allow_nan=False) + "\n", encoding="utf-8")

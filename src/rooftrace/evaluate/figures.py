@@ -121,7 +121,7 @@ def _scene_map(metrics, extracted, reference, points_xy) -> Figure:
     merged = sum(b["status"] == "matched" and (len(b["reference_ids"]) > 1 or len(b["extracted_ids"]) > 1)
                  for b in units)
     ax.set_title(f"{metrics.get('n_reference', 0)} reference, {metrics.get('n_extracted', 0)} extracted buildings: "
-                 f"{metrics.get('n_matched', 0)} matched units ({merged} merged blocks), "
+                 f"{metrics.get('n_matched', 0)} matched units ({merged} merged block{'' if merged == 1 else 's'}), "
                  f"{sum(b['status'] == 'missed' for b in units)} missed, "
                  f"{sum(b['status'] == 'false_positive' for b in units)} false detections")
     return fig
