@@ -6,7 +6,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -155,14 +155,14 @@ def evaluate_cmd(
                                               show_default=False)],
     reference: Annotated[Path, typer.Argument(help="Reference outlines, same formats.", show_default=False)],
     output: opt.OutputDir,
-    aoi: Annotated[Optional[Path], typer.Option("--aoi", help="Area of interest: a polygon vector file (first "
+    aoi: Annotated[Path | None, typer.Option("--aoi", help="Area of interest: a polygon vector file (first "
                                                 "layer). Areas are clipped to it; buildings whose interior "
                                                 "point lies inside it are evaluated.")] = None,
-    layer: Annotated[Optional[str], typer.Option("--layer", help="Layer of EXTRACTED (default: roof_outlines "
+    layer: Annotated[str | None, typer.Option("--layer", help="Layer of EXTRACTED (default: roof_outlines "
                                                  "if present, else the first).")] = None,
-    reference_layer: Annotated[Optional[str], typer.Option("--reference-layer", help="Layer of REFERENCE "
+    reference_layer: Annotated[str | None, typer.Option("--reference-layer", help="Layer of REFERENCE "
                                                            "(default: roof_outlines if present, else the first).")] = None,
-    points: Annotated[Optional[Path], typer.Option("--points", help="LAS/LAZ drawn under the outlines in the "
+    points: Annotated[Path | None, typer.Option("--points", help="LAS/LAZ drawn under the outlines in the "
                                                    "plots (class 6 when classified).")] = None,
     min_overlap: Annotated[float, typer.Option("--min-overlap",
                                                help="Overlap fraction (of the smaller polygon) to match, and of a "
