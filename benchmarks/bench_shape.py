@@ -25,12 +25,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _results import record  # noqa: E402
 from bench_outline import CITY3D, _peer_concave, _regularise  # noqa: E402
-
 from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, outline_buildings  # noqa: E402
 from rooftrace.evaluate import evaluate  # noqa: E402
 
-# (key, header, unit, target of issue 17 on City3D)
+# (key, header, unit, target on City3D)
 KEYS = (("polis_mean", "PoLiS m", "m", "<= 0.10"),
         ("corner_ratio_median", "ratio med", "", "<= 1.3"),
         ("corner_ratio_within_1_5", "in 1.5x", "", ">= 0.70"),

@@ -125,14 +125,14 @@ def _table(sets: list[tuple[str, dict]], out_dir: Path) -> None:
 
 def _image_and_camera(image: Path, camera: Path | None):
     """The image (grey, for the report) and the camera that projects outlines into it."""
+    import warnings
+
+    from rasterio.errors import NotGeoreferencedWarning
+
     from rooftrace.errors import InputError
     from rooftrace.io.camera import camera_from_dict, read_camera
     from rooftrace.io.checks import check_image_size
     from rooftrace.io.raster import read_image, read_raster_meta
-
-    import warnings
-
-    from rasterio.errors import NotGeoreferencedWarning
 
     with warnings.catch_warnings():  # a frame image has no georeferencing, and needs none
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -181,21 +181,21 @@ def evaluate_cmd(
                                                     help="Largest distance (m) at which an extracted corner "
                                                          "matches a reference corner (corner completeness, "
                                                          "correctness and offset).", show_default=True)] = 0.5,
-    compare: Annotated[Optional[Path], typer.Option("--compare", help="A second extracted set (e.g. the "
+    compare: Annotated[Path | None, typer.Option("--compare", help="A second extracted set (e.g. the "
                                                     "LiDAR-only outlines of a run with an image), evaluated "
                                                     "against the same reference; its scores stand beside "
                                                     "EXTRACTED's in the table and the report, and in "
                                                     "metrics.json under 'compare'.")] = None,
-    compare_layer: Annotated[Optional[str], typer.Option("--compare-layer", help="Layer of --compare (default: "
+    compare_layer: Annotated[str | None, typer.Option("--compare-layer", help="Layer of --compare (default: "
                                                          "roof_outlines if present, else the first).")] = None,
-    label: Annotated[Optional[str], typer.Option("--label", help="Name of EXTRACTED in the table and the "
+    label: Annotated[str | None, typer.Option("--label", help="Name of EXTRACTED in the table and the "
                                                  "report (default: its file name).")] = None,
-    compare_label: Annotated[Optional[str], typer.Option("--compare-label", help="Name of --compare (default: "
+    compare_label: Annotated[str | None, typer.Option("--compare-label", help="Name of --compare (default: "
                                                          "its file name).")] = None,
-    image: Annotated[Optional[Path], typer.Option("--image", help="An image shown in the report with the "
+    image: Annotated[Path | None, typer.Option("--image", help="An image shown in the report with the "
                                                   "outlines over it: a georeferenced orthophoto (GeoTIFF) as "
                                                   "it is, an aerial frame image with --camera.")] = None,
-    camera: Annotated[Optional[Path], typer.Option("--camera", help="camera.json of --image (needed for a frame "
+    camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of --image (needed for a frame "
                                                    "image; the outlines must then be 3D).")] = None,
     crs: opt.Crs = None,
     json_: opt.Json = False,
