@@ -12,19 +12,17 @@ correctness within 0.5 m and the mean corner offset (as
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
-import shapely
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _results import record  # noqa: E402
-from bench_outline import CITY3D, _peer_concave, _regularise  # noqa: E402
+from bench_outline import _peer_concave, _regularise, city3d_instances  # noqa: E402
 from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, outline_buildings  # noqa: E402
 from rooftrace.evaluate import evaluate  # noqa: E402
@@ -53,14 +51,7 @@ def _header(title: str) -> None:
 
 
 def city3d() -> None:
-    from plyfile import PlyData
-
-    feats = json.loads((CITY3D / "002_footprint.geojson").read_text())["features"]
-    clouds, truths = [], []
-    for f in feats:
-        v = PlyData.read(str(CITY3D / f["properties"]["instance_ply"]))["vertex"]
-        clouds.append(np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64))
-        truths.append(shapely.geometry.shape(f["geometry"]))
+    clouds, truths = city3d_instances()
     xyz = np.concatenate(clouds)
     ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
     spacing = float(np.median([cloud_spacing(c[:, :2]) for c in clouds]))
