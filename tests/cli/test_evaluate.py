@@ -138,6 +138,11 @@ def test_compare_and_orthophoto(tmp_path, files, capsys):
     assert main(["evaluate", str(e), str(r), "-o", str(out), "--overwrite", "--compare", str(other),
                  "--json", "-q"]) == 0
     assert json.loads(capsys.readouterr().out)["compare"]["label"] == "lidar_only.gpkg"
+    # an orthophoto in another CRS than the outlines is refused
+    web = write_geotiff(tmp_path / "web.tif", np.zeros((10, 10), np.uint8), transform=(1.0, 0, 0, 0, -1.0, 10.0),
+                        crs=pyproj.CRS.from_user_input("EPSG:3857"))
+    assert main(["evaluate", str(e), str(r), "-o", str(tmp_path / "w"), "--image", str(web)]) == 2
+    assert "different CRS" in capsys.readouterr().err
 
 
 def test_missing_crs_is_a_warning(tmp_path, files, capsys):

@@ -266,6 +266,9 @@ def evaluate_cmd(
     picture = cam = None
     if image is not None:
         picture, cam = _image_and_camera(image, camera)
+        from rooftrace.io.checks import check_same_crs
+
+        check_same_crs(getattr(cam, "crs", None), ext_crs or ref_crs, str(camera or image), str(extracted))
 
     options = {"aoi": area, "ridge_buffer": ridge_buffer, "min_overlap": min_overlap,
                "merge_blocks": not no_merge_blocks, "reference_ids": ref_ids, "boundary_band": boundary_band,

@@ -13,6 +13,7 @@ which embeds them in the HTML page.
 from __future__ import annotations
 
 import io
+import logging
 import math
 from collections.abc import Sequence
 
@@ -27,6 +28,8 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.axes_grid1 import make_axes_locatable
 
 __all__ = ["render_figures", "FIGURES"]
+
+log = logging.getLogger(__name__)
 
 #: file name -> caption, in page order
 FIGURES = {
@@ -401,6 +404,9 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
         fig = _image_figure(metrics, image, camera, extracted, reference, compare, compare_metrics, labels)
         if fig is not None:
             out["image.png"] = _png(fig)
+        else:
+            log.warning("no outline falls inside the image; the report shows no image (a frame camera "
+                        "places only 3D outlines)")
     fig = _overlays(metrics, extracted, reference, points_xy, (extracted_ridges, reference_ridges), compare)
     if fig is not None:
         out["overlays.png"] = _png(fig)
