@@ -98,6 +98,13 @@ def test_unit_sentence_says_what_was_merged():
     assert unit_sentence(two) == ("4 reference and 2 extracted buildings: 2 matched units, 2 merged blocks "
                                   "(2 reference buildings into 1 extracted each); 0 reference buildings missed, "
                                   "0 false detections.")
+    chain = evaluate([box(5, 0, 15, 10), box(15, 0, 20, 10), box(40, 0, 50, 10)],
+                     [box(0, 0, 10, 10), box(10, 0, 20, 10), box(40, 0, 50, 10), box(60, 0, 70, 10)])
+    assert unit_sentence(chain) == ("4 reference and 3 extracted buildings: 2 matched units, 1 one to one and a "
+                                    "merged block (2 reference buildings into 2 extracted); 1 reference building "
+                                    "missed, 0 false detections.")
+    assert unit_sentence(evaluate(ref[:2], ref[:2], merge_blocks=False)).startswith(
+        "2 reference and 2 extracted buildings: 2 matched units, all one to one; ")
     text = report_html(m, {})
     assert "a merged block (3 reference buildings into 1 extracted)" in text
 

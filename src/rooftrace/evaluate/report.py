@@ -137,8 +137,8 @@ def _corner_counts(b: dict):
     return f"{b['n_corners']} / {b['n_corners_reference']}"
 
 
-def _plural(n: int, word: str, words: str | None = None) -> str:
-    return f"{n} {word if n == 1 else (words or word + 's')}"
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word if n == 1 else word + 's'}"
 
 
 def unit_sentence(metrics: dict) -> str:
@@ -163,9 +163,9 @@ def unit_sentence(metrics: dict) -> str:
     one = n_matched - sum(shapes.values())
     parts = []
     if one:
-        parts.append(f"{one} one to one" if shapes else "")
+        parts.append(f"{one} one to one" if shapes else ("all one to one" if n_matched > 1 else ""))
     for (nr, ne), k in sorted(shapes.items(), key=lambda kv: (-kv[0][0], -kv[0][1])):
-        what = f"{nr} reference buildings into {_plural(ne, 'extracted')}" if nr > 1 else \
+        what = f"{nr} reference buildings into {ne} extracted" if nr > 1 else \
             f"1 reference building split into {ne} extracted"
         parts.append(f"{'a merged block' if k == 1 else f'{k} merged blocks'} ({what}{'' if k == 1 else ' each'})")
     parts = [p for p in parts if p]
