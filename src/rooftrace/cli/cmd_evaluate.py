@@ -129,21 +129,14 @@ def _image_and_camera(image: Path, camera: Path | None):
 
     from rasterio.errors import NotGeoreferencedWarning
 
-    from rooftrace.errors import InputError
-    from rooftrace.io.camera import camera_from_dict, read_camera
+    from rooftrace.io.camera import image_camera
     from rooftrace.io.checks import check_image_size
-    from rooftrace.io.raster import read_image, read_raster_meta
+    from rooftrace.io.raster import read_image
 
     with warnings.catch_warnings():  # a frame image has no georeferencing, and needs none
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        georeferenced = read_raster_meta(image).transform is not None
+        cam = image_camera(image, camera)
         grey = read_image(image)
-    if camera is not None:
-        cam = read_camera(camera, image)
-    elif georeferenced:  # a georeferenced orthophoto carries its camera
-        cam = camera_from_dict({"type": "orthophoto"}, str(image), image)
-    else:
-        raise InputError(f"{image}: not georeferenced; an aerial frame image needs its camera file (--camera)")
     check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
     return grey, cam
 
@@ -222,7 +215,7 @@ def evaluate_cmd(
     if not corner_tolerance > 0.0:
         raise InputError(f"--corner-tolerance must be a positive distance in metres, got {corner_tolerance}")
     if camera is not None and image is None:
-        raise InputError("--camera goes with --image (the image the camera describes)")
+        raise InputError("--camera needs --image: give the image the camera file describes")
     for path in (extracted, reference, aoi, points, compare, image, camera):
         if path is not None and not path.exists():
             raise InputError(f"{path}: no such file")
