@@ -124,21 +124,22 @@ def _table(sets: list[tuple[str, dict]], out_dir: Path) -> None:
 
 
 def _image_and_camera(image: Path, camera: Path | None):
-    """The image (grey, for the report) and the camera that projects outlines into it."""
+    """The image as read (bands, H, W), for the report, and the camera that projects outlines into it."""
     import warnings
 
+    import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
     from rooftrace.io.camera import image_camera
     from rooftrace.io.checks import check_image_size
-    from rooftrace.io.raster import read_image
 
     with warnings.catch_warnings():  # a frame image has no georeferencing, and needs none
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        cam = image_camera(image, camera)
-        grey = read_image(image)
-    check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
-    return grey, cam
+        cam = image_camera(image, camera)  # refuses an unreadable image with one error line
+        with rasterio.open(image) as ds:
+            bands = ds.read()
+    check_image_size(bands.shape[:0:-1], cam, str(image), str(camera or image))
+    return bands, cam
 
 
 @app.command("evaluate")
