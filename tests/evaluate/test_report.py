@@ -149,3 +149,15 @@ def test_image_with_two_outline_sets_and_scores_side_by_side(scene):
     assert _image_figure(m, image[:, :100], frame, ext, ref) is None
     with pytest.raises(ValueError, match="go together"):
         render_figures(m, ext, ref, image=image)
+
+
+def test_image_display_scaling():
+    from rooftrace.evaluate.figures import _display
+
+    rgb, kw = _display(np.full((3, 10, 20), 51, np.uint8))  # bands first, as rasterio reads them
+    assert rgb.shape == (10, 20, 3) and np.allclose(rgb, 0.2) and kw == {}
+    grey, kw = _display(np.linspace(0, 4095, 200).reshape(10, 20).astype(np.uint16))  # 12 bits in 16
+    assert grey.shape == (10, 20) and kw["cmap"] == "gray" and grey.max() == 1.0 and grey.mean() > 0.4
+    assert np.allclose(_display(np.full((10, 20), 0.3))[0], 0.3)
+    with pytest.raises(ValueError, match="image must be"):
+        _display(np.zeros(5))

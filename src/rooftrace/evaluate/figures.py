@@ -226,12 +226,15 @@ def _display(image) -> tuple[np.ndarray, dict]:
         a = a[..., :3] if a.shape[2] >= 3 else a[..., 0]
     if a.ndim != 2 and not (a.ndim == 3 and a.shape[2] == 3):
         raise ValueError(f"image must be (H, W), (H, W, 3) or (bands, H, W), not {np.shape(image)}")
-    if np.issubdtype(a.dtype, np.integer):
-        a = a.astype(np.float64) / float(np.iinfo(a.dtype).max)
+    if a.dtype == np.uint8:
+        a = a.astype(np.float64) / 255.0
     else:
+        # 16-bit and float images seldom use their type's range (12-bit sensors, reflectances): stretch
+        integer = np.issubdtype(a.dtype, np.integer)
         a = a.astype(np.float64)
-        top = float(np.nanmax(a)) if a.size else 1.0
-        a = a / top if top > 1.0 else a
+        top = float(np.nanpercentile(a, 99.5)) if a.size else 1.0
+        if top > 1.0 or (integer and top > 0):  # floats already in [0, 1] stay as they are
+            a = a / top
     return np.clip(a, 0.0, 1.0), ({"cmap": "gray", "vmin": 0.0, "vmax": 1.0} if a.ndim == 2 else {})
 
 
@@ -373,8 +376,8 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
         Its evaluation against the same reference; the image close-ups show
         the buildings whose PoLiS changes most between the two sets.
     image : ndarray, optional
-        (H, W) grey, (H, W, 3) or (bands, H, W); integers scaled by their
-        type's maximum.
+        (H, W) grey, (H, W, 3) or (bands, H, W); 8 bits as they are, other
+        types stretched to their 99.5th percentile.
     camera : FrameCamera or OrthoCamera, optional
         Anything with ``project(xyz) -> (column, row)``; needed with ``image``.
         A frame camera places only 3D outlines.
