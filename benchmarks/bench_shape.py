@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_shape.py city3d   # 50 AHN3 single buildings vs their footprints
     .venv/bin/python benchmarks/bench_shape.py demo     # the demo scene: LiDAR-only and refined vs truth
+    .venv/bin/python benchmarks/bench_shape.py delft OUT.gpkg   # `rooftrace run` on both Delft tiles vs BGT pand
 
 Prints, per method, the mean PoLiS, the median corner count ratio to the
 reference, the share of buildings within 1.5x, corner completeness and
@@ -16,6 +17,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import shapely
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
@@ -23,8 +25,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from _results import record  # noqa: E402
 from bench_outline import _peer_concave, _regularise, city3d_instances  # noqa: E402
-from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, outline_buildings  # noqa: E402
+from rooftrace.contour.spacing import building_mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.evaluate import evaluate  # noqa: E402
 
 # (key, header, unit, target on City3D)
@@ -95,6 +97,28 @@ def demo() -> None:
     record("shape", "demo", rows)
 
 
+def delft() -> None:
+    import _data
+    from rooftrace.io.vector import read_layer
+
+    if len(sys.argv) < 3:
+        sys.exit("usage: bench_shape.py delft OUT.gpkg [MORE.gpkg ...] (outputs of rooftrace run on both tiles)")
+    bgt = _data.DATA / "3dfier_delft_ahn3_bgt"
+    # the area the BGT layers cover, as in bench_outline.py delft: outside it BGT says nothing
+    aoi = shapely.union_all([g for p in sorted(bgt.glob("bgt_*.sqlite")) for g in read_layer(p).geometries])
+    reference = list(read_layer(bgt / "bgt_pand.sqlite").geometries)
+    ref = evaluate(reference, reference, aoi=aoi)
+    _header(f"Delft, BGT pand inside the BGT area: {ref['n_reference']} buildings, "
+            f"{ref['n_corners_reference']} corners")
+    rows = []
+    for path in sys.argv[2:]:
+        m = evaluate(list(read_layer(path, "roof_outlines").geometries), reference, aoi=aoi)
+        name = Path(path).name
+        print(_line(name, m) + f"   ({m['n_matched']} units, {m['n_matched_merged']} merged blocks)")
+        rows += _rows(name, m, False)
+    record("shape", "delft", rows)
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "city3d"
-    {"city3d": city3d, "demo": demo}[what]()
+    {"city3d": city3d, "demo": demo, "delft": delft}[what]()
