@@ -152,12 +152,13 @@ def test_image_with_two_outline_sets_and_scores_side_by_side(scene):
 
 
 def test_image_display_scaling():
-    from rooftrace.evaluate.figures import _display
+    from rooftrace.evaluate.figures import _raster
 
-    rgb, kw = _display(np.full((3, 10, 20), 51, np.uint8))  # bands first, as rasterio reads them
-    assert rgb.shape == (10, 20, 3) and np.allclose(rgb, 0.2) and kw == {}
-    grey, kw = _display(np.linspace(0, 4095, 200).reshape(10, 20).astype(np.uint16))  # 12 bits in 16
-    assert grey.shape == (10, 20) and kw["cmap"] == "gray" and grey.max() == 1.0 and grey.mean() > 0.4
-    assert np.allclose(_display(np.full((10, 20), 0.3))[0], 0.3)
+    bands = np.full((3, 10, 20), 51, np.uint8)
+    rgb, scale, kw = _raster(bands)  # bands first, as rasterio reads them; a view, not a copy
+    assert rgb.shape == (10, 20, 3) and np.shares_memory(rgb, bands) and scale == 255.0 and kw == {}
+    grey, scale, kw = _raster(np.linspace(0, 4095, 200).reshape(10, 20).astype(np.uint16))  # 12 bits in 16
+    assert grey.shape == (10, 20) and kw["cmap"] == "gray" and 4000 < scale < 4095
+    assert _raster(np.full((10, 20), 0.3))[1] == 1.0  # floats in [0, 1] as they are
     with pytest.raises(ValueError, match="image must be"):
-        _display(np.zeros(5))
+        _raster(np.zeros(5))

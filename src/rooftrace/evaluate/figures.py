@@ -217,8 +217,12 @@ def _overlays(metrics, extracted, reference, points_xy, ridges=(None, None), com
     return fig
 
 
-def _display(image) -> tuple[np.ndarray, dict]:
-    """An image as (H, W) grey or (H, W, 3) RGB in [0, 1], and the imshow keywords for it."""
+def _raster(image) -> tuple[np.ndarray, float, dict]:
+    """An image as an (H, W) grey or (H, W, 3) RGB view, the divisor mapping it to [0, 1], the imshow keywords.
+
+    Only views: the pixels shown are converted where they are drawn, so a
+    large orthophoto is never copied whole.
+    """
     a = np.asarray(image)
     if a.ndim == 3 and a.shape[0] <= 4 < a.shape[2]:  # bands first, as rasterio reads them
         a = np.moveaxis(a, 0, -1)
@@ -226,16 +230,16 @@ def _display(image) -> tuple[np.ndarray, dict]:
         a = a[..., :3] if a.shape[2] >= 3 else a[..., 0]
     if a.ndim != 2 and not (a.ndim == 3 and a.shape[2] == 3):
         raise ValueError(f"image must be (H, W), (H, W, 3) or (bands, H, W), not {np.shape(image)}")
+    scale = 1.0
     if a.dtype == np.uint8:
-        a = a.astype(np.float64) / 255.0
-    else:
+        scale = 255.0
+    elif a.size:
         # 16-bit and float images seldom use their type's range (12-bit sensors, reflectances): stretch
-        integer = np.issubdtype(a.dtype, np.integer)
-        a = a.astype(np.float64)
-        top = float(np.nanpercentile(a, 99.5)) if a.size else 1.0
-        if top > 1.0 or (integer and top > 0):  # floats already in [0, 1] stay as they are
-            a = a / top
-    return np.clip(a, 0.0, 1.0), ({"cmap": "gray", "vmin": 0.0, "vmax": 1.0} if a.ndim == 2 else {})
+        sample = a[::max(1, a.shape[0] // 512), ::max(1, a.shape[1] // 512)].astype(np.float64)
+        top = float(np.nanpercentile(sample, 99.5))
+        if top > 1.0 or (np.issubdtype(a.dtype, np.integer) and top > 0):  # floats in [0, 1] stay
+            scale = top
+    return a, scale, ({"cmap": "gray", "vmin": 0.0, "vmax": 1.0} if a.ndim == 2 else {})
 
 
 def _pixel_rings(camera, geom) -> list[np.ndarray]:
@@ -254,14 +258,15 @@ def _pixel_rings(camera, geom) -> list[np.ndarray]:
     return out
 
 
-def _image_panel(ax, img, kw, window, layers) -> None:
+def _image_panel(ax, img, scale, kw, window, layers) -> None:
     """Draw the image inside ``window`` (c0, r0, c1, r1; pixels), subsampled to fit, and the rings over it."""
     h, w = img.shape[:2]
     c0, r0 = max(0, int(math.floor(window[0]))), max(0, int(math.floor(window[1])))
     c1, r1 = min(w, int(math.ceil(window[2])) + 1), min(h, int(math.ceil(window[3])) + 1)
     if c1 > c0 and r1 > r0:
         step = max(1, int(math.ceil(max(c1 - c0, r1 - r0) / _MAX_IMAGE_PX)))
-        ax.imshow(img[r0:r1:step, c0:c1:step], extent=(c0 - 0.5, c1 - 0.5, r1 - 0.5, r0 - 0.5),
+        piece = np.clip(img[r0:r1:step, c0:c1:step].astype(np.float64) / scale, 0.0, 1.0)
+        ax.imshow(piece, extent=(c0 - 0.5, c1 - 0.5, r1 - 0.5, r0 - 0.5),
                   interpolation="nearest" if step == 1 else "antialiased", **kw)
     for rings, colour, ls, lw in layers:
         for cr in rings:
@@ -305,7 +310,7 @@ def _closeups(metrics, compare_metrics) -> list[tuple[dict, dict | None]]:
 
 def _image_figure(metrics, image, camera, extracted, reference, compare=None, compare_metrics=None,
                   labels=("extracted", "compared")) -> Figure | None:
-    img, kw = _display(image)
+    img, scale, kw = _raster(image)
     ext_rings = [_pixel_rings(camera, g) for g in extracted]
     ref_rings = [_pixel_rings(camera, g) for g in reference]
     cmp_rings = [_pixel_rings(camera, g) for g in (compare or [])]
@@ -326,7 +331,7 @@ def _image_figure(metrics, image, camera, extracted, reference, compare=None, co
     grid = fig.add_gridspec(1 + nrow, ncol, height_ratios=[top] + [3.2] * nrow)
     ax = fig.add_subplot(grid[0, :])
     flat = lambda groups: [r for rings in groups for r in rings]  # noqa: E731
-    _image_panel(ax, img, kw, scene, [(flat(ref_rings), _IMG_REF, "-", 0.9), (flat(cmp_rings), _IMG_CMP, "--", 0.9),
+    _image_panel(ax, img, scale, kw, scene, [(flat(ref_rings), _IMG_REF, "-", 0.9), (flat(cmp_rings), _IMG_CMP, "--", 0.9),
                                       (flat(ext_rings), _IMG_EXT, "-", 0.9)])
     handles = [ax.plot([], [], color=c, ls=ls, label=lab)[0]
                for c, ls, lab in ((_IMG_REF, "-", "reference"), (_IMG_CMP, "--", labels[1]),
@@ -341,7 +346,7 @@ def _image_figure(metrics, image, camera, extracted, reference, compare=None, co
         if win is None:
             ax.set_axis_off()
             continue
-        _image_panel(ax, img, kw, win, [(ref_u, _IMG_REF, "-", 1.4), (cmp_u, _IMG_CMP, "--", 1.4),
+        _image_panel(ax, img, scale, kw, win, [(ref_u, _IMG_REF, "-", 1.4), (cmp_u, _IMG_CMP, "--", 1.4),
                                         (ext_u, _IMG_EXT, "-", 1.4)])
         ids = ",".join(str(i) for i in b["reference_ids"][:3]) + ("…" if len(b["reference_ids"]) > 3 else "")
         change = f"{o['polis']:.2f} → {b['polis']:.2f} m" if o is not None else f"{b['polis']:.2f} m"
