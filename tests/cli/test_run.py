@@ -1,6 +1,7 @@
 """`rooftrace run` and `rooftrace demo` end to end on small simulated scenes."""
 
 import json
+import re
 
 import laspy
 import numpy as np
@@ -87,6 +88,8 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     assert main(["demo", "-o", str(out), "--size", "50", "--density", "6", "--seed", "2", "--no-image",
                  "--overwrite", "-q"]) == 0
     after = {p.name for p in out.iterdir()}
+    text = capsys.readouterr().out  # rounded, with units
+    assert re.search(r"polis_mean: \d+\.\d{3} m\n", text) and not re.search(r"\d\.\d{4,}", text), text
     assert {"image.tif", "camera.json"} <= before and not after & {"image.tif", "camera.json"}
     assert {"report.html", "metrics.json", "result.gpkg", "truth.gpkg", "points.laz", ".rooftrace-demo"} <= after
     assert [p.name for p in tmp_path.iterdir()] == ["demo"]  # no temporary folder beside it

@@ -122,7 +122,11 @@ def demo(
         emit_json(summary)
     else:
         typer.echo(f"report: {report}")
+        # lengths to the millimetre, scores to 0.001
+        units = {"polis_mean": " m", "polis_mean_lidar_only": " m", "rmse_z": " m", "ridge_position_error": " m"}
         for key in ("f_score", "polis_mean", "polis_mean_lidar_only", "rmse_z", "ridge_position_error",
                     "n_reference", "n_matched"):
             if key in summary:
-                typer.echo(f"{key:>22}: {summary[key]}")
+                value = summary[key]
+                text = f"{value:.3f}{units.get(key, '')}" if isinstance(value, float) else str(value)
+                typer.echo(f"{key:>22}: {text}")
