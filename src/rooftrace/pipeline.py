@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -21,6 +22,13 @@ from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
+if TYPE_CHECKING:
+    from rooftrace.contour.outline import RoofOutline
+    from rooftrace.image.camera import FrameCamera, OrthoCamera
+    from rooftrace.lidar.detect import DerivedParams, Detection
+    from rooftrace.refine import RefineResult
+    from rooftrace.roof import RoofStructure
+
 __all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "refine_layers"]
 
 log = logging.getLogger(__name__)
@@ -28,7 +36,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class RunResult:
-    """Everything a run produced.
+    """Everything a run produced (:func:`run_pipeline`).
 
     Attributes
     ----------
@@ -46,10 +54,10 @@ class RunResult:
         Seconds per step.
     """
 
-    detection: Any
-    outlines: list
-    structures: list
-    refined: Any
+    detection: Detection
+    outlines: list[RoofOutline]
+    structures: list[RoofStructure]
+    refined: RefineResult | None
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -114,7 +122,8 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
-                  image: np.ndarray, camera: Any, *, config: dict | None = None, seed: int = 0):
+                  image: np.ndarray, camera: FrameCamera | OrthoCamera, *, config: dict | None = None,
+                  seed: int = 0) -> tuple[RefineResult, dict[str, Layer]]:
     """Image refinement of the LiDAR layers of a run, every building in one pass.
 
     The untiled run and the merge of a tiled run both call this on their
@@ -169,14 +178,15 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
     return refined, _with_refinement(layers, refined)
 
 
-def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
+def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
     return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
             "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
             "roof_faces": layers["roof_faces"]}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
+def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure],
+                    refined: RefineResult | None = None) -> dict[str, Layer]:
     """The three output layers of DESIGN.md from the stage results."""
     from rooftrace.contour.outline import outlines_layer
     from rooftrace.roof import faces_layer, ridges_layer
@@ -193,11 +203,11 @@ def run_pipeline(
     alpha: str | None = None,
     planes: bool = True,
     image: np.ndarray | None = None,
-    camera: Any = None,
+    camera: FrameCamera | OrthoCamera | None = None,
     seed: int = 0,
     reporter: Reporter | None = None,
-    derived: Any = None,
-    buildings: Any = None,
+    derived: DerivedParams | None = None,
+    buildings: Callable[[np.ndarray, Detection], np.ndarray] | None = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -232,6 +242,14 @@ def run_pipeline(
     Returns
     -------
     RunResult
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> result = run_pipeline(scene.cloud)
+    >>> len(result.outlines), sorted(result.layers)
+    (1, ['ridges', 'roof_faces', 'roof_outlines'])
     """
     from rooftrace.config import validate_config
     from rooftrace.contour.outline import OutlineOptions, outline_buildings

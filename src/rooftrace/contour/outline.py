@@ -293,6 +293,13 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     Returns
     -------
     list of RoofOutline
+
+    Examples
+    --------
+    >>> from rooftrace.roof.models import gable, sample_roof
+    >>> xyz, _ = sample_roof(gable(), density=12, noise=0.03, seed=1)
+    >>> [(o.building_id, o.status) for o in outline_buildings(xyz, np.ones(len(xyz), int))]
+    [(1, 'ok')]
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)

@@ -261,6 +261,21 @@ def write_las(
         Further extra dimensions (float64 or int32 ...) to add.
     overwrite : bool, default False
         Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written file (replaced atomically).
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from rooftrace.io.points import read_points
+    >>> xyz = np.array([[0.0, 0.0, 10.0], [4.0, 0.0, 10.0], [0.0, 3.0, 11.0]])
+    >>> path = write_las(pathlib.Path(tempfile.mkdtemp()) / "roof.laz", PointCloud(xyz),
+    ...                  classification=np.array([6, 6, 2]), building_id=np.array([1, 1, 0]))
+    >>> read_points(path).fields["building_id"].tolist()
+    [1, 1, 0]
     """
     path = Path(path)
     if path.suffix.lower() not in LAS_SUFFIXES:

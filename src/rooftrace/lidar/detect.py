@@ -206,6 +206,14 @@ def detect_buildings(
     InputError
         Fewer than 3 points, non-finite coordinates, geographic CRS, or all
         points on one line.
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> detection = detect_buildings(scene.cloud)
+    >>> np.unique(detection.building_id).tolist()
+    [0, 1]
     """
     _check_cloud(cloud)
     opt = options or DetectOptions.from_config(config)
