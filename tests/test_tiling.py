@@ -27,7 +27,7 @@ from rooftrace.tiling import (
     tile_grid,
 )
 
-from .conftest import DELFT
+from .conftest import DELFT, need
 
 LAYERS = ("roof_outlines", "ridges", "roof_faces")
 # a 100 m synthetic block cut into 2 x 2 tiles of 50 m; outlier cells of
@@ -350,9 +350,7 @@ def test_delft_tiles_detect_every_building_with_the_points_of_one_piece(tmp_path
     from rooftrace.lidar.detect import detect_buildings
     from rooftrace.tiling import _core, _extent, _load_cloud
 
-    files = [DELFT / "ahn3_cropped_1.laz", DELFT / "ahn3_cropped_2.laz"]
-    if not all(f.exists() for f in files):
-        pytest.skip(f"real data not available: {DELFT}")
+    files = [need(DELFT / "ahn3_cropped_1.laz"), need(DELFT / "ahn3_cropped_2.laz")]
     whole_cloud = read_points(files, "EPSG:28992")
     whole = detect_buildings(whole_cloud)
     index = split_to_tiles(files, tmp_path, TileOptions(tile_size=250.0, buffer=60.0))

@@ -1,7 +1,8 @@
 """rooftrace: 3D building roof outlines and ridges from airborne LiDAR (and an aerial image).
 
 The main entry points are importable from the top level; each is loaded on
-first use, so ``import rooftrace`` stays fast.
+first use, so ``import rooftrace`` stays fast (and the command line installs
+its signal handlers before numpy and the stages load).
 
 ======================  =====================================================
 reading points          :func:`read_points` -> :class:`PointCloud`

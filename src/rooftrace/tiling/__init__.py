@@ -199,7 +199,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     reporter : Reporter, optional
         Progress callbacks (silent by default).
     image, camera : path-like, optional
-        Aerial image and its ``camera.json``: the merged buildings are
+        Aerial image and its ``camera.json`` (None for a georeferenced
+        orthophoto, whose GeoTIFF is its camera): the merged buildings are
         refined with it in one pass, as an untiled run refines them
         (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
     classified : path-like, optional
@@ -220,15 +221,15 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     killed, for ``--resume``; it is removed after a successful merge.
     """
     from rooftrace.config import validate_config
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
     from rooftrace.refine import RefineOptions
 
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     output = check_output(output, overwrite)
     if config:
         validate_config(config)
@@ -260,7 +261,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     cam = None
     if image is not None:
         # the untiled run's checks, on the headers, before minutes of tile work
-        cam = check_image_inputs(Path(image), Path(camera), crs_obj, head, ", ".join(map(str, paths)))
+        cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
+                                 ", ".join(map(str, paths)))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
@@ -270,7 +272,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
             "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
-            **({"image": image_fingerprint(Path(image), Path(camera))} if image is not None else {})}
+            **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
+               if image is not None else {})}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -319,15 +322,16 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
                             "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
         t0 = time.perf_counter()
-        refined, layers = _refine_merged(layers, results, Path(image), Path(camera), cam, cfg, seed, reporter)
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, reporter)
         timings["refine"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    write_layers(output, layers, crs_obj, overwrite=overwrite)
-    timings["merge"] = merge_seconds + time.perf_counter() - t0
-    if classified is not None:
+    with commit_together():  # the layers and the classified points new, or both as they were
         t0 = time.perf_counter()
-        _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
-        timings["classified"] = time.perf_counter() - t0
+        write_layers(output, layers, crs_obj, overwrite=overwrite)
+        timings["merge"] = merge_seconds + time.perf_counter() - t0
+        if classified is not None:
+            t0 = time.perf_counter()
+            _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+            timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:
         for k, v in res["timings"].items():
