@@ -40,3 +40,22 @@ def test_unknown_top_level_names_raise_attribute_error():
 
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         rooftrace.nonexistent  # noqa: B018
+
+
+def test_results_table_is_generated_from_the_recorded_figures():
+    make_results = _load(ROOT / "benchmarks" / "make_results.py")
+    current = (ROOT / "benchmarks" / "RESULTS.md").read_text(encoding="utf-8")
+    assert make_results.render(current, make_results.load_all()) == current, \
+        "benchmarks/RESULTS.md is stale: run python benchmarks/make_results.py"
+
+
+def test_user_docs_cite_papers_not_files_issues_or_internal_notes():
+    import re
+
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    for page in pages:
+        if page.name == "design-notes.md":
+            continue  # the history of the measurements, for maintainers
+        text = page.read_text(encoding="utf-8")
+        for pattern in (r"\b\d{3}_[0-9a-f]{16}\.txt", r"\bDESIGN\.md", r"\bissue \d+", r"\bseed 00\d"):
+            assert not re.search(pattern, text), f"{page.name}: {re.search(pattern, text).group(0)}"

@@ -11,7 +11,7 @@ building detection      :func:`detect_buildings`
 roof outlines           :func:`outline_buildings`
 roof planes and ridges  :func:`roof_structure`
 image refinement        :func:`refine_buildings`
-evaluation              :func:`evaluate`
+evaluation              :func:`evaluate_outlines`
 simulation              :func:`simulate_scene`
 writing outputs         :func:`write_layers`, :func:`write_las`
 ======================  =====================================================
@@ -22,7 +22,8 @@ Examples
 >>> scene = rooftrace.simulate_scene(rooftrace.SceneOptions(seed=1, size=40.0, density=8.0, image=False,
 ...                                                         trees=False))
 >>> result = rooftrace.run_pipeline(scene.cloud)
->>> scores = rooftrace.evaluate(result.layers["roof_outlines"].geometries, scene.truth["roof_outlines"].geometries)
+>>> truth = scene.truth["roof_outlines"].geometries
+>>> scores = rooftrace.evaluate_outlines(result.layers["roof_outlines"].geometries, truth)
 >>> scores["n_matched"], scores["f_score"] > 0.9
 (1, True)
 """
@@ -34,7 +35,7 @@ from typing import Any
 
 __version__ = "0.1.0"
 
-#: public name -> the module that defines it
+#: public name -> the module that defines it (and the name there, when another)
 _ENTRY_POINTS = {
     "read_points": "rooftrace.io.points",
     "run_pipeline": "rooftrace.pipeline",
@@ -42,7 +43,8 @@ _ENTRY_POINTS = {
     "outline_buildings": "rooftrace.contour.outline",
     "roof_structure": "rooftrace.roof.structure",
     "refine_buildings": "rooftrace.refine.buildings",
-    "evaluate": "rooftrace.evaluate",
+    # not "evaluate": the subpackage of that name would replace it once imported
+    "evaluate_outlines": ("rooftrace.evaluate", "evaluate"),
     "simulate_scene": "rooftrace.synth.simulate",
     "write_layers": "rooftrace.io.vector",
     "write_las": "rooftrace.io.las",
@@ -59,10 +61,11 @@ __all__ = [*_ENTRY_POINTS, *_TYPES, "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    module = _ENTRY_POINTS.get(name) or _TYPES.get(name)
-    if module is None:
+    where = _ENTRY_POINTS.get(name) or _TYPES.get(name)
+    if where is None:
         raise AttributeError(f"module 'rooftrace' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    module, attr = where if isinstance(where, tuple) else (where, name)
+    value = getattr(importlib.import_module(module), attr)
     globals()[name] = value  # the next look-up does not come here
     return value
 
