@@ -164,7 +164,7 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
         attributes added, ``ridges`` refined (attributes ``building_id``,
         ``kind``, ``refined``), ``roof_faces`` unchanged.
     """
-    from rooftrace.refine import refine_buildings
+    from rooftrace.refine import RefineOptions, refine_buildings
 
     outlines, ridges = layers["roof_outlines"], layers["ridges"]
     ids = [int(b) for b in outlines.attributes["building_id"]]
