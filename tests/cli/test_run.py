@@ -76,6 +76,10 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     assert "polis_mean_lidar_only" in summary
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html
+    # the report shows the image with both outline sets, and both sets' scores side by side
+    assert (out / "image.png").is_file() and "<th>LiDAR only</th>" in html
+    assert metrics["compare"]["label"] == "LiDAR only"
+    assert metrics["compare"]["polis_mean"] == pytest.approx(summary["polis_mean_lidar_only"], abs=1e-4)  # rounded
     # a second demo into the same folder needs --overwrite
     assert main(["demo", "-o", str(out), "--size", "50", "--density", "6"]) == 2
     assert "--overwrite" in capsys.readouterr().err

@@ -43,7 +43,7 @@ def _on_signal(signum: int, frame) -> None:
         try:
             for child in mp.active_children():
                 child.kill()
-        except Exception:  # noqa: BLE001 - leaving matters more than the children
+        except Exception:
             pass
         _unlink_semaphores()
     if atomic is not None:
@@ -76,7 +76,7 @@ def _unlink_semaphores() -> None:
         for finalizer in list(util._finalizer_registry.values()):
             if getattr(finalizer, "_callback", None) is cleanup:
                 finalizer()
-    except Exception:  # noqa: BLE001 - private API of multiprocessing: at worst, the warning
+    except Exception:
         pass
 
 
