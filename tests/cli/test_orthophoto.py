@@ -87,6 +87,12 @@ def test_a_frame_image_without_camera_says_what_to_give(command, frame_image, tm
     assert not out.exists()
 
 
+def test_run_help_shows_both_cases(capsys):
+    assert main(["run", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--image ortho.tif -o roofs.gpkg" in text and "--image photo.tif --camera camera.json" in text
+
+
 def test_camera_without_image_is_refused(tmp_path, capsys):
     laz = write_las_file(tmp_path / "scene.laz", scene_xyz())
     assert main(["run", str(laz), "--camera", str(tmp_path / "camera.json"), "-o", str(tmp_path / "o.gpkg")]) == 2

@@ -44,10 +44,10 @@ def run(
     An aerial frame image needs its orientation:
       rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
     """
-    from rooftrace.config import load_config
+    from rooftrace.config import RunOptions, load_config
     from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import (
         check_image_covers,
         check_image_size,
@@ -57,7 +57,9 @@ def run(
     )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
+    from rooftrace.options import make_options
     from rooftrace.pipeline import run_pipeline
+    from rooftrace.tiling import TileOptions
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
@@ -71,8 +73,13 @@ def run(
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
         check_output(classified, overwrite)
     cfg = load_config(config)
+    # the flags given win over the config's [run] and [tiling] tables
+    run_options = RunOptions.from_config(cfg, alpha=alpha, planes=False if no_planes else None)
+    tile_options = make_options(TileOptions, cfg, tile_size=tile_size, buffer=buffer,
+                                workers=workers if workers > 1 else None, scheduler=scheduler, resume=resume or None)
 
-    tiled = tile_size is not None or workers > 1 or scheduler is not None or resume
+    tiled = (tile_options.tile_size is not None or tile_options.workers > 1 or tile_options.scheduler is not None
+             or tile_options.resume)
     announced = header_points(inputs)  # None: not all readable LAS/LAZ (the readers say why)
     if not tiled and announced and not fits_in_memory(announced):
         log.warning("%s: %d points need about %.1f GiB in one piece and %.1f GiB are available; running in tiles "
@@ -82,12 +89,15 @@ def run(
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
     if tiled and announced != 0:
-        from rooftrace.tiling import TileOptions, run_tiled
+        from rooftrace.tiling import run_tiled
 
-        summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                        scheduler=scheduler, resume=resume),
-                            crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified)
+        reporter = reporter_for(quiet)
+        try:
+            summary = run_tiled(inputs, output, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
+                                planes=run_options.planes, image=image, camera=camera, seed=seed,
+                                overwrite=overwrite, reporter=reporter, classified=classified)
+        finally:
+            reporter.close()
         if not summary.get("buildings"):
             log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
         if json_:
@@ -114,16 +124,16 @@ def run(
         return
     reporter = reporter_for(quiet)
     try:
-        result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
-                              seed=seed, reporter=reporter)
+        result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter)
     finally:
         reporter.close()
-    write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():  # both outputs new, or both as they were
+        write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=result.detection.classification,
-                  building_id=result.detection.building_id, overwrite=overwrite)
+            write_las(classified, cloud, classification=result.detection.classification,
+                      building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(output), **result.summary()}
     if not result.outlines:
         log.warning("%s: no buildings found; the layers of %s are empty", where, output)
@@ -140,16 +150,18 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
     """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
     import numpy as np
 
+    from rooftrace.io.atomic import commit_together
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
     log.warning("%s: no points; writing empty layers to %s", where, output)
-    write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():
+        write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
-                  overwrite=overwrite)
+            write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                      overwrite=overwrite)
     if json_:
         emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})

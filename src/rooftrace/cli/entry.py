@@ -13,9 +13,11 @@ __all__ = ["main"]
 
 
 def main() -> None:
-    from rooftrace.cli.interrupt import install_handlers
+    from rooftrace.cli.interrupt import ignore_from_now, install_handlers
 
     install_handlers()
     from rooftrace.cli.main import main as run
 
-    sys.exit(run())
+    code = run(sys.argv[1:])
+    ignore_from_now()
+    sys.exit(code)

@@ -10,7 +10,9 @@ import typer
 Inputs = Annotated[list[Path], typer.Argument(help="Input point clouds (LAS/LAZ; PLY or text x y z where noted).", show_default=False)]
 Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.", show_default=False)]
 OutputDir = Annotated[Path, typer.Option("--output", "-o", help="Output folder.", show_default=False)]
-Crs = Annotated[str | None, typer.Option("--crs", help="Assign or override the input CRS, e.g. EPSG:28992.")]
+Crs = Annotated[str | None, typer.Option("--crs", help=(
+    "Assign or override the input CRS, e.g. EPSG:28992; a compound CRS records the height system too, "
+    "e.g. EPSG:7415 (RD New + NAP height)."))]
 Config = Annotated[Path | None, typer.Option("--config", help="TOML file with stage options, one [table] per stage.")]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON summary on stdout (logs stay on stderr).")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existing output.")]

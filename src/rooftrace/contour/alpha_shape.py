@@ -16,7 +16,7 @@ candidates.  Two readings of the shape are built:
   three edges of a triangle judge it with three alphas; where they disagree
   the boundary breaks, and an outer ring with a gap the repair cannot close
   is deleted chain by chain: a 65 000-point block lost its outer ring and
-  came out as a courtyard-sized sliver (benchmarks/RESULTS.md, "Outline
+  came out as a courtyard-sized sliver (docs/design-notes.md, "Outline
   coverage").
 
 Either way the side that is outside orients every boundary edge with the
@@ -65,7 +65,7 @@ class AlphaOptions:
         S3: per edge, the mean of its end points' spacings ps_avg, each the
         mean length of the Delaunay edges wholly inside a circle of
         ``radius`` around the point (thesis §4.3.1, eq. 4.5-4.6).
-        Default chosen by measurement (benchmarks/RESULTS.md, "Roof outlines").
+        Default chosen by measurement (docs/design-notes.md, "Roof outlines").
     alpha : float or None
         Alpha radius in metres for S1; None = the mean spacing passed by the
         caller (the cloud's s_avg), else the building's mean Delaunay edge length.
@@ -78,10 +78,11 @@ class AlphaOptions:
         (thesis Table 6.1), the smallest building worth mapping.
     scale : float
         Multiplies every alpha of the chosen strategy (1 = the thesis).
+<<<<<<< HEAD
         Scan patterns leave wider gaps along roof edges than inside, and the
         union of triangles drops an obtuse triangle at the edge that the
         thesis' edge test keeps; 1.5 bridges both and measured best with the
-        triangle boundary (1.25 with the edge test; benchmarks/RESULTS.md,
+        triangle boundary (1.25 with the edge test; docs/design-notes.md,
         "Outline coverage").
     boundary : {'triangle', 'edge'}
         How the shape is read from the alphas (module docstring):
@@ -89,6 +90,10 @@ class AlphaOptions:
         at most their alpha (closed by construction; default, chosen by
         measurement in benchmarks/RESULTS.md, "Outline coverage"), ``edge``
         = the thesis' empty-circle test per edge with its gap repair.
+=======
+        Scan patterns leave wider gaps along roof edges than inside; 1.25
+        bridges them and measured best on City3D/AHN3 (docs/design-notes.md).
+>>>>>>> main
     """
 
     section = "alpha"

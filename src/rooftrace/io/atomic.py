@@ -23,14 +23,16 @@ from pathlib import Path
 
 from rooftrace.errors import InputError, OutputExistsError
 
-__all__ = ["atomic_path", "check_output", "hold_signal", "remove_temporary", "replace_folder", "temporary_path",
-           "track", "uninterrupted", "untrack"]
+__all__ = ["atomic_path", "check_output", "commit_together", "hold_signal", "remove_temporary", "replace_folder",
+           "temporary_path", "track", "uninterrupted", "untrack"]
 
 #: temporary files and folders of the writes under way, removed on an interrupt
 _TEMPORARY: set[Path] = set()
 #: depth of nested uninterrupted sections, and the signals that arrived in them
 _HOLD = [0]
 _HELD: list[int] = []
+#: open commit_together blocks, innermost last: the finished writes waiting to be renamed into place
+_BATCHES: list[list[tuple[Path, Path]]] = []
 
 
 def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -131,24 +133,65 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
     """Yield a temporary path in the target's folder; rename it onto ``path`` on success.
 
     The temporary name keeps the suffix so that format drivers choosing by
-    extension (GDAL, laspy) still see ``.gpkg`` or ``.laz``.
+    extension (GDAL, laspy) still see ``.gpkg`` or ``.laz``.  Inside a
+    :func:`commit_together` block the rename waits for the block's end.
     """
     path = check_output(path, overwrite)
     tmp = temporary_path(path)
+    waiting = False
     try:
         yield tmp
         if not tmp.exists():
             raise RuntimeError(f"writer produced no file for {path}")
-        with uninterrupted():  # an interrupt leaves the old output or the whole new one
+        if _BATCHES:
+            _BATCHES[-1].append((tmp, path))
+            waiting = True
+        else:
+            _commit([(tmp, path)])
+    finally:
+        if not waiting:
+            _discard(tmp)
+
+
+@contextlib.contextmanager
+def commit_together() -> Iterator[None]:
+    """The outputs written in the block are renamed into place together, at its end, or none of them.
+
+    A command with several outputs (``run -o roofs.gpkg --classified
+    points.laz``) so never leaves one new and one old: an error or an
+    interrupt while the second is written leaves both as they were.
+    Nested blocks commit with the outermost one.  Code in the block must not
+    read an output it wrote (it is not in place yet).
+    """
+    batch: list[tuple[Path, Path]] = []
+    _BATCHES.append(batch)
+    try:
+        yield
+    except BaseException:
+        _BATCHES.pop()
+        for tmp, _ in batch:
+            _discard(tmp)
+        raise
+    _BATCHES.pop()
+    if _BATCHES:
+        _BATCHES[-1].extend(batch)
+    else:
+        _commit(batch)
+
+
+def _commit(batch: list[tuple[Path, Path]]) -> None:
+    with uninterrupted():  # an interrupt leaves the old outputs or all the new ones
+        for tmp, path in batch:
             if tmp.is_dir() and path.exists():
                 shutil.rmtree(path) if path.is_dir() else path.unlink()
             os.replace(tmp, path)
             untrack(tmp)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
-        untrack(tmp)
 
+
+def _discard(tmp: Path) -> None:
+    if tmp.exists():
+        shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+    untrack(tmp)
 
 def replace_folder(built: str | os.PathLike, path: str | os.PathLike) -> Path:
     """Put the folder ``built`` (made by :func:`temporary_path` beside ``path``) in the place of ``path``.

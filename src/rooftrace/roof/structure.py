@@ -3,7 +3,7 @@
 :func:`roof_structure` chains the roof stage (DESIGN.md stage 8):
 
 1. segment the roof points into planes and fit them by least squares
-   (:func:`rooftrace.roof.planes.segment_planes`);
+   (:func:`rooftrace.roof.segmentation.segment_planes`);
 2. find adjacent planes (:func:`rooftrace.roof.adjacency.plane_adjacency`);
 3. intersect adjacent planes into ridge, hip and valley lines clipped to
    their shared boundary, ends snapped to junctions and to the outline
@@ -27,12 +27,12 @@ import numpy as np
 import shapely
 from scipy.spatial import Delaunay, QhullError
 
-from rooftrace import config
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
-from rooftrace.roof.planes import estimate_spacing, segment_planes
+from rooftrace.roof.planes import estimate_spacing
 from rooftrace.roof.ridges import intersection_lines
+from rooftrace.roof.segmentation import segment_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
@@ -135,7 +135,6 @@ class RoofOptions:
                     raise ValueError(f"{f.name} must be > 0 or None (derived), got {v}")
 
 
-config.KNOWN_SECTIONS.add(RoofOptions.section)
 
 
 @dataclass

@@ -35,6 +35,8 @@ from typing import Any
 
 import numpy as np
 
+from rooftrace.tiling.split import near_open_side
+
 __all__ = ["check_image_inputs", "image_fingerprint", "neighbourhood_points", "cut_neighbourhoods",
            "join_neighbourhoods", "merged_planes"]
 
@@ -177,8 +179,6 @@ def cut_neighbourhoods(discs: np.ndarray, extent: Sequence[float], bounds: Seque
         True where the tile may lack points the refinement of the whole
         cloud would use (a larger ``--buffer`` helps).
     """
-    from rooftrace.tiling.tile import near_open_side
-
     x, y, r = np.asarray(discs, float).reshape(-1, 3).T
     return near_open_side(np.column_stack([x - r, y - r, x + r, y + r]), extent, bounds)
 

@@ -220,7 +220,8 @@ def sample_windows(bounds: Sequence[float], n_points: int, sample_points: int, o
     return np.asarray(out, np.int64)
 
 
-def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
+def scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
+    """Point counts, CRSs and the joint bounds of LAS/LAZ files from their headers (no point is read)."""
     import laspy
 
     from rooftrace.io.las import check_point_count, las_crs
@@ -287,7 +288,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     """
     import laspy
 
-    from rooftrace.io.las import _backend, check_header_bounds
+    from rooftrace.io.las import check_header_bounds, laz_backend
 
     index_path = run_dir / "tiles.json"
     if options.resume and index_path.exists():
@@ -295,7 +296,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     for sub in ("tiles", "sample"):
         if (run_dir / sub).exists():
             shutil.rmtree(run_dir / sub)
-    head = _scan_headers(paths)
+    head = scan_headers(paths)
     bounds = head["bounds"]
     origin = (bounds[0], bounds[1]) if origin is None else (float(origin[0]), float(origin[1]))
     size, buf = options.resolved_tile_size(head["counts"], head["boxes"]), options.resolved_buffer
@@ -309,7 +310,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     (run_dir / "sample").mkdir(parents=True, exist_ok=True)
     for f_index, p in enumerate(paths):
         try:
-            reader_cm = laspy.open(p, laz_backend=_backend())
+            reader_cm = laspy.open(p, laz_backend=laz_backend())
         except (laspy.errors.LaspyException, OSError) as exc:
             raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
         with reader_cm as reader:
@@ -368,17 +369,19 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
                                "points": int(counts[i, j])}
                   for i in range(len(xs)) for j in range(len(ys)) if counts[i, j] > 0},
     }
-    _write_json(index_path, index)
+    write_json(index_path, index)
     return index
 
 
-def _write_json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
+    """Write a run folder's JSON file through a temporary file, so a killed run never leaves half of one."""
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(data, indent=1))
     os.replace(tmp, path)
 
 
-def _load_cloud(folder: Path, crs) -> Any:
+def load_tile_points(folder: Path, crs) -> Any:
+    """The points stored in a tile's folder (``*.npy`` records) as a PointCloud with their ``gidx`` and returns."""
     from rooftrace.cloud import PointCloud
 
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []
@@ -387,3 +390,33 @@ def _load_cloud(folder: Path, crs) -> Any:
     fields = {"return_number": rec["return_number"].copy(), "number_of_returns": rec["number_of_returns"].copy(),
               "gidx": rec["gidx"].copy()}
     return PointCloud(xyz, fields, crs=crs)
+
+
+def near_open_side(boxes: np.ndarray, extent: Sequence[float], bounds: Sequence[float],
+                   margin: float = 0.0) -> np.ndarray:
+    """Which boxes come within ``margin`` of a side of the tile past which the data goes on.
+
+    Parameters
+    ----------
+    boxes : ndarray of shape (B, 4)
+        xmin, ymin, xmax, ymax of each box (m).
+    extent : (xmin, ymin, xmax, ymax)
+        The buffered tile clipped to the inputs' bounds (m).
+    bounds : (xmin, ymin, xmax, ymax)
+        The inputs' bounds (m): a side of ``extent`` on them has no data beyond it.
+    margin : float
+        Metres.
+
+    Returns
+    -------
+    ndarray of shape (B,), bool
+
+    Examples
+    --------
+    >>> near_open_side(np.array([[1.0, 5, 3, 6], [97, 5, 99, 6]]), [0, 0, 100, 10], [0, 0, 200, 10], 2.0).tolist()
+    [False, True]
+    """
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    e, lim = extent, bounds
+    return (((b[:, 0] - e[0] < margin) & (e[0] > lim[0])) | ((b[:, 1] - e[1] < margin) & (e[1] > lim[1]))
+            | ((e[2] - b[:, 2] < margin) & (e[2] < lim[2])) | ((e[3] - b[:, 3] < margin) & (e[3] < lim[3])))
