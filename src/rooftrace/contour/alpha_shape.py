@@ -88,7 +88,7 @@ class AlphaOptions:
         How the shape is read from the alphas (module docstring):
         ``triangle`` = union of the Delaunay triangles with circumradius
         at most their alpha (closed by construction; default, chosen by
-        measurement in benchmarks/RESULTS.md, "Outline coverage"), ``edge``
+        measurement in docs/design-notes.md, "Outline coverage"), ``edge``
         = the thesis' empty-circle test per edge with its gap repair.
 =======
         Scan patterns leave wider gaps along roof edges than inside; 1.25
