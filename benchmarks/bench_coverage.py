@@ -30,12 +30,13 @@ sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from tests.contour import realdata  # noqa: E402
+
 from _results import record  # noqa: E402
-from rooftrace.contour.spacing import building_mean_spacing as mean_spacing  # noqa: E402
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, connected_buildings, outline_buildings  # noqa: E402
+from rooftrace.contour.spacing import building_mean_spacing as mean_spacing  # noqa: E402
 from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402
-from tests.contour import realdata  # noqa: E402
 
 VARIANTS = {
     "point, triangle, alpha x1.5 (default)": {},

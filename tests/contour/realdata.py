@@ -9,6 +9,7 @@ one building each.
 from __future__ import annotations
 
 import json
+
 import numpy as np
 
 from rooftrace.contour.buildings import classified_buildings

@@ -7,9 +7,9 @@ import pytest
 import shapely
 
 from rooftrace.contour.alpha_shape import AlphaOptions
-from rooftrace.contour.spacing import building_mean_spacing as mean_spacing
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
-from rooftrace.contour.outline import OutlineOptions, connected_buildings, outline_buildings
+from rooftrace.contour.outline import connected_buildings, outline_buildings
+from rooftrace.contour.spacing import building_mean_spacing as mean_spacing
 from rooftrace.synth import SceneOptions, simulate_scene
 from rooftrace.synth.blocks import BLOCK_SIZES, block_buildings
 
