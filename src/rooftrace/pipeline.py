@@ -1,4 +1,4 @@
-"""The method as a flowchart: detect → outline → roof planes and ridges → (image refinement).
+"""The method as a flowchart: detect → outline → roof planes and ridges → 3D models → (image refinement).
 
 Each step is one call into a stage package; this module only wires them,
 groups points per building and turns the results into the output layers of
@@ -41,7 +41,11 @@ class RunResult:
     refined : RefineResult or None
         Image refinement, when an image and a camera were given.
     layers : dict of str to Layer
-        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write.
+        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write, and
+        the models' 3D layers ``lod12``, ``lod13``, ``lod22`` when they were built.
+    models : list of BuildingModel
+        LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
+        building, in building-id order (empty when disabled).
     timings : dict of str to float
         Seconds per step.
     """
@@ -52,6 +56,7 @@ class RunResult:
     refined: Any
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
+    models: list = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -68,6 +73,8 @@ class RunResult:
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
             "refined": self.refined is not None,
+            "models": {s: sum(m.attributes.get("status") == s for m in self.models)
+                       for s in sorted({m.attributes.get("status") for m in self.models})},
             "mean_spacing": float(det.mean_spacing),
             "density": float(det.density),
             "sigma_h": float(det.sigma_h),
@@ -112,6 +119,29 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                 # a bug in one building (Qhull raises RuntimeError) must not stop a city
                 log.warning("building %d: roof planes failed (%s: %s)", outline.building_id, type(exc).__name__, exc)
     return structures
+
+
+def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
+                     structures: list, config: dict | None, reporter: Reporter) -> list:
+    from rooftrace.config import make_options
+    from rooftrace.model import ModelOptions, building_attributes, build_model, ground_height
+
+    options = make_options(ModelOptions, config)
+    roofs = {s.building_id: s for s in structures}
+    models = []
+    with reporter.stage("3D models", total=len(outlines)):
+        for outline in outlines:
+            reporter.advance()
+            idx = members.get(outline.building_id)
+            if idx is None or outline.polygon is None or outline.polygon.is_empty:
+                continue  # no outline, no footprint: roof_outlines says why
+            xyz = cloud.xyz[idx]
+            ground = ground_height(xyz[:, 2] - hag[idx], options.ground_percentile)
+            roof = roofs.get(outline.building_id)
+            model = build_model(outline.polygon, roof, xyz, ground, building_id=outline.building_id, options=options)
+            model.attributes = building_attributes(model, roof, xyz, ground)
+            models.append(model)
+    return models
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
@@ -172,18 +202,20 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
 
 def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
-    return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
-            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
-            "roof_faces": layers["roof_faces"]}
+    return {**layers,
+            "roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
+            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
-    """The three output layers of DESIGN.md from the stage results."""
+def building_layers(outlines: list, structures: list, refined: Any = None, models: list | None = None
+                    ) -> dict[str, Layer]:
+    """The output layers of DESIGN.md from the stage results (the 3D ``lodXX`` layers when ``models`` is given)."""
     from rooftrace.contour.outline import outlines_layer
+    from rooftrace.model.layers import model_layers
     from rooftrace.roof import faces_layer, ridges_layer
 
     layers = {"roof_outlines": outlines_layer(outlines), "ridges": ridges_layer(structures),
-              "roof_faces": faces_layer(structures)}
+              "roof_faces": faces_layer(structures), **(model_layers(models) if models is not None else {})}
     return layers if refined is None else _with_refinement(layers, refined)
 
 
@@ -199,6 +231,7 @@ def run_pipeline(
     reporter: Reporter | None = None,
     derived: Any = None,
     buildings: Any = None,
+    models: bool = True,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -229,6 +262,9 @@ def run_pipeline(
         outline; the others keep their detection but get no outline, planes
         or features (a tile of a tiled run outlines only the buildings it
         owns).  Default: all.
+    models : bool, default True
+        Build the LoD 1.2 / 1.3 / 2.2 models of every outlined building
+        (LoD 2.2 needs ``planes``) and their 3D layers.
 
     Returns
     -------
@@ -261,8 +297,14 @@ def run_pipeline(
         structures = _roof_structures(cloud, members, outlines, config, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
+    building_models = None
+    if models:
+        t0 = time.perf_counter()
+        building_models = _building_models(cloud, detection.hag, members, outlines, structures, config, reporter)
+        timings["models"] = time.perf_counter() - t0
+
     refined = None
-    layers = building_layers(outlines, structures)
+    layers = building_layers(outlines, structures, models=building_models)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
@@ -270,4 +312,4 @@ def run_pipeline(
                                             image, camera, config=config, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings)
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [])
