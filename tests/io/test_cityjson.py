@@ -143,3 +143,19 @@ def test_models_written_are_valid_solids():
         for p in m.parts:
             assert set(p.lods) == {"1.2", "1.3", "2.2"}
             assert all(solid_errors(s) == [] for s in p.lods.values())
+
+
+def test_cjio_reads_the_cityjson_file(tmp_path):
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cjio = shutil.which("cjio") or str(Path(sys.executable).parent / "cjio")
+    if not Path(cjio).exists():
+        pytest.skip("cjio (a dev peer: pip install cjio) is not installed")
+    path = tmp_path / "a.city.json"
+    write_models([path], _models(), RD)
+    out = subprocess.run([cjio, str(path), "info"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "Building (2)" in out.stdout and "BuildingPart (2)" in out.stdout and "EPSG = 28992" in out.stdout
