@@ -28,14 +28,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rooftrace.io.atomic import atomic_path
+from rooftrace.io.atomic import atomic_path, temporary_path, untrack
 from rooftrace.model.types import LODS, SURFACE_KINDS
 
 __all__ = ["CityJSONWriter", "CityJSONSeqWriter", "reference_system", "cityobject_id", "VERSION"]
@@ -193,9 +192,17 @@ class _Writer:
         return False
 
     def _tempfile(self, suffix: str):
-        fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=suffix, dir=self.path.parent or ".")
-        self._stack.callback(lambda: os.path.exists(name) and os.unlink(name))
-        return os.fdopen(fd, "w+", encoding="utf-8")
+        """A scratch file beside the output, removed at the end (and by an interrupt: it is recorded)."""
+        name = temporary_path(self.path.with_name(self.path.name + suffix))
+        handle = open(name, "w+", encoding="utf-8")
+
+        def drop():
+            handle.close()
+            name.unlink(missing_ok=True)
+            untrack(name)
+
+        self._stack.callback(drop)
+        return handle
 
 
 class CityJSONSeqWriter(_Writer):
@@ -237,7 +244,6 @@ class CityJSONSeqWriter(_Writer):
             out.write(json.dumps(header, **_DUMPS) + "\n")
             self._features.seek(0)
             shutil.copyfileobj(self._features, out)
-        self._features.close()
         self._stack.close()
         return self.path
 
@@ -280,7 +286,5 @@ class CityJSONWriter(_Writer):
             self._vertices.seek(0)
             shutil.copyfileobj(self._vertices, out)
             out.write('],"metadata":' + json.dumps(meta, **_DUMPS) + "}\n")
-        self._objects.close()
-        self._vertices.close()
         self._stack.close()
         return self.path
