@@ -98,7 +98,7 @@ def demo(
     report = write_report(output, metrics, outlines, list(truth.geometries),
                           points_xy=cloud.xyz[building, :2] if building is not None else None,
                           extracted_ridges=ridges, reference_ridges=reference_ridges,
-                          title=f"rooftrace demo — synthetic scene, seed {seed}")
+                          title=f"rooftrace demo — synthetic scene, seed {seed}", models=result.models)
     replace_folder(output, final)
     report = final / report.relative_to(output)
     models_path = final / models_path.relative_to(output)
