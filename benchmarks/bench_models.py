@@ -42,14 +42,13 @@ import numpy as np
 import shapely
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _data import DATA  # noqa: E402
-from _results import record  # noqa: E402
-
-from rooftrace.io.models import write_models  # noqa: E402
-from rooftrace.io.points import read_points  # noqa: E402
-from rooftrace.model import LODS, solid_errors  # noqa: E402
-from rooftrace.model.measure import roof_height_at  # noqa: E402
-from rooftrace.pipeline import run_pipeline  # noqa: E402
+from _data import DATA
+from _results import record
+from rooftrace.io.models import write_models
+from rooftrace.io.points import read_points
+from rooftrace.model import LODS, solid_errors
+from rooftrace.model.measure import roof_height_at
+from rooftrace.pipeline import run_pipeline
 
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 

@@ -123,7 +123,7 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
 def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
                      structures: list, config: dict | None, reporter: Reporter) -> list:
     from rooftrace.config import make_options
-    from rooftrace.model import ModelOptions, building_attributes, build_model, ground_height
+    from rooftrace.model import ModelOptions, build_model, building_attributes, ground_height
 
     options = make_options(ModelOptions, config)
     roofs = {s.building_id: s for s in structures}

@@ -27,8 +27,9 @@ party walls.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import shapely
@@ -183,7 +184,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
     z = xyz[inside, 2]
     part.attributes["n_points"] = int(len(z))
     if not len(z):
-        return part, {lod: "no roof points in the footprint" for lod in ("1.2", "1.3", "2.2")}
+        return part, dict.fromkeys(("1.2", "1.3", "2.2"), "no roof points in the footprint")
     h = float(np.percentile(z, options.roof_percentile))
     part.attributes["h_roof_lod12"] = round(h, 3)
     kw = dict(footprint=footprint, grid=options.grid, z_tolerance=options.z_tolerance)

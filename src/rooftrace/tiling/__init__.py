@@ -229,11 +229,11 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     from rooftrace.config import validate_config
     from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import check_same_crs, require_metric_crs
-    from rooftrace.io.points import parse_crs
     from rooftrace.io.models import write_models
+    from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import write_layers
-    from rooftrace.pipeline import building_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
+    from rooftrace.pipeline import building_layers
     from rooftrace.refine import RefineOptions
 
     if camera is not None and image is None:
