@@ -129,12 +129,12 @@ def _roof_cells(roof) -> list[tuple[Any, np.ndarray]]:
 
 
 def _clip(cells: list, footprint) -> list:
-    out = []
-    for poly, plane in cells:
-        for g in shapely.get_parts(shapely.intersection(poly, footprint)):
-            if g.geom_type == "Polygon" and g.area > 0:
-                out.append((g, plane))
-    return out
+    """The cells cut to ``footprint`` (a polygon each, with its plane)."""
+    if not cells:
+        return []
+    cut = shapely.intersection(np.array([c for c, _ in cells], dtype=object), footprint)
+    return [(g, plane) for piece, (_, plane) in zip(cut, cells) for g in shapely.get_parts(piece)
+            if g.geom_type == "Polygon" and g.area > 0]
 
 
 def _levels(cells: list, step: float) -> list[list[int]]:
