@@ -18,6 +18,7 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import PointCloud
 from rooftrace.errors import GeometryError
+from rooftrace.footprints import FootprintAssignment, Footprints
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
@@ -44,6 +45,14 @@ class RunResult:
         ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write.
     timings : dict of str to float
         Seconds per step.
+    building_id : ndarray of shape (N,), int32 or None
+        The building of every point (0 = none) the outlines and planes were
+        made from: the detection's, or with footprints the footprint's index
+        + 1.  None means ``detection.building_id``.
+    footprints : Footprints or None
+        The footprints given to the run (one building each, in order).
+    assignment : FootprintAssignment or None
+        Per footprint its status, reason and point counts.
     """
 
     detection: Any
@@ -52,6 +61,9 @@ class RunResult:
     refined: Any
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
+    building_id: np.ndarray | None = None
+    footprints: Footprints | None = None
+    assignment: FootprintAssignment | None = None
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -68,6 +80,9 @@ class RunResult:
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
             "refined": self.refined is not None,
+            **({"footprints": {"count": len(self.footprints), "id_field": self.footprints.id_field,
+                               "status": {k: self.assignment.status.count(k) for k in sorted(set(self.assignment.status))}}}
+               if self.footprints is not None and self.assignment is not None else {}),
             "mean_spacing": float(det.mean_spacing),
             "density": float(det.density),
             "sigma_h": float(det.sigma_h),
@@ -177,13 +192,28 @@ def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]
             "roof_faces": layers["roof_faces"]}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
-    """The three output layers of DESIGN.md from the stage results."""
+def building_layers(outlines: list, structures: list, refined: Any = None, *,
+                    footprints: Footprints | None = None, assignment: FootprintAssignment | None = None,
+                    ) -> dict[str, Layer]:
+    """The three output layers of DESIGN.md from the stage results.
+
+    With ``footprints`` (one outline per footprint, building id = index + 1)
+    every layer gets the ``footprint_id`` column, and ``roof_outlines`` the
+    footprint's status, reason and point counts
+    (:func:`rooftrace.footprints.footprint_attributes`).
+    """
     from rooftrace.contour.outline import outlines_layer
+    from rooftrace.footprints import footprint_attributes
     from rooftrace.roof import faces_layer, ridges_layer
 
-    layers = {"roof_outlines": outlines_layer(outlines), "ridges": ridges_layer(structures),
+    extra = footprint_attributes(footprints, assignment) if footprints is not None and assignment is not None else None
+    layers = {"roof_outlines": outlines_layer(outlines, extra), "ridges": ridges_layer(structures),
               "roof_faces": faces_layer(structures)}
+    if extra is not None:
+        for name in ("ridges", "roof_faces"):
+            layer = layers[name]
+            ids = [footprints.ids[int(b) - 1] for b in layer.attributes["building_id"]]
+            layers[name] = Layer(layer.geometries, {**layer.attributes, "footprint_id": ids}, layer.geometry_type)
     return layers if refined is None else _with_refinement(layers, refined)
 
 
@@ -199,6 +229,7 @@ def run_pipeline(
     reporter: Reporter | None = None,
     derived: Any = None,
     buildings: Any = None,
+    footprints: Footprints | None = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -229,13 +260,21 @@ def run_pipeline(
         outline; the others keep their detection but get no outline, planes
         or features (a tile of a tiled run outlines only the buildings it
         owns).  Default: all.
+    footprints : Footprints, optional
+        Building footprints in the cloud's CRS: each becomes one building
+        (its points inside and in the overhang band, ``[footprints]``
+        options), outlined and roofed on those points; footprints without
+        usable points get a status and a fallback
+        (:func:`rooftrace.footprints.assign_footprints`).  Without them the
+        detected buildings are the buildings.
 
     Returns
     -------
     RunResult
     """
-    from rooftrace.config import validate_config
+    from rooftrace.config import make_options, validate_config
     from rooftrace.contour.outline import OutlineOptions, outline_buildings
+    from rooftrace.footprints import FootprintOptions, assign_footprints, footprint_outlines
     from rooftrace.lidar.detect import detect_buildings
 
     reporter = reporter or Reporter()
@@ -245,6 +284,15 @@ def run_pipeline(
 
     detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
     building_id = detection.building_id
+    assignment = None
+    if footprints is not None:
+        t0 = time.perf_counter()
+        with reporter.stage("footprints"):
+            assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
+                                           make_options(FootprintOptions, config), hag=detection.hag,
+                                           density=detection.density)
+        building_id = assignment.building_id
+        timings["footprints"] = time.perf_counter() - t0
     if buildings is not None:
         building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
     members = points_by_building(building_id)
@@ -253,6 +301,8 @@ def run_pipeline(
     outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
     outlines = outline_buildings(cloud.xyz, building_id, outline_options,
                                  mean_spacing=detection.mean_spacing, reporter=reporter)
+    if assignment is not None:
+        outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
     timings["outline"] = time.perf_counter() - t0
 
     structures: list = []
@@ -262,7 +312,7 @@ def run_pipeline(
         timings["roof_planes"] = time.perf_counter() - t0
 
     refined = None
-    layers = building_layers(outlines, structures)
+    layers = building_layers(outlines, structures, footprints=footprints, assignment=assignment)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
@@ -270,4 +320,4 @@ def run_pipeline(
                                             image, camera, config=config, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings)
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_id, footprints, assignment)

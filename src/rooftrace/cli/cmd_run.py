@@ -23,6 +23,12 @@ def run(
     alpha: Annotated[Optional[str], typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
     classified: Annotated[Optional[Path], typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    footprints: Annotated[Optional[Path], typer.Option(
+        "--footprints", help="Building footprints (any OGR vector: GPKG, GeoJSON, Shapefile, FlatGeobuf, SQLite), "
+        "reprojected to the cloud's CRS: one building per footprint.")] = None,
+    footprint_id: Annotated[Optional[str], typer.Option(
+        "--footprint-id", help="Attribute of --footprints carried as footprint_id (default: identificatie, "
+        "identificatiebagpnd, id, fid or gml_id if present, else the feature id).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     seed: opt.Seed = 0,
@@ -60,6 +66,8 @@ def run(
         if classified.suffix.lower() not in (".las", ".laz"):
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
         check_output(classified, overwrite)
+    if footprint_id is not None and footprints is None:
+        raise InputError("--footprint-id names an attribute of --footprints; give --footprints FILE too")
     cfg = load_config(config)
 
     tiled = tile_size is not None or workers > 1 or scheduler is not None or resume
@@ -71,6 +79,9 @@ def run(
         tiled = True
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
+    if tiled and announced != 0 and footprints is not None:
+        raise InputError("--footprints runs untiled for now; drop --tile-size/--workers/--scheduler/--resume, "
+                         "or cut the footprints and the cloud into blocks that fit in memory")
     if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
@@ -99,13 +110,21 @@ def run(
         grey = read_image(image)
         check_image_size(grey.shape[::-1], cam, str(image), str(camera))
 
+    prints = None
+    if footprints is not None:
+        from rooftrace.io.checks import check_footprints_overlap
+        from rooftrace.io.vector import read_footprints
+
+        prints = read_footprints(footprints, cloud.crs, id_field=footprint_id)
+        check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
+
     if len(cloud) == 0:
         _write_empty(output, classified, cloud, overwrite, json_, where)
         return
     reporter = reporter_for(quiet)
     try:
         result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
-                              seed=seed, reporter=reporter)
+                              seed=seed, reporter=reporter, footprints=prints)
     finally:
         reporter.close()
     write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
