@@ -47,6 +47,7 @@ _STAGE_MODULES = (
     "rooftrace.lidar.detect", "rooftrace.contour.outline", "rooftrace.roof", "rooftrace.refine",
     "rooftrace.grouping.building", "rooftrace.image.candidates", "rooftrace.image.corners",
     "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth", "rooftrace.footprints",
+    "rooftrace.parts",
 )
 
 

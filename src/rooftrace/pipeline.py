@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import shapely
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import PointCloud
@@ -53,6 +54,12 @@ class RunResult:
         The footprints given to the run (one building each, in order).
     assignment : FootprintAssignment or None
         Per footprint its status, reason and point counts.
+    parts : list of BuildingParts
+        Per building with an outline (in building-id order), its parts: a
+        part id per point of ``members[building_id]`` and a polygon per part
+        partitioning the outline.  Without footprints, LiDAR buildings split
+        where the roof shows a boundary (:func:`rooftrace.parts.split_parts`);
+        a footprint building is one part.
     """
 
     detection: Any
@@ -64,6 +71,7 @@ class RunResult:
     building_id: np.ndarray | None = None
     footprints: Footprints | None = None
     assignment: FootprintAssignment | None = None
+    parts: list = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -79,6 +87,7 @@ class RunResult:
             "outline_status": statuses,
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
+            "building_parts": int(sum(p.n_parts for p in self.parts)),
             "refined": self.refined is not None,
             **({"footprints": {"count": len(self.footprints), "id_field": self.footprints.id_field,
                                "status": {k: self.assignment.status.count(k) for k in sorted(set(self.assignment.status))}}}
@@ -127,6 +136,33 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                 # a bug in one building (Qhull raises RuntimeError) must not stop a city
                 log.warning("building %d: roof planes failed (%s: %s)", outline.building_id, type(exc).__name__, exc)
     return structures
+
+
+def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, structures: list,
+                    config: dict | None, *, split: bool) -> list:
+    """The parts of every outlined building; one part each unless ``split``."""
+    from rooftrace.config import make_options
+    from rooftrace.parts import BuildingParts, PartOptions, split_parts
+
+    options = make_options(PartOptions, config)
+    by_id = {s.building_id: s for s in structures}
+    parts = []
+    for outline in outlines:
+        if outline.polygon is None or outline.polygon.is_empty:
+            continue
+        bid = outline.building_id
+        idx = members.get(bid, np.zeros(0, np.int64))
+        st = by_id.get(bid)
+        if not split or st is None or not st.faces:
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, [], [], np.zeros((0, 4)), building_id=bid))
+            continue
+        try:
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, st.faces, st.face_plane, st.planes, options,
+                                     building_id=bid))
+        except (ValueError, shapely.errors.GEOSException) as exc:  # one building must not stop a city
+            log.warning("building %d: no part split (%s: %s)", bid, type(exc).__name__, exc)
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, [], [], np.zeros((0, 4)), building_id=bid))
+    return parts
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
@@ -187,30 +223,33 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
 
 def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
-    return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
-            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
-            "roof_faces": layers["roof_faces"]}
+    return {**layers,
+            "roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
+            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None, *,
+def building_layers(outlines: list, structures: list, refined: Any = None, *, parts: Layer | None = None,
                     footprints: Footprints | None = None, assignment: FootprintAssignment | None = None,
                     ) -> dict[str, Layer]:
-    """The three output layers of DESIGN.md from the stage results.
+    """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
 
-    With ``footprints`` (one outline per footprint, building id = index + 1)
+    ``parts`` is the ``building_parts`` layer (:func:`rooftrace.parts.parts_layer`);
+    without it the layer is written empty, with its schema.  With
+    ``footprints`` (one outline per footprint, building id = index + 1)
     every layer gets the ``footprint_id`` column, and ``roof_outlines`` the
     footprint's status, reason and point counts
     (:func:`rooftrace.footprints.footprint_attributes`).
     """
     from rooftrace.contour.outline import outlines_layer
     from rooftrace.footprints import footprint_attributes
+    from rooftrace.parts import parts_layer
     from rooftrace.roof import faces_layer, ridges_layer
 
     extra = footprint_attributes(footprints, assignment) if footprints is not None and assignment is not None else None
     layers = {"roof_outlines": outlines_layer(outlines, extra), "ridges": ridges_layer(structures),
-              "roof_faces": faces_layer(structures)}
+              "roof_faces": faces_layer(structures), "building_parts": parts or parts_layer([], {})}
     if extra is not None:
-        for name in ("ridges", "roof_faces"):
+        for name in ("ridges", "roof_faces", "building_parts"):
             layer = layers[name]
             ids = [footprints.ids[int(b) - 1] for b in layer.attributes["building_id"]]
             layers[name] = Layer(layer.geometries, {**layer.attributes, "footprint_id": ids}, layer.geometry_type)
@@ -275,6 +314,7 @@ def run_pipeline(
     from rooftrace.config import make_options, validate_config
     from rooftrace.contour.outline import OutlineOptions, outline_buildings
     from rooftrace.footprints import FootprintOptions, assign_footprints, footprint_outlines
+    from rooftrace.parts import parts_layer
     from rooftrace.lidar.detect import detect_buildings
 
     reporter = reporter or Reporter()
@@ -311,8 +351,14 @@ def run_pipeline(
         structures = _roof_structures(cloud, members, outlines, config, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
+    t0 = time.perf_counter()
+    parts = _building_parts(cloud, members, outlines, structures, config, split=footprints is None)
+    timings["parts"] = time.perf_counter() - t0
+
     refined = None
-    layers = building_layers(outlines, structures, footprints=footprints, assignment=assignment)
+    layers = building_layers(outlines, structures, parts=parts_layer(parts, {
+        p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
+        footprints=footprints, assignment=assignment)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
@@ -320,4 +366,5 @@ def run_pipeline(
                                             image, camera, config=config, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings, building_id, footprints, assignment)
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_id, footprints, assignment,
+                     parts)

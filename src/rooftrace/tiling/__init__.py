@@ -297,7 +297,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     t0 = time.perf_counter()
     results = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
     layers = merge_tiles(results)
-    for name, gtype in (("roof_outlines", "PolygonZ"), ("ridges", "LineStringZ"), ("roof_faces", "PolygonZ")):
+    for name, gtype in (("roof_outlines", "PolygonZ"), ("ridges", "LineStringZ"), ("roof_faces", "PolygonZ"),
+                        ("building_parts", "PolygonZ")):
         layers.setdefault(name, Layer([], {"building_id": []}, gtype))
     merge_seconds = time.perf_counter() - t0
     refined = None
