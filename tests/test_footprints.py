@@ -107,3 +107,51 @@ def test_bad_arguments():
         assign_footprints(np.zeros((3, 3)), np.zeros(2), np.zeros(3), FOOTPRINTS)
     with pytest.raises(TypeError, match="Polygons"):
         Footprints((shapely.Point(0, 0),), ("x",))
+
+
+@pytest.mark.slow
+def test_delft_bgt_footprints_take_their_roofs_and_split_the_rows():
+    """Real data: AHN3 Delft with the provider's class 6 and the 160 BGT footprints (shared walls, overhangs)."""
+    from rooftrace.contour.outline import connected_buildings, outline_buildings
+    from rooftrace.io.points import read_points
+    from rooftrace.io.vector import read_footprints
+    from tests.conftest import DELFT, need
+
+    cloud = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:7415")  # the west tile: 128 footprints
+    fps = read_footprints(need(DELFT / "bgt_pand.sqlite"), cloud.crs)
+    x0, y0, x1, y1 = shapely.total_bounds(np.asarray(fps.polygons, dtype=object)) + [-5, -5, 5, 5]
+    cloud = cloud.subset((cloud.x >= x0) & (cloud.x <= x1) & (cloud.y >= y0) & (cloud.y <= y1))
+    cls = cloud.fields["classification"].astype(np.uint8)
+    building = cls == B
+    det = np.zeros(len(cloud), np.int32)
+    det[building] = connected_buildings(cloud.xyz[building, :2], 1.0)  # the rows come out as single buildings
+    res = assign_footprints(cloud.xyz, cls, det, fps, FootprintOptions(overhang=1.5), density=10.0)
+    # nearly every footprint over the tile holds a roof; the others are small sheds (< 25 m²) with a fallback
+    covered = int(np.sum(res.n_cloud > 0))
+    assert covered >= 120 and res.status.count("ok") >= covered - 12
+    assert all(fps.polygons[i].area < 25 or res.n_cloud[i] == 0 for i, s in enumerate(res.status) if s != "ok")
+    # every assigned point lies within the band of its own footprint, and inside points go to their footprint
+    bid = res.building_id
+    sel = np.flatnonzero(bid > 0)
+    d = shapely.distance(np.asarray(fps.polygons, dtype=object)[bid[sel] - 1], shapely.points(cloud.xyz[sel, :2]))
+    assert d.max() <= 1.5 + 1e-9
+    ok = np.array(res.status) == "ok"
+    assert (d > 0).sum() == res.n_overhang[ok].sum() > 1000  # the overhangs (few_points ones keep no points)
+    # detected buildings spanning several footprints are split along them: the terraced rows
+    spans = [len(np.unique(bid[(det == b) & (bid > 0)])) for b in np.unique(det[det > 0])]
+    assert max(spans) >= 10 and sum(s >= 2 for s in spans) >= 5
+
+    # outlines of one row: each covers its footprint, overhangs it, and does not overlap its neighbours
+    row = [i for i in range(len(fps)) if res.status[i] == "ok"
+           and fps.polygons[i].intersects(shapely.box(84900, 447520, 84960, 447560))]
+    keep = np.isin(bid, np.array(row) + 1)
+    traced = outline_buildings(cloud.xyz, np.where(keep, bid, 0), mean_spacing=0.3)
+    sub = assign_footprints(cloud.xyz[:0], cls[:0], det[:0], fps)  # statuses are not used for traced outlines
+    sub.status, sub.fallback = list(res.status), list(res.fallback)
+    outlines = {o.building_id: o for o in footprint_outlines(traced, fps, sub, cloud.xyz)}
+    polys = [shapely.force_2d(outlines[i + 1].polygon) for i in row]
+    assert len(polys) >= 5
+    for i, poly in zip(row, polys):
+        assert poly.intersection(fps.polygons[i]).area / fps.polygons[i].area > 0.85
+    overlap = sum(a.intersection(b).area for k, a in enumerate(polys) for b in polys[k + 1:])
+    assert overlap < 0.01 * sum(p.area for p in polys)

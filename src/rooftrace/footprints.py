@@ -151,13 +151,46 @@ class FootprintAssignment:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-def _containing(tree: shapely.STRtree, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(point index, footprint index) pairs of points inside footprints (boundary included)."""
-    if len(xy) == 0:
+def _containing(polygons: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, footprint index) pairs of points inside footprints (boundary included).
+
+    Points are bucketed in a grid of cells about twice the median footprint
+    size; each footprint tests only the points of the cells its bounding box
+    covers, with ``shapely.contains_xy`` (no point objects: making a million
+    shapely points costs more than the tests).
+    """
+    if len(xy) == 0 or len(polygons) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pts = shapely.points(xy)
-    pairs = tree.query(pts, predicate="intersects")
-    return pairs[0].astype(np.int64), pairs[1].astype(np.int64)
+    bounds = shapely.bounds(polygons)
+    size = np.maximum(bounds[:, 2] - bounds[:, 0], bounds[:, 3] - bounds[:, 1])
+    cell = max(2.0 * float(np.median(size)), 1.0)
+    lo = xy.min(axis=0)
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    ny = int(ij[:, 1].max()) + 1
+    key = ij[:, 0] * ny + ij[:, 1]
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    nx = int(ij[:, 0].max()) + 1
+    pts, fps = [], []
+    for f, (x0, y0, x1, y1) in enumerate(bounds):
+        i0, i1 = np.clip(np.floor((np.array([x0, x1]) - lo[0]) / cell).astype(np.int64), 0, nx - 1)
+        j0, j1 = np.clip(np.floor((np.array([y0, y1]) - lo[1]) / cell).astype(np.int64), 0, ny - 1)
+        if x1 < lo[0] or y1 < lo[1] or x0 > lo[0] + nx * cell or y0 > lo[1] + ny * cell:
+            continue
+        cols = np.arange(i0, i1 + 1) * ny
+        starts = np.searchsorted(skey, cols + j0, side="left")
+        ends = np.searchsorted(skey, cols + j1, side="right")
+        cand = np.concatenate([order[a:b] for a, b in zip(starts, ends)]) if len(cols) else np.zeros(0, np.int64)
+        if not len(cand):
+            continue
+        x, y = xy[cand, 0], xy[cand, 1]
+        cand = cand[(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)]
+        inside = cand[shapely.intersects_xy(polygons[f], xy[cand, 0], xy[cand, 1])]
+        pts.append(inside)
+        fps.append(np.full(len(inside), f, np.int64))
+    if not pts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(pts).astype(np.int64), np.concatenate(fps)
 
 
 def _first_per_point(point: np.ndarray, footprint: np.ndarray, n: int) -> np.ndarray:
@@ -234,14 +267,25 @@ def assign_footprints(
     polygons = np.asarray(footprints.polygons, dtype=object)
     tree = shapely.STRtree(polygons)
 
+    # which footprint holds each point (any class: the coverage counts them too)
+    shapely.prepare(polygons)
+    all_p, all_f = _containing(polygons, xyz[:, :2])
+    all_owner = _first_per_point(all_p, all_f, n)
+    n_cloud = np.bincount(all_owner[all_owner >= 0], minlength=f).astype(np.int64)
+
     building = np.flatnonzero(classification == ASPRS.BUILDING)
-    pi, fi = _containing(tree, xyz[building, :2])
-    inside_owner = _first_per_point(pi, fi, len(building))
+    inside_owner = all_owner[building]
     owner = inside_owner.copy()
 
     # the band: building points outside every footprint, near one, whose detected building reaches inside it
     outside = np.flatnonzero(inside_owner < 0)
     n_overhang = np.zeros(f, np.int64)
+    if len(outside) and options.overhang > 0:
+        # only points in some footprint's band are worth a distance (most of a cloud is far from any)
+        bands = shapely.buffer(polygons, options.overhang, quad_segs=4)
+        shapely.prepare(bands)
+        near_any = np.unique(_containing(bands, xyz[building[outside], :2])[0])
+        outside = outside[near_any]
     if len(outside) and options.overhang > 0:
         pts = shapely.points(xyz[building[outside], :2])
         near_p, near_f = tree.query_nearest(pts, max_distance=options.overhang, all_matches=True)
@@ -261,10 +305,6 @@ def assign_footprints(
     n_inside = np.bincount(inside_owner[inside_owner >= 0], minlength=f).astype(np.int64)
     n_total = n_inside + n_overhang
 
-    # coverage: points of any class inside each footprint
-    all_p, all_f = _containing(tree, xyz[:, :2])
-    all_owner = _first_per_point(all_p, all_f, n)
-    n_cloud = np.bincount(all_owner[all_owner >= 0], minlength=f).astype(np.int64)
 
     status, reason, fallback = [], [], []
     high = None
