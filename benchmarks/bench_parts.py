@@ -37,7 +37,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pyproj
 import shapely
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +71,11 @@ def _share_inside(refs: list, cands: list) -> np.ndarray:
 def score(refs: list, buildings: list, parts: list) -> dict:
     """IoU matching of reference polygons to whole buildings and to parts (see the module docstring)."""
     refs = [shapely.force_2d(r) for r in refs]
-    near = lambda polys: [shapely.force_2d(p) for p in polys if any(shapely.force_2d(p).intersects(r) for r in refs)]
+    tree = shapely.STRtree(refs)
+
+    def near(polys):
+        return [shapely.force_2d(p) for p in polys if len(tree.query(shapely.force_2d(p), predicate="intersects"))]
+
     buildings, parts = near(buildings), near(parts)
     out = {"n_reference": len(refs), "n_buildings": len(buildings), "n_parts": len(parts)}
     for name, cands in (("buildings", buildings), ("parts", parts)):

@@ -142,7 +142,7 @@ def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines:
                     config: dict | None, *, split: bool) -> list:
     """The parts of every outlined building; one part each unless ``split``."""
     from rooftrace.config import make_options
-    from rooftrace.parts import BuildingParts, PartOptions, split_parts
+    from rooftrace.parts import PartOptions, split_parts
 
     options = make_options(PartOptions, config)
     by_id = {s.building_id: s for s in structures}
@@ -314,8 +314,8 @@ def run_pipeline(
     from rooftrace.config import make_options, validate_config
     from rooftrace.contour.outline import OutlineOptions, outline_buildings
     from rooftrace.footprints import FootprintOptions, assign_footprints, footprint_outlines
-    from rooftrace.parts import parts_layer
     from rooftrace.lidar.detect import detect_buildings
+    from rooftrace.parts import parts_layer
 
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
