@@ -46,7 +46,7 @@ KNOWN_SECTIONS: set[str] = {"run"}
 _STAGE_MODULES = (
     "rooftrace.lidar.detect", "rooftrace.contour.outline", "rooftrace.roof", "rooftrace.refine",
     "rooftrace.grouping.building", "rooftrace.image.candidates", "rooftrace.image.corners",
-    "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth", "rooftrace.footprints",
+    "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth", "rooftrace.model", "rooftrace.footprints",
     "rooftrace.parts",
 )
 

@@ -1,4 +1,4 @@
-"""The method as a flowchart: detect → outline → roof planes and ridges → (image refinement).
+"""The method as a flowchart: detect → outline → roof planes and ridges → 3D models → (image refinement).
 
 Each step is one call into a stage package; this module only wires them,
 groups points per building and turns the results into the output layers of
@@ -43,7 +43,11 @@ class RunResult:
     refined : RefineResult or None
         Image refinement, when an image and a camera were given.
     layers : dict of str to Layer
-        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write.
+        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write, and
+        the models' 3D layers ``lod12``, ``lod13``, ``lod22`` when they were built.
+    models : list of BuildingModel
+        LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
+        building, in building-id order (empty when disabled).
     timings : dict of str to float
         Seconds per step.
     building_id : ndarray of shape (N,), int32 or None
@@ -68,6 +72,7 @@ class RunResult:
     refined: Any
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
+    models: list = field(default_factory=list)
     building_id: np.ndarray | None = None
     footprints: Footprints | None = None
     assignment: FootprintAssignment | None = None
@@ -89,6 +94,8 @@ class RunResult:
             "roof_faces": len(self.layers["roof_faces"]),
             "building_parts": int(sum(p.n_parts for p in self.parts)),
             "refined": self.refined is not None,
+            "models": {s: sum(m.attributes.get("status") == s for m in self.models)
+                       for s in sorted({m.attributes.get("status") for m in self.models})},
             **({"footprints": {"count": len(self.footprints), "id_field": self.footprints.id_field,
                                "status": {k: self.assignment.status.count(k) for k in sorted(set(self.assignment.status))}}}
                if self.footprints is not None and self.assignment is not None else {}),
@@ -165,6 +172,44 @@ def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines:
     return parts
 
 
+def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
+                     structures: list, config: dict | None, reporter: Reporter, *, parts: list | None = None,
+                     footprints: Footprints | None = None, assignment: FootprintAssignment | None = None) -> list:
+    """The 3D models of every outlined building: per part when it was split, with its footprint's id and status.
+
+    A ``few_points`` footprint (:func:`rooftrace.footprints.assign_footprints`)
+    is built from its fallback points: LoD 1.2 (and 1.3) from what there is.
+    """
+    from rooftrace.config import make_options
+    from rooftrace.model import ModelOptions, build_model, building_attributes, ground_height
+
+    options = make_options(ModelOptions, config)
+    roofs = {s.building_id: s for s in structures}
+    split = {p.building_id: p.polygons for p in parts or [] if p.n_parts > 1}
+    models = []
+    with reporter.stage("3D models", total=len(outlines)):
+        for outline in outlines:
+            reporter.advance()
+            bid = outline.building_id
+            idx = members.get(bid)
+            if idx is None and assignment is not None and assignment.status[bid - 1] == "few_points":
+                idx = assignment.fallback[bid - 1]
+            if idx is None or not len(idx) or outline.polygon is None or outline.polygon.is_empty:
+                continue  # no outline, no footprint: roof_outlines says why
+            xyz = cloud.xyz[idx]
+            ground = ground_height(xyz[:, 2] - hag[idx], options.ground_percentile)
+            roof = roofs.get(bid)
+            model = build_model(outline.polygon, roof, xyz, ground, parts=split.get(bid), building_id=bid,
+                                options=options)
+            model.attributes = building_attributes(model, roof, xyz, ground)
+            if footprints is not None and assignment is not None:
+                model.attributes.update(footprint_id=footprints.ids[bid - 1],
+                                        footprint_status=assignment.status[bid - 1],
+                                        footprint_reason=assignment.reason[bid - 1] or None)
+            models.append(model)
+    return models
+
+
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
                   image: np.ndarray, camera: Any, *, config: dict | None = None, seed: int = 0):
     """Image refinement of the LiDAR layers of a run, every building in one pass.
@@ -228,10 +273,12 @@ def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]
             "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None, *, parts: Layer | None = None,
-                    footprints: Footprints | None = None, assignment: FootprintAssignment | None = None,
-                    ) -> dict[str, Layer]:
+def building_layers(outlines: list, structures: list, refined: Any = None, models: list | None = None, *,
+                    parts: Layer | None = None, footprints: Footprints | None = None,
+                    assignment: FootprintAssignment | None = None) -> dict[str, Layer]:
     """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
+
+    The 3D ``lodXX`` layers come when ``models`` is given.
 
     ``parts`` is the ``building_parts`` layer (:func:`rooftrace.parts.parts_layer`);
     without it the layer is written empty, with its schema.  With
@@ -242,14 +289,16 @@ def building_layers(outlines: list, structures: list, refined: Any = None, *, pa
     """
     from rooftrace.contour.outline import outlines_layer
     from rooftrace.footprints import footprint_attributes
+    from rooftrace.model.layers import model_layers
     from rooftrace.parts import parts_layer
     from rooftrace.roof import faces_layer, ridges_layer
 
     extra = footprint_attributes(footprints, assignment) if footprints is not None and assignment is not None else None
     layers = {"roof_outlines": outlines_layer(outlines, extra), "ridges": ridges_layer(structures),
-              "roof_faces": faces_layer(structures), "building_parts": parts or parts_layer([], {})}
+              "roof_faces": faces_layer(structures), "building_parts": parts or parts_layer([], {}),
+              **(model_layers(models) if models is not None else {})}
     if extra is not None:
-        for name in ("ridges", "roof_faces", "building_parts"):
+        for name in [n for n in layers if n != "roof_outlines"]:
             layer = layers[name]
             ids = [footprints.ids[int(b) - 1] for b in layer.attributes["building_id"]]
             layers[name] = Layer(layer.geometries, {**layer.attributes, "footprint_id": ids}, layer.geometry_type)
@@ -268,6 +317,7 @@ def run_pipeline(
     reporter: Reporter | None = None,
     derived: Any = None,
     buildings: Any = None,
+    models: bool = True,
     footprints: Footprints | None = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
@@ -299,6 +349,9 @@ def run_pipeline(
         outline; the others keep their detection but get no outline, planes
         or features (a tile of a tiled run outlines only the buildings it
         owns).  Default: all.
+    models : bool, default True
+        Build the LoD 1.2 / 1.3 / 2.2 models of every outlined building
+        (LoD 2.2 needs ``planes``) and their 3D layers.
     footprints : Footprints, optional
         Building footprints in the cloud's CRS: each becomes one building
         (its points inside and in the overhang band, ``[footprints]``
@@ -355,8 +408,15 @@ def run_pipeline(
     parts = _building_parts(cloud, members, outlines, structures, config, split=footprints is None)
     timings["parts"] = time.perf_counter() - t0
 
+    building_models = None
+    if models:
+        t0 = time.perf_counter()
+        building_models = _building_models(cloud, detection.hag, members, outlines, structures, config, reporter,
+                                           parts=parts, footprints=footprints, assignment=assignment)
+        timings["models"] = time.perf_counter() - t0
+
     refined = None
-    layers = building_layers(outlines, structures, parts=parts_layer(parts, {
+    layers = building_layers(outlines, structures, models=building_models, parts=parts_layer(parts, {
         p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
         footprints=footprints, assignment=assignment)
     if image is not None and camera is not None and outlines:
@@ -366,5 +426,5 @@ def run_pipeline(
                                             image, camera, config=config, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings, building_id, footprints, assignment,
-                     parts)
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [],
+                     building_id=building_id, footprints=footprints, assignment=assignment, parts=parts)

@@ -34,6 +34,7 @@ def demo(
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.atomic import atomic_path
+    from rooftrace.io.models import write_models
     from rooftrace.io.vector import read_layer, write_layers
     from rooftrace.pipeline import run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
@@ -62,6 +63,8 @@ def demo(
         reporter.close()
     result_path = output / "result.gpkg"
     write_layers(result_path, result.layers, cloud.crs, overwrite=True)
+    models_path = output / "result.city.jsonl"  # the 3D buildings beside the layers
+    write_models([models_path], result.models, cloud.crs, overwrite=True)
 
     truth = read_layer(files["truth"], "roof_outlines")
     truth_ridges = read_layer(files["truth"], "ridges", missing_ok=True)
@@ -76,7 +79,7 @@ def demo(
                           points_xy=cloud.xyz[building, :2] if building is not None else None,
                           extracted_ridges=ridges, reference_ridges=reference_ridges,
                           title=f"rooftrace demo — synthetic scene, seed {seed}")
-    summary = {"output": str(output), "report": str(report), **{k: metrics.get(k) for k in (
+    summary = {"output": str(output), "report": str(report), "models": str(models_path), **{k: metrics.get(k) for k in (
         "completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean",
         "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched",
         "ridge_completeness", "ridge_correctness", "ridge_position_error")}}
@@ -90,6 +93,7 @@ def demo(
         emit_json(summary)
     else:
         typer.echo(f"report: {report}")
+        typer.echo(f"3D buildings: {models_path}")
         for key in ("f_score", "polis_mean", "polis_mean_lidar_only", "rmse_z", "ridge_position_error",
                     "n_reference", "n_matched"):
             if key in summary:

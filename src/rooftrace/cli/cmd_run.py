@@ -1,4 +1,4 @@
-"""``rooftrace run``: the whole method, from LAS/LAZ (and an image) to a GeoPackage."""
+"""``rooftrace run``: the whole method, from LAS/LAZ (and an image) to a GeoPackage and 3D city models."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ log = logging.getLogger("rooftrace.cli")
 @app.command("run")
 def run(
     inputs: opt.Inputs,
-    output: opt.Output,
+    outputs: opt.Outputs,
     image: Annotated[Path | None, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
     camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of the image.")] = None,
     alpha: Annotated[str | None, typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
@@ -41,8 +41,8 @@ def run(
     overwrite: opt.Overwrite = False,
     quiet: opt.Quiet = False,
 ) -> None:
-    """Detect buildings, trace and regularise roof outlines, find roof planes and ridges;
-    refine them with the image when --image and --camera are given."""
+    """Detect buildings, trace and regularise roof outlines, find roof planes and ridges, build
+    LoD 1.2 / 1.3 / 2.2 models; refine the outlines with the image when --image and --camera are given."""
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
@@ -63,9 +63,17 @@ def run(
         raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
     if (image is None) != (camera is None):
         raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
-    if output.suffix.lower() != ".gpkg":
-        raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
-    check_output(output, overwrite)
+    from rooftrace.io.models import output_format
+
+    formats = [output_format(o) for o in outputs]
+    if len({o.resolve() for o in outputs}) != len(outputs):
+        raise InputError("the same -o file is given twice; give each output once")
+    if formats.count("gpkg") > 1:
+        raise InputError("more than one .gpkg output; give one GeoPackage (it holds every layer)")
+    for o in outputs:
+        check_output(o, overwrite)
+    gpkg = next((o for o, f in zip(outputs, formats) if f == "gpkg"), None)
+    model_files = [o for o, f in zip(outputs, formats) if f != "gpkg"]
     if classified is not None:
         if classified.suffix.lower() not in (".las", ".laz"):
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
@@ -89,12 +97,14 @@ def run(
     if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
-        summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                        scheduler=scheduler, resume=resume),
+        summary = run_tiled(inputs, gpkg, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
+                                                      scheduler=scheduler, resume=resume),
                             crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified)
+                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified,
+                            model_outputs=model_files)
         if not summary.get("buildings"):
-            log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
+            log.warning("%s: no buildings found; %s %s empty", ", ".join(map(str, inputs)),
+                        ", ".join(map(str, outputs)), "is" if len(outputs) == 1 else "are")
         if json_:
             emit_json(summary)
         return
@@ -123,7 +133,7 @@ def run(
         check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
 
     if len(cloud) == 0:
-        _write_empty(output, classified, cloud, overwrite, json_, where)
+        _write_empty(gpkg, model_files, classified, cloud, overwrite, json_, where)
         return
     reporter = reporter_for(quiet)
     try:
@@ -131,41 +141,52 @@ def run(
                               seed=seed, reporter=reporter, footprints=prints)
     finally:
         reporter.close()
-    write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+    if model_files:
+        from rooftrace.io.models import write_models
+
+        write_models(model_files, result.models, cloud.crs, overwrite=overwrite)
+    if gpkg is not None:
+        write_layers(gpkg, result.layers, cloud.crs, overwrite=overwrite)
     if classified is not None:
         from rooftrace.io.las import write_las
 
         write_las(classified, cloud, classification=result.detection.classification,
                   building_id=result.detection.building_id, overwrite=overwrite)
-    summary = {"output": str(output), **result.summary()}
+    summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
     failed = [o.building_id for o in result.outlines if o.polygon is None]
     if not result.outlines:
-        log.warning("%s: no buildings found; the layers of %s are empty", where, output)
+        log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
+                    "is" if len(outputs) == 1 else "are")
     elif failed:
         log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s", len(failed),
                     len(result.outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
     if json_:
         emit_json(summary)
     else:
-        log.info("%d buildings, %d ridges, %d roof faces -> %s", summary["buildings"], summary["ridges"],
-                 summary["roof_faces"], output)
+        log.info("%d buildings, %d ridges, %d roof faces, %d 3D models -> %s", summary["buildings"], summary["ridges"],
+                 summary["roof_faces"], len(result.models), ", ".join(map(str, outputs)))
 
 
-def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:
-    """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
+def _write_empty(gpkg, model_files, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:
+    """An empty input is data, not a mistake: empty layers (with their schema), empty model files and a warning."""
     import numpy as np
 
+    from rooftrace.io.models import write_models
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
-    log.warning("%s: no points; writing empty layers to %s", where, output)
-    write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+    outputs = ([gpkg] if gpkg is not None else []) + list(model_files)
+    log.warning("%s: no points; writing empty outputs to %s", where, ", ".join(map(str, outputs)))
+    if gpkg is not None:
+        write_layers(gpkg, building_layers([], [], models=[]), cloud.crs, overwrite=overwrite)
+    write_models(model_files, [], cloud.crs, overwrite=overwrite)
     if classified is not None:
         from rooftrace.io.las import write_las
 
         write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
                   overwrite=overwrite)
     if json_:
-        emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
+        emit_json({"output": str(outputs[0]), "outputs": [str(o) for o in outputs], "points": 0, "classes": {},
+                   "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})
 
