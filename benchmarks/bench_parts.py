@@ -26,6 +26,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_parts.py --dataset synth
     .venv/bin/python benchmarks/bench_parts.py --dataset delft --footprints
+    .venv/bin/python benchmarks/bench_parts.py --dataset delft --from delft.gpkg   # layers of a `rooftrace run`
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pyproj
 import shapely
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,6 +129,15 @@ def run_synth(seed: int) -> dict:
     return {**score(refs, buildings, parts), "seconds": seconds}
 
 
+def score_gpkg(path: Path) -> dict:
+    """Delft scores of the ``roof_outlines`` and ``building_parts`` layers of an existing run."""
+    from rooftrace.io.vector import read_footprints, read_layer
+
+    bgt = read_footprints(DELFT / "bgt_pand.sqlite", pyproj.CRS.from_epsg(7415))
+    outlines = [g for g in read_layer(path, "roof_outlines").geometries if g is not None]
+    return score(list(bgt.polygons), outlines, list(read_layer(path, "building_parts").geometries))
+
+
 def run_delft(footprints: bool) -> dict:
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import read_footprints
@@ -164,9 +175,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dataset", choices=("synth", "delft"), default="synth")
     ap.add_argument("--footprints", action="store_true", help="Delft: also run with the BGT footprints")
     ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--from", dest="existing", type=Path,
+                    help="Delft: score the layers of this `rooftrace run` GeoPackage instead of running")
     ap.add_argument("--no-record", action="store_true")
     args = ap.parse_args(argv)
-    res = run_synth(args.seed) if args.dataset == "synth" else run_delft(args.footprints)
+    if args.existing is not None:
+        res = score_gpkg(args.existing)
+    else:
+        res = run_synth(args.seed) if args.dataset == "synth" else run_delft(args.footprints)
     print(json.dumps(res, indent=1))
     if not args.no_record:
         from _results import record
