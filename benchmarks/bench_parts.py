@@ -46,28 +46,15 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 DELFT = ROOT.parent / "shared" / "data" / "3dfier_delft_ahn3_bgt"
 
 
-def _iou_matrix(refs: list, cands: list) -> np.ndarray:
-    m = np.zeros((len(refs), len(cands)))
-    if not refs or not cands:
-        return m
-    tree = shapely.STRtree(cands)
-    for i, r in enumerate(refs):
-        for j in tree.query(r, predicate="intersects"):
-            inter = r.intersection(cands[j]).area
-            m[i, j] = inter / (r.area + cands[j].area - inter)
-    return m
-
-
-def _share_inside(refs: list, cands: list) -> np.ndarray:
-    """``s[i, j]``: share of reference i's area inside candidate j."""
-    s = np.zeros((len(refs), len(cands)))
-    if not refs or not cands:
-        return s
-    tree = shapely.STRtree(cands)
-    for i, r in enumerate(refs):
-        for j in tree.query(r, predicate="intersects"):
-            s[i, j] = r.intersection(cands[j]).area / r.area
-    return s
+def _intersections(refs: list, cands: list) -> np.ndarray:
+    """``a[i, j]``: area (m²) of reference i intersecting candidate j."""
+    a = np.zeros((len(refs), len(cands)))
+    if refs and cands:
+        tree = shapely.STRtree(cands)
+        for i, r in enumerate(refs):
+            for j in tree.query(r, predicate="intersects"):
+                a[i, j] = r.intersection(cands[j]).area
+    return a
 
 
 def score(refs: list, buildings: list, parts: list) -> dict:
@@ -81,9 +68,11 @@ def score(refs: list, buildings: list, parts: list) -> dict:
     buildings, parts = near(buildings), near(parts)
     out = {"n_reference": len(refs), "n_buildings": len(buildings), "n_parts": len(parts)}
     for name, cands in (("buildings", buildings), ("parts", parts)):
-        iou = _iou_matrix(refs, cands)
+        inter = _intersections(refs, cands)
+        ref_area = np.array([r.area for r in refs])[:, None]
+        iou = inter / (ref_area + np.array([c.area for c in cands])[None, :] - inter) if cands else inter
         best = iou.max(axis=1) if iou.size else np.zeros(len(refs))
-        share = _share_inside(refs, cands)
+        share = inter / ref_area  # share of each reference's area inside each candidate
         out[f"found_{name}"] = float(np.mean(best >= 0.5)) if len(refs) else float("nan")
         out[f"mean_iou_{name}"] = float(np.mean(best)) if len(refs) else float("nan")
         out[f"under_split_{name}"] = int(np.sum((share >= 0.5).sum(axis=0) >= 2))
