@@ -23,7 +23,7 @@ def scene(tmp_path_factory):
 def outputs(scene, tmp_path_factory):
     d = tmp_path_factory.mktemp("models")
     files = [d / "m.gpkg", d / "m.city.jsonl", d / "m.city.json", d / "m.obj"]
-    argv = ["run", str(scene), *sum((["-o", str(f)] for f in files), []), "--json", "-q"]
+    argv = ["run", str(scene), *[a for f in files for a in ("-o", str(f))], "--json", "-q"]
     return files, argv
 
 
@@ -62,7 +62,7 @@ def test_tiles_and_workers_give_the_same_model_files(scene, outputs, tmp_path):
     if not files[1].exists():
         assert main(argv) == 0
     tiled = [tmp_path / "t.gpkg", tmp_path / "t.city.jsonl", tmp_path / "t.city.json"]
-    assert main(["run", str(scene), *sum((["-o", str(f)] for f in tiled), []), "--tile-size", "30", "-q"]) == 0
+    assert main(["run", str(scene), *[a for f in tiled for a in ("-o", str(f))], "--tile-size", "30", "-q"]) == 0
     assert tiled[1].read_bytes() == files[1].read_bytes()
     assert tiled[2].read_bytes() == files[2].read_bytes()
     for layer in ("lod12", "lod22"):

@@ -47,7 +47,7 @@ def test_figures_deterministic_and_without_points(scene):
     m = evaluate(ext, ref)
     a = render_figures(m, ext, ref, points_xy=pts)
     assert a == render_figures(m, ext, ref, points_xy=pts)
-    assert set(render_figures(m, ext, ref)) == set(FIGURES)
+    assert set(render_figures(m, ext, ref)) == set(FIGURES) - {"models_3d.png"}  # no models given
     with pytest.raises(ValueError, match="points_xy"):
         render_figures(m, ext, ref, points_xy=np.zeros(5))
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pyproj
 import pytest
@@ -12,7 +10,8 @@ import shapely
 from rooftrace.errors import InputError, OutputExistsError
 from rooftrace.io.cityjson import CityJSONSeqWriter, reference_system
 from rooftrace.io.models import output_format, write_models
-from rooftrace.model import BuildingModel, PartModel, build_model, solid_errors
+from rooftrace.model import build_model, solid_errors
+from rooftrace.roof import RoofStructure
 from tests.cityjson_schema import assert_valid_cityjson, assert_valid_cityjsonseq
 from tests.model.cases import gable, stepped
 
@@ -31,19 +30,15 @@ def _models():
         xy = np.column_stack([rng.uniform(*outline.bounds[::2], 3000), rng.uniform(*outline.bounds[1::2], 3000)])
         xy = xy[shapely.contains_xy(outline, xy[:, 0], xy[:, 1])]
 
-        class Roof:  # what the roof stage gives: faces, their planes
-            faces = [c for c, _ in moved]
-            face_plane = list(range(len(moved)))
-            planes = np.array([p for _, p in moved])
-            status = "ok"
-
+        roof = RoofStructure(planes=np.array([p for _, p in moved]), faces=[c for c, _ in moved],
+                             face_plane=list(range(len(moved))))  # what the roof stage gives
         z = np.full(len(xy), np.nan)
         for c, p in moved:
             inside = shapely.contains_xy(c, xy[:, 0], xy[:, 1])
             z[inside] = -(p[0] * xy[inside, 0] + p[1] * xy[inside, 1] + p[3]) / p[2]
         keep = np.isfinite(z)
         parts = None if bid == 1 else [shapely.box(85050, 447000, 85055, 447012), shapely.box(85055, 447000, 85060, 447012)]
-        out.append(build_model(outline, Roof, np.column_stack([xy[keep], z[keep]]), 0.5, parts=parts,
+        out.append(build_model(outline, roof, np.column_stack([xy[keep], z[keep]]), 0.5, parts=parts,
                                building_id=bid))
     return out
 
@@ -143,3 +138,19 @@ def test_models_written_are_valid_solids():
         for p in m.parts:
             assert set(p.lods) == {"1.2", "1.3", "2.2"}
             assert all(solid_errors(s) == [] for s in p.lods.values())
+
+
+def test_cjio_reads_the_cityjson_file(tmp_path):
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    cjio = shutil.which("cjio") or str(Path(sys.executable).parent / "cjio")
+    if not Path(cjio).exists():
+        pytest.skip("cjio (a dev peer: pip install cjio) is not installed")
+    path = tmp_path / "a.city.json"
+    write_models([path], _models(), RD)
+    out = subprocess.run([cjio, str(path), "info"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "Building (2)" in out.stdout and "BuildingPart (2)" in out.stdout and "EPSG = 28992" in out.stdout

@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 import shapely
 
-from rooftrace.model import (ModelOptions, build_model, building_attributes, ground_height, solid_errors,
-                             solid_volume, vertical_rmse)
-from rooftrace.roof import roof_structure
+from rooftrace.model import (
+    ModelOptions,
+    build_model,
+    building_attributes,
+    ground_height,
+    solid_errors,
+    solid_volume,
+    vertical_rmse,
+)
+from rooftrace.roof import RoofStructure, roof_structure
 from rooftrace.roof.models import gable, sample_roof
 
 
@@ -92,18 +99,14 @@ def test_lod13_has_one_height_per_level():
 
     cells, _ = stepped()
 
-    class Roof:
-        faces = [c for c, _ in cells]
-        face_plane = [0, 1, 2]
-        planes = np.array([p for _, p in cells])
-        status = "ok"
+    roof = RoofStructure(planes=np.array([p for _, p in cells]), faces=[c for c, _ in cells], face_plane=[0, 1, 2])
 
     rng = np.random.default_rng(3)
-    outline = shapely.union_all(Roof.faces)
+    outline = shapely.union_all(roof.faces)
     xy = np.column_stack([rng.uniform(0, 10, 4000), rng.uniform(0, 12, 4000)])
     xy = xy[shapely.contains_xy(outline, xy[:, 0], xy[:, 1])]
     z = np.select([xy[:, 1] >= 8, xy[:, 0] < 5], [4.0, 6.0], 9.0)
-    model = build_model(outline, Roof, np.column_stack([xy, z]), 0.0)
+    model = build_model(outline, roof, np.column_stack([xy, z]), 0.0)
     roofs = [s for s in model.parts[0].lods["1.3"].surfaces if s.kind == "RoofSurface"]
     assert sorted({round(float(s.rings[0][0, 2]), 2) for s in roofs}) == [4.0, 6.0, 9.0]
 

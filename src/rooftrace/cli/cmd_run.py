@@ -18,9 +18,9 @@ log = logging.getLogger("rooftrace.cli")
 def run(
     inputs: opt.Inputs,
     outputs: opt.Outputs,
-    image: Annotated[Path | None, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
-    camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of the image.")] = None,
-    alpha: Annotated[str | None, typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
+    image: opt.Image = None,
+    camera: opt.Camera = None,
+    alpha: opt.Alpha = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
     classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
     footprints: Annotated[Path | None, typer.Option(
@@ -42,10 +42,20 @@ def run(
     quiet: opt.Quiet = False,
 ) -> None:
     """Detect buildings, trace and regularise roof outlines, find roof planes and ridges, build
-    LoD 1.2 / 1.3 / 2.2 models; refine the outlines with the image when --image and --camera are given."""
+    LoD 1.2 / 1.3 / 2.2 models; refine the outlines with the image when --image is given.
+
+    \b
+    An orthophoto (a georeferenced GeoTIFF) needs no camera file:
+      rooftrace run tile.laz --image ortho.tif -o roofs.gpkg
+    An aerial frame image needs its orientation:
+      rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
+    Several outputs, the format by the name (.gpkg, .city.jsonl, .city.json, .obj):
+      rooftrace run tile.laz -o roofs.gpkg -o city.city.jsonl
+    """
     from rooftrace.config import load_config
+    from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import (
         check_image_covers,
         check_image_size,
@@ -53,18 +63,15 @@ def run(
         check_same_crs,
         require_metric_crs,
     )
+    from rooftrace.io.models import output_format, write_models
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import run_pipeline
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
-    if alpha is not None and alpha not in ("global", "building", "point"):
-        raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
-    from rooftrace.io.models import output_format
-
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     formats = [output_format(o) for o in outputs]
     if len({o.resolve() for o in outputs}) != len(outputs):
         raise InputError("the same -o file is given twice; give each output once")
@@ -97,11 +104,15 @@ def run(
     if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
-        summary = run_tiled(inputs, gpkg, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                      scheduler=scheduler, resume=resume),
-                            crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified,
-                            model_outputs=model_files)
+        reporter = reporter_for(quiet)
+        try:
+            summary = run_tiled(inputs, gpkg, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
+                                                          scheduler=scheduler, resume=resume),
+                                crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
+                                seed=seed, overwrite=overwrite, reporter=reporter, classified=classified,
+                                model_outputs=model_files)
+        finally:
+            reporter.close()
         if not summary.get("buildings"):
             log.warning("%s: no buildings found; %s %s empty", ", ".join(map(str, inputs)),
                         ", ".join(map(str, outputs)), "is" if len(outputs) == 1 else "are")
@@ -115,14 +126,14 @@ def run(
     check_points(cloud.xyz, where)
     grey = cam = None
     if image is not None:
-        from rooftrace.io.camera import read_camera
+        from rooftrace.io.camera import image_camera
         from rooftrace.io.raster import read_image
 
-        cam = read_camera(camera, image)
-        check_same_crs(cloud.crs, cam.crs, where, str(camera))
+        cam = image_camera(image, camera)
+        check_same_crs(cloud.crs, cam.crs, where, str(camera or image))
         check_image_covers(cam, cloud.xyz, str(image))
         grey = read_image(image)
-        check_image_size(grey.shape[::-1], cam, str(image), str(camera))
+        check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
 
     prints = None
     if footprints is not None:
@@ -141,25 +152,22 @@ def run(
                               seed=seed, reporter=reporter, footprints=prints)
     finally:
         reporter.close()
-    if model_files:
-        from rooftrace.io.models import write_models
+    with commit_together():  # every output new, or all as they were
+        if model_files:
+            write_models(model_files, result.models, cloud.crs, overwrite=overwrite)
+        if gpkg is not None:
+            write_layers(gpkg, result.layers, cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_models(model_files, result.models, cloud.crs, overwrite=overwrite)
-    if gpkg is not None:
-        write_layers(gpkg, result.layers, cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
-
-        write_las(classified, cloud, classification=result.detection.classification,
-                  building_id=result.detection.building_id, overwrite=overwrite)
+            write_las(classified, cloud, classification=result.detection.classification,
+                      building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
-    failed = [o.building_id for o in result.outlines if o.polygon is None]
     if not result.outlines:
         log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
                     "is" if len(outputs) == 1 else "are")
-    elif failed:
-        log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s", len(failed),
-                    len(result.outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
+    else:
+        warn_failed_outlines(result.outlines)
     if json_:
         emit_json(summary)
     else:
@@ -171,22 +179,23 @@ def _write_empty(gpkg, model_files, classified, cloud, overwrite: bool, json_: b
     """An empty input is data, not a mistake: empty layers (with their schema), empty model files and a warning."""
     import numpy as np
 
+    from rooftrace.io.atomic import commit_together
     from rooftrace.io.models import write_models
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
     outputs = ([gpkg] if gpkg is not None else []) + list(model_files)
     log.warning("%s: no points; writing empty outputs to %s", where, ", ".join(map(str, outputs)))
-    if gpkg is not None:
-        write_layers(gpkg, building_layers([], [], models=[]), cloud.crs, overwrite=overwrite)
-    write_models(model_files, [], cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():
+        if gpkg is not None:
+            write_layers(gpkg, building_layers([], [], models=[]), cloud.crs, overwrite=overwrite)
+        write_models(model_files, [], cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
-                  overwrite=overwrite)
+            write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                      overwrite=overwrite)
     if json_:
         emit_json({"output": str(outputs[0]), "outputs": [str(o) for o in outputs], "points": 0, "classes": {},
-                   "buildings": 0, "outline_status": {},
-                   "ridges": 0, "roof_faces": 0, "refined": False})
+                   "buildings": 0, "outline_status": {}, "ridges": 0, "roof_faces": 0, "refined": False})
 

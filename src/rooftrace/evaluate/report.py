@@ -160,6 +160,7 @@ def write_report(
     extracted_ridges: Sequence | None = None,
     reference_ridges: Sequence | None = None,
     overwrite: bool = True,
+    models: Sequence | None = None,
 ) -> Path:
     """Write the PNG figures and ``report.html`` into ``out_dir``.
 
@@ -179,6 +180,8 @@ def write_report(
     overwrite : bool, default True
         Replace existing report files; the caller decides whether the
         folder may be reused (the CLI refuses when ``metrics.json`` exists).
+    models : sequence of BuildingModel, optional
+        3D models of the run: a 3D view of the largest (``models_3d.png``).
 
     Returns
     -------
@@ -188,7 +191,7 @@ def write_report(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     images = render_figures(metrics, extracted, reference, points_xy=points_xy,
-                            extracted_ridges=extracted_ridges, reference_ridges=reference_ridges)
+                            extracted_ridges=extracted_ridges, reference_ridges=reference_ridges, models=models)
     for name, png in images.items():
         with atomic_path(out / name, overwrite) as tmp:
             tmp.write_bytes(png)

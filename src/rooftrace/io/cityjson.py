@@ -28,14 +28,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import tempfile
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rooftrace.io.atomic import atomic_path
+from rooftrace.io.atomic import temporary_path, untrack
+from rooftrace.io.streamed import StreamedOutput
 from rooftrace.model.types import LODS, SURFACE_KINDS
 
 __all__ = ["CityJSONWriter", "CityJSONSeqWriter", "reference_system", "cityobject_id", "VERSION"]
@@ -145,24 +144,17 @@ def _objects(model, vertices: _Vertices) -> dict[str, dict]:
     return objects
 
 
-class _Writer:
+class _Writer(StreamedOutput):
     """Shared by both writers: transform from the first model, extent, metadata, atomic output."""
 
     def __init__(self, path: str | os.PathLike, crs=None, *, overwrite: bool = False, scale: float = 0.001,
                  title: str = "3D buildings reconstructed by rooftrace"):
-        self.path = Path(path)
+        super().__init__(path, overwrite)
         self.crs, self.scale, self.title = crs, float(scale), title
-        self.translate: np.ndarray | None = None
         self.extent: np.ndarray | None = None
-        self.count = 0
-        self._stack = ExitStack()
-        self._final = self._stack.enter_context(atomic_path(self.path, overwrite))
 
     def _start(self, model) -> None:
-        if self.translate is None:
-            ext = _extent([s for p in model.parts for s in p.lods.values()])
-            low = ext[:3] if ext is not None else np.zeros(3)
-            self.translate = np.floor(low / 100.0) * 100.0
+        self._origin([s for p in model.parts for s in p.lods.values()])
 
     def _grow(self, model) -> None:
         ext = _extent([s for p in model.parts for s in p.lods.values()])
@@ -182,20 +174,18 @@ class _Writer:
                 "transform": {"scale": [self.scale] * 3, "translate": [float(v) for v in translate]},
                 "metadata": meta}
 
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.close()
-        else:
-            self._stack.__exit__(exc_type, exc, tb)
-        return False
-
     def _tempfile(self, suffix: str):
-        fd, name = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=suffix, dir=self.path.parent or ".")
-        self._stack.callback(lambda: os.path.exists(name) and os.unlink(name))
-        return os.fdopen(fd, "w+", encoding="utf-8")
+        """A scratch file beside the output, removed at the end (and by an interrupt: it is recorded)."""
+        name = temporary_path(self.path.with_name(self.path.name + suffix))
+        handle = open(name, "w+", encoding="utf-8")  # noqa: SIM115 - closed by the writer's exit stack
+
+        def drop():
+            handle.close()
+            name.unlink(missing_ok=True)
+            untrack(name)
+
+        self._stack.callback(drop)
+        return handle
 
 
 class CityJSONSeqWriter(_Writer):
@@ -237,9 +227,7 @@ class CityJSONSeqWriter(_Writer):
             out.write(json.dumps(header, **_DUMPS) + "\n")
             self._features.seek(0)
             shutil.copyfileobj(self._features, out)
-        self._features.close()
-        self._stack.close()
-        return self.path
+        return super().close()
 
 
 class CityJSONWriter(_Writer):
@@ -280,7 +268,4 @@ class CityJSONWriter(_Writer):
             self._vertices.seek(0)
             shutil.copyfileobj(self._vertices, out)
             out.write('],"metadata":' + json.dumps(meta, **_DUMPS) + "}\n")
-        self._objects.close()
-        self._vertices.close()
-        self._stack.close()
-        return self.path
+        return super().close()

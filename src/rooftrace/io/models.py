@@ -8,9 +8,9 @@ iterable of models into any number of model files in a single pass.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable, Sequence
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Iterable, Sequence
 
 from rooftrace.errors import InputError
 

@@ -13,13 +13,11 @@ viewers work in single precision.
 from __future__ import annotations
 
 import os
-from contextlib import ExitStack
-from pathlib import Path
 
 import numpy as np
 import shapely
 
-from rooftrace.io.atomic import atomic_path
+from rooftrace.io.streamed import StreamedOutput
 from rooftrace.model.types import LODS, SURFACE_KINDS
 from rooftrace.model.validity import surface_normal
 
@@ -52,17 +50,13 @@ def surface_triangles(rings: list[np.ndarray]) -> list[tuple[int, int, int]]:
     return out
 
 
-class OBJWriter:
+class OBJWriter(StreamedOutput):
     """Write models to an OBJ file one building at a time; atomic on :meth:`close`."""
 
     def __init__(self, path: str | os.PathLike, crs=None, *, overwrite: bool = False):
-        self.path = Path(path)
-        self._stack = ExitStack()
-        tmp = self._stack.enter_context(atomic_path(self.path, overwrite))
-        self._out = self._stack.enter_context(open(tmp, "w", encoding="utf-8"))
-        self.translate: np.ndarray | None = None
+        super().__init__(path, overwrite)
+        self._out = self._stack.enter_context(open(self._final, "w", encoding="utf-8"))  # noqa: SIM115
         self._n = 0
-        self.count = 0
 
     def add(self, model) -> None:
         """Append one building (its best level of detail per part)."""
@@ -74,8 +68,7 @@ class OBJWriter:
         if not solids:
             return
         if self.translate is None:
-            low = np.vstack([r for s in solids for f in s.surfaces for r in f.rings]).min(axis=0)
-            self.translate = np.floor(low / 100.0) * 100.0
+            self._origin(solids)
             self._out.write("# rooftrace 3D buildings\n# translate {:.3f} {:.3f} {:.3f}\n".format(*self.translate))
         self._out.write(f"o building_{model.building_id}\n")
         for kind in SURFACE_KINDS:
@@ -95,17 +88,3 @@ class OBJWriter:
                 self._n += len(pts)
             self._out.write("\n".join(lines) + "\n")
         self.count += 1
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if exc_type is None:
-            self.close()
-        else:
-            self._stack.__exit__(exc_type, exc, tb)
-        return False
-
-    def close(self) -> Path:
-        self._stack.close()
-        return self.path

@@ -34,6 +34,10 @@ __all__ = ["Layer", "write_layers", "read_layer", "list_layers", "vector_driver"
 log = logging.getLogger(__name__)
 
 _DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".fgb": "FlatGeobuf"}
+#: GeoPackage 1.3: GDAL >= 3.7 writes 1.4 by default, which GDAL 3.6 (Debian 12, QGIS LTR builds of
+#: that age) opens with "v1.4.0 may only be partially supported"; the layers need nothing of 1.4
+GPKG_VERSION = "1.3"
+_DATASET_OPTIONS = {"GPKG": {"VERSION": GPKG_VERSION}}
 #: multi-file formats, read but never written (no atomic replacement of a set of files)
 _MULTI_FILE = {".shp": "Shapefile", ".shx": "Shapefile", ".dbf": "Shapefile", ".tab": "MapInfo TAB", ".mif": "MapInfo MIF"}
 
@@ -122,7 +126,7 @@ def write_layers(
             pyogrio.raw.write(
                 str(tmp), geoms, data, fields, layer=name, driver=driver,
                 geometry_type=_ogr_type(layer.geometry_type), crs=wkt,
-                append=False,
+                append=False, dataset_options=_DATASET_OPTIONS.get(driver),
             )
     return path
 
@@ -236,6 +240,7 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *, i
     import warnings
 
     from rooftrace.footprints import Footprints
+    from rooftrace.io.checks import horizontal_crs
 
     path = Path(path)
     names = list_layers(path)
@@ -296,16 +301,16 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *, i
         log.warning("%s: GeoJSON without a 'crs' member and coordinates that are not longitude/latitude; "
                     "taking them in the point cloud's CRS", path)
         source = None
-    target = _horizontal(crs)
+    target = horizontal_crs(crs)
     if source is None:
         if target is not None:
             log.warning("%s: no CRS; taking the footprints in the point cloud's CRS (%s)", path, target.name)
     elif target is None:
         log.warning("%s: the point cloud has no CRS; taking the footprints' coordinates (%s) as they are",
                     path, source.name)
-    elif not _horizontal(source).equals(target):
+    elif not horizontal_crs(source).equals(target):
         try:
-            transformer = pyproj.Transformer.from_crs(_horizontal(source), target, always_xy=True)
+            transformer = pyproj.Transformer.from_crs(horizontal_crs(source), target, always_xy=True)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 geoms = shapely.transform(geoms, lambda xy: np.column_stack(transformer.transform(xy[:, 0], xy[:, 1])))
@@ -335,15 +340,6 @@ def _polygonal(geom: Any) -> Any:
         return shapely.Polygon()
     return parts[0] if len(parts) == 1 else shapely.MultiPolygon(
         [p for g in parts for p in shapely.get_parts(g)])
-
-
-def _horizontal(crs: pyproj.CRS | None) -> pyproj.CRS | None:
-    """The horizontal part of a compound CRS (the height datum plays no role in plan view)."""
-    if crs is None:
-        return None
-    if crs.is_compound and crs.sub_crs_list:
-        return crs.sub_crs_list[0]
-    return crs
 
 
 def _implicit_wgs84(path: Path, geoms: np.ndarray) -> bool:

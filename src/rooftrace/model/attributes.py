@@ -20,7 +20,7 @@ attribute          meaning                                 3DBAG counterpart
 ``volume_lodXX``   volume of the LoD solids (m³)           ``b3_volume_lodXX``
 ``rmse_lodXX``     vertical RMSE of the roof points to     ``b3_rmse_lodXX``
                    the LoD's roof (m)
-``n_points``       roof points                             
+``n_points``       roof points
 ``point_density``  roof points per m² of footprint         ``b3_pw_dichtheid``
 ``area``           footprint area (m²)
 ``status``,        ``ok``, ``partial`` or ``no_model``,    ``b3_reconstructie_

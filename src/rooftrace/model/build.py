@@ -27,8 +27,9 @@ party walls.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import shapely
@@ -128,12 +129,12 @@ def _roof_cells(roof) -> list[tuple[Any, np.ndarray]]:
 
 
 def _clip(cells: list, footprint) -> list:
-    out = []
-    for poly, plane in cells:
-        for g in shapely.get_parts(shapely.intersection(poly, footprint)):
-            if g.geom_type == "Polygon" and g.area > 0:
-                out.append((g, plane))
-    return out
+    """The cells cut to ``footprint`` (a polygon each, with its plane)."""
+    if not cells:
+        return []
+    cut = shapely.intersection(np.array([c for c, _ in cells], dtype=object), footprint)
+    return [(g, plane) for piece, (_, plane) in zip(cut, cells) for g in shapely.get_parts(piece)
+            if g.geom_type == "Polygon" and g.area > 0]
 
 
 def _levels(cells: list, step: float) -> list[list[int]]:
@@ -160,6 +161,11 @@ def _levels(cells: list, step: float) -> list[list[int]]:
     return [list(np.flatnonzero(label == k)) for k in np.unique(label)]
 
 
+#: what one level of one building may fail with; the run goes on (a city must not stop at one
+#: odd roof) and the building's status says why
+_FAILURES = (GeometryError, shapely.errors.GEOSException, ValueError, np.linalg.LinAlgError)
+
+
 def _checked(solid: Solid, options: ModelOptions) -> Solid:
     if options.validate:
         errors = solid_errors(solid, planarity=options.planarity, grid=options.grid)
@@ -178,15 +184,19 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
     z = xyz[inside, 2]
     part.attributes["n_points"] = int(len(z))
     if not len(z):
-        return part, {lod: "no roof points in the footprint" for lod in ("1.2", "1.3", "2.2")}
+        return part, dict.fromkeys(("1.2", "1.3", "2.2"), "no roof points in the footprint")
     h = float(np.percentile(z, options.roof_percentile))
-    part.attributes["h_roof_70p" if options.roof_percentile == 70 else "h_roof_percentile"] = round(h, 3)
+    part.attributes["h_roof_lod12"] = round(h, 3)
     kw = dict(footprint=footprint, grid=options.grid, z_tolerance=options.z_tolerance)
     try:
         part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
-    except GeometryError as exc:
+    except _FAILURES as exc:
         why["1.2"] = str(exc)
-    cells = _clip(cells, footprint)
+    try:
+        cells = _clip(cells, footprint)
+    except _FAILURES as exc:
+        log.warning("part %d: roof faces not cut to the part (%s)", part_id, exc)
+        cells = []
     if not cells:
         why["2.2"] = f"no roof faces ({roof_status})"
         if "1.2" in part.lods:
@@ -203,11 +213,11 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
             levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
         part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)
-    except GeometryError as exc:
+    except _FAILURES as exc:
         why["1.3"] = str(exc)
     try:
         part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
-    except GeometryError as exc:
+    except _FAILURES as exc:
         why["2.2"] = str(exc)
     for lod, solid in part.lods.items():
         part.attributes[f"volume_lod{lod.replace('.', '')}"] = round(solid_volume(solid), 3)

@@ -56,11 +56,14 @@ def _polygons(geom) -> list[Polygon]:
 
 def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int], Polygon]:
     """Pieces of the noded arrangement, dissolved per cell; and the footprint they tile."""
-    polys = [shapely.set_precision(shapely.force_2d(p), grid) for p, _ in cells]
+    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), grid))
     fp = shapely.set_precision(shapely.force_2d(footprint), grid)
-    lines = [shapely.boundary(fp)] + [shapely.boundary(p) for p in polys if not p.is_empty]
-    noded = shapely.union_all(lines, grid_size=grid)
-    pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
+    if len(polys) == 1 and shapely.equals(polys[0], fp) and fp.geom_type == "Polygon":
+        pieces = np.array([fp], dtype=object)  # one cell that is the footprint (LoD 1.2): nothing to node
+    else:
+        lines = [shapely.boundary(fp)] + [shapely.boundary(p) for p in polys if not p.is_empty]
+        noded = shapely.union_all(lines, grid_size=grid)
+        pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
     if not len(pieces):
         raise GeometryError("the footprint has no area")
     reps = shapely.point_on_surface(pieces)
@@ -235,7 +238,9 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         except _Saddle as saddle:
             if attempt == 3:
                 raise GeometryError(f"roof faces meet at {len(saddle.points)} saddle or pinch vertices") from None
-            cells = _open_saddles(cells, saddle.points, saddle.faces, 10 * grid)
+            # 1 cm, then wider when a disk's own edge made a new one
+            cells = _open_saddles(cells, saddle.points, saddle.faces, 10 * grid * 4**attempt,
+                                  small=0.0 if attempt == 0 else 1.0)
     raise AssertionError("unreachable")
 
 
@@ -248,11 +253,18 @@ class _Saddle(Exception):
         self.points, self.faces = points, faces
 
 
-def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: float) -> list:
+def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: float, small: float = 0.0) -> list:
     """Give a cell a small disk around each vertex: at a saddle the highest cell, so that its high
     neighbours join it through an edge and the low ones stay apart (two walls per vertical edge); at
-    a pinch the cell touching itself, which then surrounds the vertex."""
+    a pinch the cell touching itself, which then surrounds the vertex.  Cells under ``small`` m² at
+    such a vertex (slivers wedged between a face and the outline) are dropped first: their neighbours
+    fill the gap, and the next attempt opens what is left."""
     cells = list(cells)
+    if small > 0:
+        near = shapely.multipoints(points).buffer(radius)
+        keep = [not (poly.area < small and poly.intersects(near)) for poly, _ in cells]
+        if not all(keep) and any(keep):
+            return [c for c, k in zip(cells, keep) if k]  # the next attempt finds what is left
     for (x, y), c in zip(points, faces):
         disk = shapely.Point(x, y).buffer(radius, quad_segs=2)
         cells = [(shapely.difference(poly, disk) if i != c else shapely.union(poly, disk), plane)
