@@ -109,8 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from", dest="existing", type=Path, help="measure this CityJSONSeq instead of running")
     ap.add_argument("--no-record", action="store_true")
     args = ap.parse_args(argv)
+    from rooftrace.io.footprints import read_footprints
     from rooftrace.io.points import read_points
-    from rooftrace.io.vector import read_footprints
 
     res: dict = {}
     path = args.existing

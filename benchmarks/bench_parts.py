@@ -120,7 +120,8 @@ def run_synth(seed: int) -> dict:
 
 def score_gpkg(path: Path) -> dict:
     """Delft scores of the ``roof_outlines`` and ``building_parts`` layers of an existing run."""
-    from rooftrace.io.vector import read_footprints, read_layer
+    from rooftrace.io.footprints import read_footprints
+    from rooftrace.io.vector import read_layer
 
     bgt = read_footprints(DELFT / "bgt_pand.sqlite", pyproj.CRS.from_epsg(7415))
     outlines = [g for g in read_layer(path, "roof_outlines").geometries if g is not None]
@@ -128,8 +129,8 @@ def score_gpkg(path: Path) -> dict:
 
 
 def run_delft(footprints: bool) -> dict:
+    from rooftrace.io.footprints import read_footprints
     from rooftrace.io.points import read_points
-    from rooftrace.io.vector import read_footprints
     from rooftrace.pipeline import run_pipeline
 
     cloud = read_points([DELFT / "ahn3_cropped_1.laz", DELFT / "ahn3_cropped_2.laz"], "EPSG:7415")

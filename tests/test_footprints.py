@@ -113,8 +113,8 @@ def test_bad_arguments():
 def test_delft_bgt_footprints_take_their_roofs_and_split_the_rows():
     """Real data: AHN3 Delft with the provider's class 6 and the 160 BGT footprints (shared walls, overhangs)."""
     from rooftrace.contour.outline import connected_buildings, outline_buildings
+    from rooftrace.io.footprints import read_footprints
     from rooftrace.io.points import read_points
-    from rooftrace.io.vector import read_footprints
     from tests.conftest import DELFT, need
 
     cloud = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:7415")  # the west tile: 128 footprints

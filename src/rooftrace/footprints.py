@@ -20,7 +20,7 @@ block from the heights there are, the footprint as outline),
 ``"no_building_points"`` (the cloud covers the footprint but nothing on it was
 detected as a building: no model) and ``"no_points"`` (no point of the
 cloud over the footprint: no model).  Everything here is numpy/shapely in and
-out; reading the file is :func:`rooftrace.io.vector.read_footprints`.
+out; reading the file is :func:`rooftrace.io.footprints.read_footprints`.
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 
 import json
 
+import laspy
 import numpy as np
 import pyproj
 import pytest
@@ -30,8 +31,9 @@ def scene(tmp_path_factory):
 
 def test_one_building_per_footprint_with_its_id_in_every_layer(scene, tmp_path, capsys):
     out_dir, fp, ids = scene
-    out = tmp_path / "roofs.gpkg"
-    assert main(["run", str(out_dir / "points.laz"), "--footprints", str(fp), "-o", str(out), "--json", "-q"]) == 0
+    out, laz = tmp_path / "roofs.gpkg", tmp_path / "classified.laz"
+    assert main(["run", str(out_dir / "points.laz"), "--footprints", str(fp), "-o", str(out), "--classified",
+                 str(laz), "--json", "-q"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["footprints"]["count"] == len(ids) and summary["footprints"]["id_field"] == "identificatie"
     outlines = read_layer(out, "roof_outlines")
@@ -45,9 +47,13 @@ def test_one_building_per_footprint_with_its_id_in_every_layer(scene, tmp_path, 
         if s == "ok":
             assert shapely.force_2d(g).intersection(f).area > 0.9 * f.area
     assert set(list_layers(out)) >= {"roof_outlines", "ridges", "roof_faces", "building_parts"}
-    for name in ("ridges", "roof_faces", "building_parts"):
+    for name in ("ridges", "roof_faces", "building_parts", "lod12", "lod22"):
         layer = read_layer(out, name)
         assert len(layer) and set(layer.attributes["footprint_id"]) <= set(ids)
+    # the classified points carry the footprint building of each point: the ids of the layers
+    point_ids = np.asarray(laspy.read(laz)["building_id"])
+    ok = [i + 1 for i, s in enumerate(outlines.attributes["footprint_status"]) if s == "ok"]
+    assert set(np.unique(point_ids[point_ids > 0])) == set(ok)
 
 
 @pytest.mark.parametrize("case,message", [

@@ -12,7 +12,8 @@ import shapely
 
 from rooftrace.errors import InputError
 from rooftrace.io.checks import check_footprints_overlap
-from rooftrace.io.vector import Layer, read_footprints, write_layers
+from rooftrace.io.footprints import read_footprints
+from rooftrace.io.vector import Layer, write_layers
 from tests.conftest import CITY3D, DELFT, need
 
 RD = pyproj.CRS.from_epsg(28992)

@@ -138,7 +138,7 @@ def run(
     prints = None
     if footprints is not None:
         from rooftrace.io.checks import check_footprints_overlap
-        from rooftrace.io.vector import read_footprints
+        from rooftrace.io.footprints import read_footprints
 
         prints = read_footprints(footprints, cloud.crs, id_field=footprint_id)
         check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
@@ -160,8 +160,10 @@ def run(
         if classified is not None:
             from rooftrace.io.las import write_las
 
-            write_las(classified, cloud, classification=result.detection.classification,
-                      building_id=result.detection.building_id, overwrite=overwrite)
+            # with footprints, the footprint building of each point (the ids of the layers)
+            ids = result.building_id if result.footprints is not None else result.detection.building_id
+            write_las(classified, cloud, classification=result.detection.classification, building_id=ids,
+                      overwrite=overwrite)
     summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
     if not result.outlines:
         log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
