@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 import shapely
 
-from rooftrace import config
 from rooftrace.cloud import ASPRS
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
@@ -112,8 +111,6 @@ class FootprintOptions:
         if not np.isfinite(self.min_height) or self.min_height < 0:
             raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
 
-
-config.KNOWN_SECTIONS.add(FootprintOptions.section)
 
 
 @dataclass

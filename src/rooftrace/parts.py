@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 
-from rooftrace import config
 from rooftrace.graph import components
 
 __all__ = ["PartOptions", "BuildingParts", "split_parts", "parts_layer"]
@@ -89,8 +88,6 @@ class PartOptions:
         if not 0.0 <= self.min_slope < 90.0:
             raise ValueError(f"parts.min_slope must be in [0, 90) degrees, got {self.min_slope!r}")
 
-
-config.KNOWN_SECTIONS.add(PartOptions.section)
 
 
 @dataclass

@@ -10,18 +10,29 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import shapely
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import PointCloud
+from rooftrace.config import RunOptions
 from rooftrace.errors import GeometryError
 from rooftrace.footprints import FootprintAssignment, Footprints
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
+
+if TYPE_CHECKING:
+    from rooftrace.contour.outline import RoofOutline
+    from rooftrace.image.camera import FrameCamera, OrthoCamera
+    from rooftrace.lidar.detect import DerivedParams, Detection
+    from rooftrace.model import BuildingModel, ModelOptions
+    from rooftrace.parts import PartOptions
+    from rooftrace.refine import RefineOptions, RefineResult
+    from rooftrace.roof import RoofOptions, RoofStructure
 
 __all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "refine_layers"]
 
@@ -30,7 +41,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class RunResult:
-    """Everything a run produced.
+    """Everything a run produced (:func:`run_pipeline`).
 
     Attributes
     ----------
@@ -45,6 +56,8 @@ class RunResult:
     layers : dict of str to Layer
         ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write, and
         the models' 3D layers ``lod12``, ``lod13``, ``lod22`` when they were built.
+    timings : dict of str to float
+        Seconds per step.
     models : list of BuildingModel
         LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
         building, in building-id order (empty when disabled).
@@ -66,13 +79,13 @@ class RunResult:
         a footprint building is one part.
     """
 
-    detection: Any
-    outlines: list
-    structures: list
-    refined: Any
+    detection: Detection
+    outlines: list[RoofOutline]
+    structures: list[RoofStructure]
+    refined: RefineResult | None
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
-    models: list = field(default_factory=list)
+    models: list[BuildingModel] = field(default_factory=list)
     building_id: np.ndarray | None = None
     footprints: Footprints | None = None
     assignment: FootprintAssignment | None = None
@@ -118,12 +131,10 @@ def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
     return {int(i): part for i, part in zip(ids, np.split(order, starts[1:]))}
 
 
-def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, config: dict | None,
+def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, options: RoofOptions,
                      mean_spacing: float, reporter: Reporter) -> list:
-    from rooftrace.config import make_options
-    from rooftrace.roof import RoofOptions, roof_structure
+    from rooftrace.roof import roof_structure
 
-    options = make_options(RoofOptions, config)
     structures = []
     # one BLAS thread, as in the Dask workers (small calls: threads only
     # rendezvous; measured equal or faster on Delft)
@@ -145,12 +156,10 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
 
 
 def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, structures: list,
-                    config: dict | None, *, split: bool) -> list:
+                    options: PartOptions, *, split: bool) -> list:
     """The parts of every outlined building; one part each unless ``split``."""
-    from rooftrace.config import make_options
-    from rooftrace.parts import PartOptions, split_parts
+    from rooftrace.parts import split_parts
 
-    options = make_options(PartOptions, config)
     by_id = {s.building_id: s for s in structures}
     parts = []
     for outline in outlines:
@@ -172,17 +181,15 @@ def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines:
 
 
 def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
-                     structures: list, config: dict | None, reporter: Reporter, *, parts: list | None = None,
+                     structures: list, options: ModelOptions, reporter: Reporter, *, parts: list | None = None,
                      footprints: Footprints | None = None, assignment: FootprintAssignment | None = None) -> list:
     """The 3D models of every outlined building: per part when it was split, with its footprint's id and status.
 
     A ``few_points`` footprint (:func:`rooftrace.footprints.assign_footprints`)
     is built from its fallback points: LoD 1.2 (and 1.3) from what there is.
     """
-    from rooftrace.config import make_options
-    from rooftrace.model import ModelOptions, build_model, building_attributes, ground_height
+    from rooftrace.model import build_model, building_attributes, ground_height
 
-    options = make_options(ModelOptions, config)
     roofs = {s.building_id: s for s in structures}
     split = {p.building_id: p.polygons for p in parts or [] if p.n_parts > 1}
     models = []
@@ -210,7 +217,8 @@ def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.n
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
-                  image: np.ndarray, camera: Any, *, config: dict | None = None, seed: int = 0):
+                  image: np.ndarray, camera: FrameCamera | OrthoCamera, *, options: RefineOptions | None = None,
+                  config: dict | None = None, seed: int = 0) -> tuple[RefineResult, dict[str, Layer]]:
     """Image refinement of the LiDAR layers of a run, every building in one pass.
 
     The untiled run and the merge of a tiled run both call this on their
@@ -236,8 +244,11 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
         Grey image in [0, 1].
     camera : FrameCamera or OrthoCamera
         Orientation of ``image``, same CRS as the layers.
+    options : RefineOptions, optional
+        The refinement's options; by default from ``config``.
     config : dict, optional
-        Parsed TOML config (``[refine]`` and its nested tables).
+        Parsed TOML config (``[refine]`` and its nested tables), when
+        ``options`` is not given.
     seed : int, default 0
         Seed of the genetic algorithm.
 
@@ -260,19 +271,20 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
         building_ids=ids,
         ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
         ridge_kinds=list(ridges.attributes["kind"]),
-        options=RefineOptions.from_config(config), seed=seed,
+        options=options if options is not None else RefineOptions.from_config(config), seed=seed,
     )
     return refined, _with_refinement(layers, refined)
 
 
-def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
+def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
     return {**layers,
             "roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
             "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None, models: list | None = None, *,
+def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure],
+                    refined: RefineResult | None = None, models: list[BuildingModel] | None = None, *,
                     parts: Layer | None = None, footprints: Footprints | None = None,
                     assignment: FootprintAssignment | None = None) -> dict[str, Layer]:
     """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
@@ -306,16 +318,17 @@ def building_layers(outlines: list, structures: list, refined: Any = None, model
 
 def run_pipeline(
     cloud: PointCloud,
+    options: RunOptions | None = None,
     *,
     config: dict | None = None,
     alpha: str | None = None,
-    planes: bool = True,
+    planes: bool | None = None,
     image: np.ndarray | None = None,
-    camera: Any = None,
+    camera: FrameCamera | OrthoCamera | None = None,
     seed: int = 0,
     reporter: Reporter | None = None,
-    derived: Any = None,
-    buildings: Any = None,
+    derived: DerivedParams | None = None,
+    buildings: Callable[[np.ndarray, Detection], np.ndarray] | None = None,
     models: bool = True,
     footprints: Footprints | None = None,
 ) -> RunResult:
@@ -325,12 +338,18 @@ def run_pipeline(
     ----------
     cloud : PointCloud
         Raw points in a projected CRS (metres); the input classification is ignored.
+    options : RunOptions, optional
+        Every option of the run (:class:`rooftrace.config.RunOptions`); by
+        default built from ``config``, ``alpha`` and ``planes``.
     config : dict, optional
-        Parsed TOML config, one table per stage.
+        Parsed TOML config, one table per stage, when ``options`` is not given
+        (checked whole).
     alpha : {'global', 'building', 'point'}, optional
-        Alpha-shape strategy (thesis S1, S2, S3); default from the config.
-    planes : bool, default True
-        Segment roof planes and derive ridges and faces.
+        Alpha-shape strategy (thesis S1, S2, S3), when ``options`` is not
+        given; default from the config.
+    planes : bool, optional
+        Segment roof planes and derive ridges and faces, when ``options`` is
+        not given; default from the config (True).
     image : ndarray of shape (H, W), optional
         Grey image in [0, 1] for the refinement.
     camera : FrameCamera or OrthoCamera, optional
@@ -350,38 +369,48 @@ def run_pipeline(
         owns).  Default: all.
     models : bool, default True
         Build the LoD 1.2 / 1.3 / 2.2 models of every outlined building
-        (LoD 2.2 needs ``planes``) and their 3D layers.
+        (LoD 2.2 needs roof planes; options ``options.model``) and their 3D layers.
     footprints : Footprints, optional
         Building footprints in the cloud's CRS: each becomes one building
-        (its points inside and in the overhang band, ``[footprints]``
-        options), outlined and roofed on those points; footprints without
-        usable points get a status and a fallback
+        (its points inside and in the overhang band, ``options.footprints``),
+        outlined and roofed on those points; footprints without usable
+        points get a status and a fallback
         (:func:`rooftrace.footprints.assign_footprints`).  Without them the
-        detected buildings are the buildings.
+        detected buildings are the buildings, split into parts where their
+        roofs show a boundary (``options.parts``).
 
     Returns
     -------
     RunResult
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> result = run_pipeline(scene.cloud)
+    >>> len(result.outlines), sorted(result.layers)
+    (1, ['building_parts', 'lod12', 'lod13', 'lod22', 'ridges', 'roof_faces', 'roof_outlines'])
     """
-    from rooftrace.config import make_options, validate_config
-    from rooftrace.contour.outline import OutlineOptions, outline_buildings
-    from rooftrace.footprints import FootprintOptions, assign_footprints, footprint_outlines
+    from rooftrace.contour.outline import outline_buildings
+    from rooftrace.footprints import assign_footprints, footprint_outlines
     from rooftrace.lidar.detect import detect_buildings
     from rooftrace.parts import parts_layer
 
+    if options is None:
+        options = RunOptions.from_config(config, alpha=alpha, planes=planes)
+    elif config or alpha is not None or planes is not None:
+        raise TypeError("run_pipeline: give options, or config, alpha and planes, not both")
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    if config:
-        validate_config(config)  # a config not read by load_config (library use) gets the same checks
 
-    detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
+    detection = detect_buildings(cloud, options.detect, reporter=reporter, derived=derived)
     building_id = detection.building_id
     assignment = None
     if footprints is not None:
         t0 = time.perf_counter()
         with reporter.stage("footprints"):
             assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
-                                           make_options(FootprintOptions, config), hag=detection.hag,
+                                           options.footprints, hag=detection.hag,
                                            density=detection.density)
         building_id = assignment.building_id
         timings["footprints"] = time.perf_counter() - t0
@@ -390,28 +419,27 @@ def run_pipeline(
     members = points_by_building(building_id)
 
     t0 = time.perf_counter()
-    outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
-    outlines = outline_buildings(cloud.xyz, building_id, outline_options,
+    outlines = outline_buildings(cloud.xyz, building_id, options.outline,
                                  mean_spacing=detection.mean_spacing, reporter=reporter)
     if assignment is not None:
         outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
     timings["outline"] = time.perf_counter() - t0
 
     structures: list = []
-    if planes and outlines:
+    if options.planes and outlines:
         t0 = time.perf_counter()
-        structures = _roof_structures(cloud, members, outlines, config, detection.mean_spacing, reporter)
+        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    parts = _building_parts(cloud, members, outlines, structures, config, split=footprints is None)
+    parts = _building_parts(cloud, members, outlines, structures, options.parts, split=footprints is None)
     timings["parts"] = time.perf_counter() - t0
 
     building_models = None
     if models:
         t0 = time.perf_counter()
-        building_models = _building_models(cloud, detection.hag, members, outlines, structures, config, reporter,
-                                           parts=parts, footprints=footprints, assignment=assignment)
+        building_models = _building_models(cloud, detection.hag, members, outlines, structures, options.model,
+                                           reporter, parts=parts, footprints=footprints, assignment=assignment)
         timings["models"] = time.perf_counter() - t0
 
     refined = None
@@ -422,7 +450,7 @@ def run_pipeline(
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
             refined, layers = refine_layers(layers, {s.building_id: s.planes for s in structures}, cloud.xyz,
-                                            image, camera, config=config, seed=seed)
+                                            image, camera, options=options.refine, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
     return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [],

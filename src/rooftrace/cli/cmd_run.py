@@ -52,7 +52,7 @@ def run(
     Several outputs, the format by the name (.gpkg, .city.jsonl, .city.json, .obj):
       rooftrace run tile.laz -o roofs.gpkg -o city.city.jsonl
     """
-    from rooftrace.config import load_config
+    from rooftrace.config import RunOptions, load_config
     from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output, commit_together
@@ -66,7 +66,9 @@ def run(
     from rooftrace.io.models import output_format, write_models
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
+    from rooftrace.options import make_options
     from rooftrace.pipeline import run_pipeline
+    from rooftrace.tiling import TileOptions
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
@@ -88,8 +90,13 @@ def run(
     if footprint_id is not None and footprints is None:
         raise InputError("--footprint-id names an attribute of --footprints; give --footprints FILE too")
     cfg = load_config(config)
+    # the flags given win over the config's [run] and [tiling] tables
+    run_options = RunOptions.from_config(cfg, alpha=alpha, planes=False if no_planes else None)
+    tile_options = make_options(TileOptions, cfg, tile_size=tile_size, buffer=buffer,
+                                workers=workers if workers > 1 else None, scheduler=scheduler, resume=resume or None)
 
-    tiled = tile_size is not None or workers > 1 or scheduler is not None or resume
+    tiled = (tile_options.tile_size is not None or tile_options.workers > 1 or tile_options.scheduler is not None
+             or tile_options.resume)
     announced = header_points(inputs)  # None: not all readable LAS/LAZ (the readers say why)
     if not tiled and announced and not fits_in_memory(announced):
         log.warning("%s: %d points need about %.1f GiB in one piece and %.1f GiB are available; running in tiles "
@@ -102,14 +109,13 @@ def run(
         raise InputError("--footprints runs untiled for now; drop --tile-size/--workers/--scheduler/--resume, "
                          "or cut the footprints and the cloud into blocks that fit in memory")
     if tiled and announced != 0:
-        from rooftrace.tiling import TileOptions, run_tiled
+        from rooftrace.tiling import run_tiled
 
         reporter = reporter_for(quiet)
         try:
-            summary = run_tiled(inputs, gpkg, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                          scheduler=scheduler, resume=resume),
-                                crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                                seed=seed, overwrite=overwrite, reporter=reporter, classified=classified,
+            summary = run_tiled(inputs, gpkg, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
+                                planes=run_options.planes, image=image, camera=camera, seed=seed,
+                                overwrite=overwrite, reporter=reporter, classified=classified,
                                 model_outputs=model_files)
         finally:
             reporter.close()
@@ -148,8 +154,8 @@ def run(
         return
     reporter = reporter_for(quiet)
     try:
-        result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
-                              seed=seed, reporter=reporter, footprints=prints)
+        result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter,
+                              footprints=prints)
     finally:
         reporter.close()
     with commit_together():  # every output new, or all as they were

@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 import shapely
 
-from rooftrace import config
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.model.solid import horizontal_plane, prism_solid
@@ -90,9 +89,6 @@ class ModelOptions:
         for name in ("level_step", "grid", "z_tolerance", "planarity"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
-
-
-config.KNOWN_SECTIONS.add(ModelOptions.section)
 
 
 def ground_height(terrain_z: np.ndarray, percentile: float = 10.0) -> float:
