@@ -36,6 +36,7 @@ from rooftrace.contour.outline import OutlineOptions
 from rooftrace.contour.regularize import RegularizeOptions
 from rooftrace.contour.surface import SurfaceOptions
 from rooftrace.errors import InputError
+from rooftrace.footprints import FootprintOptions
 from rooftrace.grouping.ga import GAOptions
 from rooftrace.grouping.mrf import MRFOptions
 from rooftrace.image.candidates import CandidateOptions
@@ -48,6 +49,7 @@ from rooftrace.lidar.outliers import OutlierOptions
 from rooftrace.lidar.segment import SegmentOptions
 from rooftrace.model.build import ModelOptions
 from rooftrace.options import check_table, make_options
+from rooftrace.parts import PartOptions
 from rooftrace.refine.options import RefineOptions
 from rooftrace.roof.structure import RoofOptions
 from rooftrace.snake.snake import SnakeOptions
@@ -82,6 +84,10 @@ class RunOptions:
         ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[harris]``.
     model : ModelOptions
         ``[model]``: the 3D models.
+    footprints : FootprintOptions
+        ``[footprints]``: which points belong to a footprint (with ``--footprints``).
+    parts : PartOptions
+        ``[parts]``: the split of LiDAR-only buildings into building parts.
     """
 
     section: ClassVar[str] = "run"
@@ -93,6 +99,8 @@ class RunOptions:
     roof: RoofOptions = field(default_factory=RoofOptions)
     refine: RefineOptions = field(default_factory=RefineOptions)
     model: ModelOptions = field(default_factory=ModelOptions)
+    footprints: FootprintOptions = field(default_factory=FootprintOptions)
+    parts: PartOptions = field(default_factory=PartOptions)
 
     def __post_init__(self) -> None:
         if self.alpha is not None and self.alpha not in STRATEGIES:
@@ -127,7 +135,8 @@ class RunOptions:
         return cls(alpha=own.alpha, planes=own.planes, detect=DetectOptions.from_config(config),
                    outline=OutlineOptions.from_config(config, strategy=strategy),
                    roof=make_options(RoofOptions, config), refine=RefineOptions.from_config(config),
-                   model=make_options(ModelOptions, config))
+                   model=make_options(ModelOptions, config), footprints=make_options(FootprintOptions, config),
+                   parts=make_options(PartOptions, config))
 
 
 #: every table of a config file and the options dataclass that reads it
@@ -140,8 +149,8 @@ SECTIONS: dict[str, type] = {
     "regularize": RegularizeOptions,
     # roof planes and ridges
     "planes": RoofOptions,
-    # 3D models
-    "model": ModelOptions,
+    # 3D models, footprints and building parts
+    "model": ModelOptions, "footprints": FootprintOptions, "parts": PartOptions,
     # image refinement
     "refine": RefineOptions, "mrf": MRFOptions, "ga": GAOptions, "candidates": CandidateOptions,
     "harris": HarrisOptions,

@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import shapely
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import PointCloud
 from rooftrace.config import RunOptions
 from rooftrace.errors import GeometryError
+from rooftrace.footprints import FootprintAssignment, Footprints
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
 
@@ -28,6 +30,7 @@ if TYPE_CHECKING:
     from rooftrace.image.camera import FrameCamera, OrthoCamera
     from rooftrace.lidar.detect import DerivedParams, Detection
     from rooftrace.model import BuildingModel, ModelOptions
+    from rooftrace.parts import PartOptions
     from rooftrace.refine import RefineOptions, RefineResult
     from rooftrace.roof import RoofOptions, RoofStructure
 
@@ -58,6 +61,22 @@ class RunResult:
     models : list of BuildingModel
         LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
         building, in building-id order (empty when disabled).
+    timings : dict of str to float
+        Seconds per step.
+    building_id : ndarray of shape (N,), int32 or None
+        The building of every point (0 = none) the outlines and planes were
+        made from: the detection's, or with footprints the footprint's index
+        + 1.  None means ``detection.building_id``.
+    footprints : Footprints or None
+        The footprints given to the run (one building each, in order).
+    assignment : FootprintAssignment or None
+        Per footprint its status, reason and point counts.
+    parts : list of BuildingParts
+        Per building with an outline (in building-id order), its parts: a
+        part id per point of ``members[building_id]`` and a polygon per part
+        partitioning the outline.  Without footprints, LiDAR buildings split
+        where the roof shows a boundary (:func:`rooftrace.parts.split_parts`);
+        a footprint building is one part.
     """
 
     detection: Detection
@@ -67,6 +86,10 @@ class RunResult:
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
     models: list[BuildingModel] = field(default_factory=list)
+    building_id: np.ndarray | None = None
+    footprints: Footprints | None = None
+    assignment: FootprintAssignment | None = None
+    parts: list = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -81,9 +104,13 @@ class RunResult:
             "outline_status": outline_statuses(self.outlines),
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
+            "building_parts": int(sum(p.n_parts for p in self.parts)),
             "refined": self.refined is not None,
             "models": {s: sum(m.attributes.get("status") == s for m in self.models)
                        for s in sorted({m.attributes.get("status") for m in self.models})},
+            **({"footprints": {"count": len(self.footprints), "id_field": self.footprints.id_field,
+                               "status": {k: self.assignment.status.count(k) for k in sorted(set(self.assignment.status))}}}
+               if self.footprints is not None and self.assignment is not None else {}),
             "mean_spacing": float(det.mean_spacing),
             "density": float(det.density),
             "sigma_h": float(det.sigma_h),
@@ -128,23 +155,63 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
     return structures
 
 
+def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, structures: list,
+                    options: PartOptions, *, split: bool) -> list:
+    """The parts of every outlined building; one part each unless ``split``."""
+    from rooftrace.parts import split_parts
+
+    by_id = {s.building_id: s for s in structures}
+    parts = []
+    for outline in outlines:
+        if outline.polygon is None or outline.polygon.is_empty:
+            continue
+        bid = outline.building_id
+        idx = members.get(bid, np.zeros(0, np.int64))
+        st = by_id.get(bid)
+        if not split or st is None or not st.faces:
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, [], [], np.zeros((0, 4)), building_id=bid))
+            continue
+        try:
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, st.faces, st.face_plane, st.planes, options,
+                                     building_id=bid))
+        except (ValueError, shapely.errors.GEOSException) as exc:  # one building must not stop a city
+            log.warning("building %d: no part split (%s: %s)", bid, type(exc).__name__, exc)
+            parts.append(split_parts(cloud.xyz[idx], outline.polygon, [], [], np.zeros((0, 4)), building_id=bid))
+    return parts
+
+
 def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
-                     structures: list, options: ModelOptions, reporter: Reporter) -> list:
+                     structures: list, options: ModelOptions, reporter: Reporter, *, parts: list | None = None,
+                     footprints: Footprints | None = None, assignment: FootprintAssignment | None = None) -> list:
+    """The 3D models of every outlined building: per part when it was split, with its footprint's id and status.
+
+    A ``few_points`` footprint (:func:`rooftrace.footprints.assign_footprints`)
+    is built from its fallback points: LoD 1.2 (and 1.3) from what there is.
+    """
     from rooftrace.model import build_model, building_attributes, ground_height
 
     roofs = {s.building_id: s for s in structures}
+    split = {p.building_id: p.polygons for p in parts or [] if p.n_parts > 1}
     models = []
     with reporter.stage("3D models", total=len(outlines)):
         for outline in outlines:
             reporter.advance()
-            idx = members.get(outline.building_id)
-            if idx is None or outline.polygon is None or outline.polygon.is_empty:
+            bid = outline.building_id
+            idx = members.get(bid)
+            if idx is None and assignment is not None and assignment.status[bid - 1] == "few_points":
+                idx = assignment.fallback[bid - 1]
+            if idx is None or not len(idx) or outline.polygon is None or outline.polygon.is_empty:
                 continue  # no outline, no footprint: roof_outlines says why
             xyz = cloud.xyz[idx]
             ground = ground_height(xyz[:, 2] - hag[idx], options.ground_percentile)
-            roof = roofs.get(outline.building_id)
-            model = build_model(outline.polygon, roof, xyz, ground, building_id=outline.building_id, options=options)
+            roof = roofs.get(bid)
+            model = build_model(outline.polygon, roof, xyz, ground, parts=split.get(bid), building_id=bid,
+                                options=options)
             model.attributes = building_attributes(model, roof, xyz, ground)
+            if footprints is not None and assignment is not None:
+                model.attributes.update(footprint_id=footprints.ids[bid - 1],
+                                        footprint_status=assignment.status[bid - 1],
+                                        footprint_reason=assignment.reason[bid - 1] or None)
             models.append(model)
     return models
 
@@ -217,15 +284,35 @@ def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[st
 
 
 def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure],
-                    refined: RefineResult | None = None, models: list[BuildingModel] | None = None
-                    ) -> dict[str, Layer]:
-    """The output layers of DESIGN.md from the stage results (the 3D ``lodXX`` layers when ``models`` is given)."""
+                    refined: RefineResult | None = None, models: list[BuildingModel] | None = None, *,
+                    parts: Layer | None = None, footprints: Footprints | None = None,
+                    assignment: FootprintAssignment | None = None) -> dict[str, Layer]:
+    """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
+
+    The 3D ``lodXX`` layers come when ``models`` is given.
+
+    ``parts`` is the ``building_parts`` layer (:func:`rooftrace.parts.parts_layer`);
+    without it the layer is written empty, with its schema.  With
+    ``footprints`` (one outline per footprint, building id = index + 1)
+    every layer gets the ``footprint_id`` column, and ``roof_outlines`` the
+    footprint's status, reason and point counts
+    (:func:`rooftrace.footprints.footprint_attributes`).
+    """
     from rooftrace.contour.outline import outlines_layer
+    from rooftrace.footprints import footprint_attributes
     from rooftrace.model.layers import model_layers
+    from rooftrace.parts import parts_layer
     from rooftrace.roof import faces_layer, ridges_layer
 
-    layers = {"roof_outlines": outlines_layer(outlines), "ridges": ridges_layer(structures),
-              "roof_faces": faces_layer(structures), **(model_layers(models) if models is not None else {})}
+    extra = footprint_attributes(footprints, assignment) if footprints is not None and assignment is not None else None
+    layers = {"roof_outlines": outlines_layer(outlines, extra), "ridges": ridges_layer(structures),
+              "roof_faces": faces_layer(structures), "building_parts": parts or parts_layer([], {}),
+              **(model_layers(models) if models is not None else {})}
+    if extra is not None:
+        for name in [n for n in layers if n != "roof_outlines"]:
+            layer = layers[name]
+            ids = [footprints.ids[int(b) - 1] for b in layer.attributes["building_id"]]
+            layers[name] = Layer(layer.geometries, {**layer.attributes, "footprint_id": ids}, layer.geometry_type)
     return layers if refined is None else _with_refinement(layers, refined)
 
 
@@ -243,6 +330,7 @@ def run_pipeline(
     derived: DerivedParams | None = None,
     buildings: Callable[[np.ndarray, Detection], np.ndarray] | None = None,
     models: bool = True,
+    footprints: Footprints | None = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -282,6 +370,14 @@ def run_pipeline(
     models : bool, default True
         Build the LoD 1.2 / 1.3 / 2.2 models of every outlined building
         (LoD 2.2 needs roof planes; options ``options.model``) and their 3D layers.
+    footprints : Footprints, optional
+        Building footprints in the cloud's CRS: each becomes one building
+        (its points inside and in the overhang band, ``options.footprints``),
+        outlined and roofed on those points; footprints without usable
+        points get a status and a fallback
+        (:func:`rooftrace.footprints.assign_footprints`).  Without them the
+        detected buildings are the buildings, split into parts where their
+        roofs show a boundary (``options.parts``).
 
     Returns
     -------
@@ -293,10 +389,12 @@ def run_pipeline(
     >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
     >>> result = run_pipeline(scene.cloud)
     >>> len(result.outlines), sorted(result.layers)
-    (1, ['lod12', 'lod13', 'lod22', 'ridges', 'roof_faces', 'roof_outlines'])
+    (1, ['building_parts', 'lod12', 'lod13', 'lod22', 'ridges', 'roof_faces', 'roof_outlines'])
     """
     from rooftrace.contour.outline import outline_buildings
+    from rooftrace.footprints import assign_footprints, footprint_outlines
     from rooftrace.lidar.detect import detect_buildings
+    from rooftrace.parts import parts_layer
 
     if options is None:
         options = RunOptions.from_config(config, alpha=alpha, planes=planes)
@@ -307,6 +405,15 @@ def run_pipeline(
 
     detection = detect_buildings(cloud, options.detect, reporter=reporter, derived=derived)
     building_id = detection.building_id
+    assignment = None
+    if footprints is not None:
+        t0 = time.perf_counter()
+        with reporter.stage("footprints"):
+            assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
+                                           options.footprints, hag=detection.hag,
+                                           density=detection.density)
+        building_id = assignment.building_id
+        timings["footprints"] = time.perf_counter() - t0
     if buildings is not None:
         building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
     members = points_by_building(building_id)
@@ -314,6 +421,8 @@ def run_pipeline(
     t0 = time.perf_counter()
     outlines = outline_buildings(cloud.xyz, building_id, options.outline,
                                  mean_spacing=detection.mean_spacing, reporter=reporter)
+    if assignment is not None:
+        outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
     timings["outline"] = time.perf_counter() - t0
 
     structures: list = []
@@ -322,15 +431,21 @@ def run_pipeline(
         structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
+    t0 = time.perf_counter()
+    parts = _building_parts(cloud, members, outlines, structures, options.parts, split=footprints is None)
+    timings["parts"] = time.perf_counter() - t0
+
     building_models = None
     if models:
         t0 = time.perf_counter()
         building_models = _building_models(cloud, detection.hag, members, outlines, structures, options.model,
-                                           reporter)
+                                           reporter, parts=parts, footprints=footprints, assignment=assignment)
         timings["models"] = time.perf_counter() - t0
 
     refined = None
-    layers = building_layers(outlines, structures, models=building_models)
+    layers = building_layers(outlines, structures, models=building_models, parts=parts_layer(parts, {
+        p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
+        footprints=footprints, assignment=assignment)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
@@ -338,4 +453,5 @@ def run_pipeline(
                                             image, camera, options=options.refine, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [])
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [],
+                     building_id=building_id, footprints=footprints, assignment=assignment, parts=parts)

@@ -33,7 +33,7 @@ def test_one_run_writes_every_format(outputs, capsys):
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["outputs"] == [str(f) for f in files]
     gpkg, seq, doc, obj = files
-    assert list_layers(gpkg) == ["roof_outlines", "ridges", "roof_faces", "lod12", "lod13", "lod22"]
+    assert list_layers(gpkg) == ["roof_outlines", "ridges", "roof_faces", "building_parts", "lod12", "lod13", "lod22"]
     lod22 = read_layer(gpkg, "lod22")
     assert pyogrio.read_info(gpkg, layer="lod22")["geometry_type"] == "MultiPolygon Z"
     assert set(lod22.attributes["surface_type"]) == {"RoofSurface", "WallSurface", "GroundSurface"}

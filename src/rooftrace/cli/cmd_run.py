@@ -23,6 +23,12 @@ def run(
     alpha: opt.Alpha = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
     classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    footprints: Annotated[Path | None, typer.Option(
+        "--footprints", help="Building footprints (any OGR vector: GPKG, GeoJSON, Shapefile, FlatGeobuf, SQLite), "
+        "reprojected to the cloud's CRS: one building per footprint.")] = None,
+    footprint_id: Annotated[str | None, typer.Option(
+        "--footprint-id", help="Attribute of --footprints carried as footprint_id (default: identificatie, "
+        "identificatiebagpnd, id, fid or gml_id if present, else the feature id).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     seed: opt.Seed = 0,
@@ -81,6 +87,8 @@ def run(
         if classified.suffix.lower() not in (".las", ".laz"):
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
         check_output(classified, overwrite)
+    if footprint_id is not None and footprints is None:
+        raise InputError("--footprint-id names an attribute of --footprints; give --footprints FILE too")
     cfg = load_config(config)
     # the flags given win over the config's [run] and [tiling] tables
     run_options = RunOptions.from_config(cfg, alpha=alpha, planes=False if no_planes else None)
@@ -97,6 +105,9 @@ def run(
         tiled = True
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
+    if tiled and announced != 0 and footprints is not None:
+        raise InputError("--footprints runs untiled for now; drop --tile-size/--workers/--scheduler/--resume, "
+                         "or cut the footprints and the cloud into blocks that fit in memory")
     if tiled and announced != 0:
         from rooftrace.tiling import run_tiled
 
@@ -130,12 +141,21 @@ def run(
         grey = read_image(image)
         check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
 
+    prints = None
+    if footprints is not None:
+        from rooftrace.io.checks import check_footprints_overlap
+        from rooftrace.io.footprints import read_footprints
+
+        prints = read_footprints(footprints, cloud.crs, id_field=footprint_id)
+        check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
+
     if len(cloud) == 0:
         _write_empty(gpkg, model_files, classified, cloud, overwrite, json_, where)
         return
     reporter = reporter_for(quiet)
     try:
-        result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter)
+        result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter,
+                              footprints=prints)
     finally:
         reporter.close()
     with commit_together():  # every output new, or all as they were
@@ -146,8 +166,10 @@ def run(
         if classified is not None:
             from rooftrace.io.las import write_las
 
-            write_las(classified, cloud, classification=result.detection.classification,
-                      building_id=result.detection.building_id, overwrite=overwrite)
+            # with footprints, the footprint building of each point (the ids of the layers)
+            ids = result.building_id if result.footprints is not None else result.detection.building_id
+            write_las(classified, cloud, classification=result.detection.classification, building_id=ids,
+                      overwrite=overwrite)
     summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
     if not result.outlines:
         log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),

@@ -14,7 +14,7 @@ import numpy as np
 from rooftrace.errors import InputError
 
 __all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
-           "check_points"]
+           "check_points", "check_footprints_overlap"]
 
 #: a cloud narrower than this across its main direction (metres) is a line, not an area
 _MIN_WIDTH = 0.01
@@ -201,3 +201,29 @@ def check_points(xyz: np.ndarray, where: str, what: str = "the point cloud") -> 
 def _degenerate(xy: np.ndarray) -> bool:
     centred = xy - xy.mean(axis=0)
     return len(xy) < 3 or np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(xy)) < _MIN_WIDTH
+
+
+def check_footprints_overlap(footprints, xyz: np.ndarray, path: str, where: str) -> int:
+    """Refuse footprints none of which lies over the cloud (wrong file, wrong CRS); return how many do.
+
+    A footprint counts when it intersects the plan bounding box of the
+    points; footprints outside it stay (status ``"no_points"``), one
+    warning says how many.
+    """
+    import shapely
+
+    if len(xyz) == 0 or len(footprints) == 0:
+        return 0
+    lo, hi = xyz[:, :2].min(axis=0), xyz[:, :2].max(axis=0)
+    box = shapely.box(lo[0], lo[1], hi[0], hi[1])
+    over = shapely.intersects(np.asarray(footprints.polygons, dtype=object), box)
+    n = int(over.sum())
+    if n == 0:
+        fb = shapely.total_bounds(np.asarray(footprints.polygons, dtype=object))
+        raise InputError(f"{path}: no footprint lies over the point cloud {where} (footprints "
+                         f"{fb[0]:.1f}..{fb[2]:.1f}, {fb[1]:.1f}..{fb[3]:.1f}; cloud {lo[0]:.1f}..{hi[0]:.1f}, "
+                         f"{lo[1]:.1f}..{hi[1]:.1f}); check that both are the same area and the footprints' CRS")
+    if n < len(footprints):
+        log.warning("%s: %d of %d footprints lie outside the point cloud; they get status no_points",
+                    path, len(footprints) - n, len(footprints))
+    return n

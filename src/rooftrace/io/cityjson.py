@@ -120,7 +120,7 @@ def _extent(solids) -> np.ndarray | None:
 def _objects(model, vertices: _Vertices) -> dict[str, dict]:
     """The ``Building`` (and its ``BuildingPart``\\ s) of one model."""
     bid = cityobject_id(model)
-    attrs = {k: _clean(v) for k, v in model.attributes.items() if k != "footprint_id"}
+    attrs = {k: _clean(v) for k, v in model.attributes.items()}  # footprint_id too: the id and an attribute
     attrs["building_id"] = int(model.building_id)
     building: dict[str, Any] = {"type": "Building", "attributes": attrs}
     solids = [s for p in model.parts for s in p.lods.values()]

@@ -202,3 +202,4 @@ def read_layer(path: str | os.PathLike, layer: str | None = None, *, missing_ok:
     attrs = {name: list(col) for name, col in zip(meta["fields"], values)}
     crs = pyproj.CRS.from_user_input(meta["crs"]) if meta.get("crs") else None
     return Layer(geoms, attrs, str(meta.get("geometry_type") or "Unknown"), crs)
+

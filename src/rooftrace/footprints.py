@@ -1,0 +1,454 @@
+"""Cadastral footprints as buildings: which LiDAR points belong to which footprint.
+
+A footprint (BGT/BAG ``pand``, a cadastre parcel building) is where the walls
+meet the ground; the roof seen by the laser may stick out beyond it (eaves,
+overhangs of 0.2–1 m).  Each footprint becomes one building made of
+
+* the building points (class 6 of the detection) inside it, and
+* the building points in a band of ``overhang`` metres around it that belong
+  to a detected building which also has points inside the footprint (so a
+  neighbouring building without footprint is not taken in); a band point near
+  several footprints goes to the nearest one.
+
+A detected building spanning several footprints (a terraced row) is thereby
+split along the footprints: a point inside footprint A goes to A, a point in
+the shared band goes to the nearest footprint.
+
+Footprints that get too few building points keep a status and a fallback, as
+3DBAG's roofer does: ``"few_points"`` (fewer than ``min_points``: a LoD 1.2
+block from the heights there are, the footprint as outline),
+``"no_building_points"`` (the cloud covers the footprint but nothing on it was
+detected as a building: no model) and ``"no_points"`` (no point of the
+cloud over the footprint: no model).  Everything here is numpy/shapely in and
+out; reading the file is :func:`rooftrace.io.footprints.read_footprints`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import shapely
+
+from rooftrace.cloud import ASPRS
+
+__all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
+           "footprint_attributes", "STATUSES"]
+
+log = logging.getLogger(__name__)
+
+#: the status of a footprint building and what the model builders do with it
+STATUSES = {
+    "ok": "building points over the footprint: roof outline, planes and all levels of detail",
+    "few_points": "fewer building points than min_points: LoD 1.2 from their heights on the footprint",
+    "no_building_points": "the cloud covers the footprint but no building was detected on it: no model",
+    "no_points": "no point of the cloud over the footprint: no model",
+}
+
+
+@dataclass(frozen=True)
+class Footprints:
+    """Building footprints in the point cloud's CRS.
+
+    Attributes
+    ----------
+    polygons : tuple of shapely.Polygon or MultiPolygon
+        2D, metres, in the CRS of the cloud they go with.
+    ids : tuple
+        One identifier per polygon (int or str): the value of ``id_field``.
+    id_field : str
+        Name of the attribute the ids come from (``"fid"`` for the feature id).
+    """
+
+    polygons: tuple
+    ids: tuple
+    id_field: str = "fid"
+
+    def __post_init__(self) -> None:
+        if len(self.polygons) != len(self.ids):
+            raise ValueError(f"Footprints: {len(self.ids)} ids for {len(self.polygons)} polygons")
+        kinds = {shapely.get_type_id(p) for p in self.polygons}
+        if not kinds <= {3, 6}:  # Polygon, MultiPolygon
+            raise TypeError("Footprints: polygons must be shapely Polygons or MultiPolygons")
+
+    def __len__(self) -> int:
+        return len(self.polygons)
+
+
+@dataclass(frozen=True)
+class FootprintOptions:
+    """Options of the footprint assignment (``[footprints]`` in the TOML config).
+
+    Attributes
+    ----------
+    overhang : float, default 1.5
+        Width (m) of the band around a footprint whose building points may
+        belong to it: roof overhangs of Dutch and French houses reach
+        0.2–1 m beyond the wall line, plus the LiDAR's planimetric error.
+    min_points : int or None, default None
+        Fewer building points make the footprint ``"few_points"`` (LoD 1.2
+        only).  None: T_Np = Ar_min · d_avg with Ar_min = 4 m² (thesis
+        §3.3), the smallest building the detection keeps.
+    min_height : float, default 2.0
+        A non-building point must stand this high (m) above the ground to
+        count for a ``"few_points"`` fallback when no building point is
+        there (a low shed or a missed roof still gives a LoD 1.2 block).
+    """
+
+    section = "footprints"
+
+    overhang: float = 1.5
+    min_points: int | None = None
+    min_height: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.overhang) or self.overhang < 0:
+            raise ValueError(f"footprints.overhang must be >= 0 metres, got {self.overhang!r}")
+        if self.min_points is not None and self.min_points < 1:
+            raise ValueError(f"footprints.min_points must be >= 1, got {self.min_points!r}")
+        if not np.isfinite(self.min_height) or self.min_height < 0:
+            raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
+
+
+
+@dataclass
+class FootprintAssignment:
+    """Result of :func:`assign_footprints`.
+
+    Attributes
+    ----------
+    building_id : ndarray of shape (N,), int32
+        1 + the footprint's index for the points that belong to a footprint
+        building, 0 elsewhere (the ids of the output layers).
+    status : list of str
+        Per footprint, a key of :data:`STATUSES`.
+    reason : list of str
+        Per footprint, a sentence for the user ("" when ``"ok"``).
+    n_inside, n_overhang : ndarray of shape (F,), int64
+        Building points of each footprint inside it and in its overhang band.
+    n_cloud : ndarray of shape (F,), int64
+        Points of any class inside each footprint (0: not covered by the cloud).
+    fallback : list of ndarray of int
+        Per footprint, indices of the points a ``"few_points"`` LoD 1.2 takes
+        its height from (building points, or high non-ground points when there
+        are none); empty for the other statuses.
+    params : dict
+        The resolved options (``min_points`` derived from the density).
+    """
+
+    building_id: np.ndarray
+    status: list[str]
+    reason: list[str]
+    n_inside: np.ndarray
+    n_overhang: np.ndarray
+    n_cloud: np.ndarray
+    fallback: list[np.ndarray] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+def _containing(polygons: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(point index, footprint index) pairs of points inside footprints (boundary included).
+
+    Points are bucketed in a grid of cells about twice the median footprint
+    size; each footprint tests only the points of the cells its bounding box
+    covers, with ``shapely.contains_xy`` (no point objects: making a million
+    shapely points costs more than the tests).
+    """
+    if len(xy) == 0 or len(polygons) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    bounds = shapely.bounds(polygons)
+    size = np.maximum(bounds[:, 2] - bounds[:, 0], bounds[:, 3] - bounds[:, 1])
+    cell = max(2.0 * float(np.median(size)), 1.0)
+    lo = xy.min(axis=0)
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    ny = int(ij[:, 1].max()) + 1
+    key = ij[:, 0] * ny + ij[:, 1]
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    nx = int(ij[:, 0].max()) + 1
+    pts, fps = [], []
+    for f, (x0, y0, x1, y1) in enumerate(bounds):
+        i0, i1 = np.clip(np.floor((np.array([x0, x1]) - lo[0]) / cell).astype(np.int64), 0, nx - 1)
+        j0, j1 = np.clip(np.floor((np.array([y0, y1]) - lo[1]) / cell).astype(np.int64), 0, ny - 1)
+        if x1 < lo[0] or y1 < lo[1] or x0 > lo[0] + nx * cell or y0 > lo[1] + ny * cell:
+            continue
+        cols = np.arange(i0, i1 + 1) * ny
+        starts = np.searchsorted(skey, cols + j0, side="left")
+        ends = np.searchsorted(skey, cols + j1, side="right")
+        cand = np.concatenate([order[a:b] for a, b in zip(starts, ends)]) if len(cols) else np.zeros(0, np.int64)
+        if not len(cand):
+            continue
+        x, y = xy[cand, 0], xy[cand, 1]
+        cand = cand[(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)]
+        inside = cand[shapely.intersects_xy(polygons[f], xy[cand, 0], xy[cand, 1])]
+        pts.append(inside)
+        fps.append(np.full(len(inside), f, np.int64))
+    if not pts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(pts).astype(np.int64), np.concatenate(fps)
+
+
+def _first_per_point(point: np.ndarray, footprint: np.ndarray, n: int) -> np.ndarray:
+    """Per point, the lowest footprint index among its pairs (-1 without any): overlaps resolve deterministically."""
+    owner = np.full(n, np.iinfo(np.int64).max, np.int64)
+    np.minimum.at(owner, point, footprint)
+    owner[owner == np.iinfo(np.int64).max] = -1
+    return owner
+
+
+def assign_footprints(
+    xyz: np.ndarray,
+    classification: np.ndarray,
+    detected_id: np.ndarray,
+    footprints: Footprints,
+    options: FootprintOptions | None = None,
+    *,
+    hag: np.ndarray | None = None,
+    density: float | None = None,
+) -> FootprintAssignment:
+    """Give every footprint its building points (roof above it plus the overhang band).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m), in the footprints' CRS.
+    classification : ndarray of shape (N,), uint8
+        ASPRS classes from the detection (6 building, 2 ground, 7 noise).
+    detected_id : ndarray of shape (N,), int
+        Building id from the detection (0 = none): a band point joins a
+        footprint only when its detected building has points inside it.
+    footprints : Footprints
+    options : FootprintOptions, optional
+    hag : ndarray of shape (N,), float64, optional
+        Height above ground (m); without it no non-building fallback points
+        are taken.
+    density : float, optional
+        d_avg (pts/m²), for the derived ``min_points``.
+
+    Returns
+    -------
+    FootprintAssignment
+
+    Notes
+    -----
+    Overlapping footprints (a data error, but it happens) give a point to the
+    one listed first.  Inside tests include the boundary.  The band point's
+    nearest footprint is found with ``STRtree.query_nearest``; equidistant
+    footprints go to the lowest index, so the result does not depend on the
+    order of the points.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> fp = Footprints((shapely.box(0, 0, 10, 10),), ("a",))
+    >>> xyz = np.array([[5.0, 5.0, 6.0], [10.8, 5.0, 5.5], [30.0, 5.0, 6.0]])
+    >>> res = assign_footprints(xyz, np.array([6, 6, 6]), np.array([1, 1, 2]), fp,
+    ...                         FootprintOptions(min_points=1))
+    >>> res.building_id.tolist(), res.status
+    ([1, 1, 0], ['ok'])
+    """
+    options = options or FootprintOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    classification = np.asarray(classification)
+    detected_id = np.asarray(detected_id).astype(np.int64)
+    n, f = len(xyz), len(footprints)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ValueError(f"assign_footprints: xyz must have shape (N, 3), got {xyz.shape}")
+    if len(classification) != n or len(detected_id) != n or (hag is not None and len(hag) != n):
+        raise ValueError("assign_footprints: classification, detected_id and hag need one value per point")
+    min_points = options.min_points
+    if min_points is None:
+        min_points = max(3, int(np.ceil(4.0 * density))) if density and np.isfinite(density) else 10
+    polygons = np.asarray(footprints.polygons, dtype=object)
+    tree = shapely.STRtree(polygons)
+
+    # which footprint holds each point (any class: the coverage counts them too)
+    shapely.prepare(polygons)
+    all_p, all_f = _containing(polygons, xyz[:, :2])
+    all_owner = _first_per_point(all_p, all_f, n)
+    n_cloud = np.bincount(all_owner[all_owner >= 0], minlength=f).astype(np.int64)
+
+    building = np.flatnonzero(classification == ASPRS.BUILDING)
+    inside_owner = all_owner[building]
+    owner = inside_owner.copy()
+
+    # the band: building points outside every footprint, near one, whose detected building reaches inside it
+    outside = np.flatnonzero(inside_owner < 0)
+    n_overhang = np.zeros(f, np.int64)
+    if len(outside) and options.overhang > 0:
+        # only points in some footprint's band are worth a distance (most of a cloud is far from any)
+        bands = shapely.buffer(polygons, options.overhang, quad_segs=4)
+        shapely.prepare(bands)
+        near_any = np.unique(_containing(bands, xyz[building[outside], :2])[0])
+        outside = outside[near_any]
+    if len(outside) and options.overhang > 0:
+        pts = shapely.points(xyz[building[outside], :2])
+        near_p, near_f = tree.query_nearest(pts, max_distance=options.overhang, all_matches=True)
+        near = _first_per_point(near_p, near_f, len(outside))
+        hit = np.flatnonzero(near >= 0)
+        # pairs (detected building, footprint) with points inside: keys b * f + i
+        det_in = detected_id[building[inside_owner >= 0]]
+        inside_keys = np.unique(det_in[det_in > 0] * f + inside_owner[inside_owner >= 0][det_in > 0])
+        det_band = detected_id[building[outside[hit]]]
+        ok = (det_band > 0) & np.isin(det_band * f + near[hit], inside_keys)
+        owner[outside[hit[ok]]] = near[hit[ok]]
+        n_overhang = np.bincount(near[hit[ok]], minlength=f).astype(np.int64)
+
+    building_id = np.zeros(n, np.int32)
+    assigned = owner >= 0
+    building_id[building[assigned]] = (owner[assigned] + 1).astype(np.int32)
+    n_inside = np.bincount(inside_owner[inside_owner >= 0], minlength=f).astype(np.int64)
+    n_total = n_inside + n_overhang
+
+
+    status, reason, fallback = [], [], []
+    high = None
+    if hag is not None:
+        hag = np.asarray(hag, dtype=np.float64)
+        high = (hag >= options.min_height) & ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE))
+    members_sorted = np.argsort(building_id, kind="stable")
+    starts = np.searchsorted(building_id[members_sorted], np.arange(1, f + 2))
+    for i in range(f):
+        own = members_sorted[starts[i]:starts[i + 1]]
+        if n_total[i] >= min_points:
+            status.append("ok")
+            reason.append("")
+            fallback.append(np.zeros(0, np.int64))
+            continue
+        if n_cloud[i] == 0:
+            status.append("no_points")
+            reason.append("no point of the cloud over the footprint (outside the cloud or a data gap)")
+            fallback.append(np.zeros(0, np.int64))
+            continue
+        source = own
+        if len(source) == 0 and high is not None:
+            source = np.flatnonzero((all_owner == i) & high)
+        if len(source):
+            status.append("few_points")
+            reason.append(f"{n_total[i]} building points (fewer than {min_points}); LoD 1.2 from "
+                          f"{len(source)} {'building' if len(own) else 'non-ground'} points")
+            fallback.append(np.sort(source))
+            # too few to outline or fit planes: the fallback block takes them
+            building_id[own] = 0
+        else:
+            status.append("no_building_points")
+            reason.append(f"{n_cloud[i]} points over the footprint, none of a building or higher than "
+                          f"{options.min_height:g} m above the ground")
+            fallback.append(np.zeros(0, np.int64))
+            building_id[own] = 0
+    counts = {s: status.count(s) for s in STATUSES}
+    log.debug("footprints: %s", counts)
+    return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
+                               params={"overhang": options.overhang, "min_points": int(min_points),
+                                       "min_height": options.min_height})
+
+
+def _nearest_zone(footprint, neighbours, extent, step: float = 0.1):
+    """The plan region closer to ``footprint`` than to any of ``neighbours`` (within ``extent``'s envelope).
+
+    A Voronoi diagram of the footprints' boundaries sampled every ``step``
+    metres: the cells of this footprint's samples, merged.  It splits the
+    street-side overhang of a row where the party wall meets the facade, as
+    the band assignment of the points does.
+    """
+    mine = shapely.get_coordinates(shapely.segmentize(footprint.boundary, step))
+    others = shapely.union_all(neighbours)
+    theirs = shapely.get_coordinates(shapely.segmentize(others.boundary, step))
+    # a shared wall is sampled by both sides: drop it from both, the footprints themselves decide there,
+    # and the bisector of the nearest samples on each side of a wall's end stays within step / 2 of it
+    shared = footprint.boundary.intersection(others.boundary).buffer(1e-6)
+    mine = mine[~shapely.intersects_xy(shared, mine[:, 0], mine[:, 1])]
+    theirs = theirs[~shapely.intersects_xy(shared, theirs[:, 0], theirs[:, 1])]
+    pts = np.vstack([mine, theirs])
+    pts, first = np.unique(np.round(pts, 6), axis=0, return_index=True)
+    own = first < len(mine)
+    envelope = shapely.box(*shapely.union_all([extent, footprint]).buffer(1.0).bounds)
+    cells = shapely.get_parts(shapely.voronoi_polygons(shapely.multipoints(pts), extend_to=envelope))
+    # voronoi_polygons returns the cells in no guaranteed order: match each to the sample inside it
+    tree = shapely.STRtree(cells)
+    owner_of_cell = np.zeros(len(cells), bool)
+    pi, ci = tree.query(shapely.points(pts), predicate="intersects")
+    owner_of_cell[ci[own[pi]]] = True
+    zone = shapely.union_all(cells[owner_of_cell])
+    # inside a footprint the cadastre decides, not the distance to the boundary
+    return shapely.union_all([zone.intersection(envelope), footprint]).difference(
+        shapely.union_all(neighbours).difference(footprint))
+
+
+def footprint_outlines(outlines: list, footprints: Footprints, assignment: FootprintAssignment,
+                       xyz: np.ndarray, *, overhang: float | None = None) -> list:
+    """One roof outline per footprint, in footprint order: the traced one, or the footprint's fallback.
+
+    A traced outline (the outline stage run on the footprint's points) is
+    clipped off the neighbouring footprints, so the roofs of two houses
+    sharing a wall do not overlap; it keeps its overhang over the street.
+    A ``"few_points"`` footprint gets the footprint itself at the 70th
+    percentile of its fallback points' heights (3DBAG's LoD 1.2 roof height);
+    ``"no_points"``, ``"no_building_points"`` ones no geometry, the status
+    saying why.
+
+    Parameters
+    ----------
+    outlines : list of RoofOutline
+        From :func:`rooftrace.contour.outline.outline_buildings` on
+        ``assignment.building_id`` (building id = footprint index + 1).
+    footprints : Footprints
+    assignment : FootprintAssignment
+    xyz : ndarray of shape (N, 3), float64
+        The points ``assignment`` indexes.
+    overhang : float, optional
+        Search distance (m) for the neighbouring footprints; default from
+        ``assignment.params``.
+
+    Returns
+    -------
+    list of RoofOutline
+        ``len(footprints)`` outlines, ``building_id`` = index + 1.
+    """
+    from rooftrace.contour.outline import RoofOutline
+
+    overhang = assignment.params.get("overhang", 1.5) if overhang is None else overhang
+    by_id = {o.building_id: o for o in outlines}
+    polygons = np.asarray(footprints.polygons, dtype=object)
+    tree = shapely.STRtree(polygons)
+    out = []
+    for i, fp in enumerate(footprints.polygons):
+        bid = i + 1
+        outline = by_id.get(bid)
+        if outline is not None and outline.polygon is not None:
+            near = [j for j in tree.query(fp.buffer(2.0 * overhang)) if j != i]
+            if near:
+                zone = _nearest_zone(fp, polygons[near], outline.polygon)
+                clipped = shapely.make_valid(outline.polygon.intersection(zone))
+                parts = [g for g in shapely.get_parts(clipped) if g.geom_type == "Polygon" and g.area > 0]
+                if parts:
+                    outline.polygon = shapely.geometry.polygon.orient(max(parts, key=lambda g: g.area), 1.0)
+            out.append(outline)
+            continue
+        status = assignment.status[i]
+        src = assignment.fallback[i] if i < len(assignment.fallback) else np.zeros(0, np.int64)
+        if status == "few_points" and len(src):
+            z = xyz[src, 2]
+            height = float(np.percentile(z, 70))
+            ring = shapely.force_3d(fp if fp.geom_type == "Polygon" else max(fp.geoms, key=lambda g: g.area), height)
+            out.append(RoofOutline(bid, shapely.geometry.polygon.orient(ring, 1.0), n_points=len(src),
+                                   status="few_points", z_min=float(z.min()), z_mean=float(z.mean()),
+                                   z_max=float(z.max())))
+        elif outline is not None:  # points, but the outline stage failed: its status says why
+            out.append(outline)
+        else:
+            out.append(RoofOutline(bid, None, n_points=0, status=status))
+    return out
+
+
+def footprint_attributes(footprints: Footprints, assignment: FootprintAssignment) -> dict[str, list]:
+    """Per footprint (in order) the columns the ``roof_outlines`` layer gets: id, status, reason, point counts."""
+    return {
+        "footprint_id": list(footprints.ids),
+        "footprint_status": list(assignment.status),
+        "footprint_reason": list(assignment.reason),
+        "n_inside": assignment.n_inside.tolist(),
+        "n_overhang": assignment.n_overhang.tolist(),
+    }

@@ -1,0 +1,338 @@
+"""Building parts of a LiDAR-only building: split where the data shows a boundary.
+
+Without footprints, a terraced row comes out of the detection as one
+building (its roofs touch in plan).  Its houses show in the roof where
+
+* a **height step** runs between two roof faces (neighbours of different
+  heights: the faces' planes differ by more than ``step_height`` along their
+  shared edge), or
+* a **gutter** runs between two roof planes that slope towards each other
+  from opposite sides (aspects more than ``gutter_angle`` apart, the shared
+  edge the lowest line of both): the party-wall line between two gabled
+  houses whose ridges run across the row.
+
+Faces joined by anything else (ridges, hips, valleys of an L-shaped roof,
+coplanar continuations) stay in one part.  Parts too small to be a house
+(``min_area``) or owning too little of the building's outline
+(``min_facade``: a dormer or a roof terrace inside the roof owns none) merge
+into the neighbour they share the longest edge with.  A row of identical
+roofs at one height gives no boundary and stays one part: nothing in the
+points tells its houses apart (footprints do, see :mod:`rooftrace.footprints`).
+
+The part polygons partition the building's roof outline; every point gets
+the part whose polygon holds it (the nearest one for points just outside).
+Everything is numpy/shapely in and out.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from rooftrace.graph import components
+
+__all__ = ["PartOptions", "BuildingParts", "split_parts", "parts_layer"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class PartOptions:
+    """Options of the building-part split (``[parts]`` in the TOML config).
+
+    Attributes
+    ----------
+    step_height : float, default 0.5
+        Height jump (m) between two neighbouring roof faces along their
+        shared edge that separates two parts, as the roof stage's step edges
+        (``[planes] step_height``): neighbouring houses of one row differ by
+        0.3–1.5 m at the eaves, and the planes' heights at their shared
+        edge are known to a few centimetres.
+    gutter_angle : float, default 135.0
+        Two planes sloping towards their shared edge whose downslope
+        directions differ by more than this (deg) meet in a gutter between
+        two houses; the valleys of L- and T-shaped roofs meet at about 90°.
+    min_slope : float, default 10.0
+        Planes flatter than this (deg) have no reliable aspect and make no
+        gutter.
+    min_area : float, default 15.0
+        Parts smaller than this (m²) merge into a neighbour (dormers,
+        chimneys' faces, roof clutter); the smallest Dutch row houses are
+        about 4 m x 6 m.
+    min_facade : float, default 2.0
+        A part must own this much (m) of the building's outline, or it
+        merges into a neighbour: a dormer stands inside the roof.
+    min_edge : float, default 0.5
+        Shared face edges shorter than this (m) join nothing and split nothing.
+    """
+
+    section = "parts"
+
+    step_height: float = 0.5
+    gutter_angle: float = 135.0
+    min_slope: float = 10.0
+    min_area: float = 15.0
+    min_facade: float = 2.0
+    min_edge: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("step_height", "min_area", "min_facade", "min_edge"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"parts.{name} must be >= 0, got {v!r}")
+        if not 90.0 <= self.gutter_angle <= 180.0:
+            raise ValueError(f"parts.gutter_angle must be in [90, 180] degrees, got {self.gutter_angle!r}")
+        if not 0.0 <= self.min_slope < 90.0:
+            raise ValueError(f"parts.min_slope must be in [0, 90) degrees, got {self.min_slope!r}")
+
+
+
+@dataclass
+class BuildingParts:
+    """The parts of one building.
+
+    Attributes
+    ----------
+    building_id : int
+    part_id : ndarray of shape (N,), int32
+        1..P per point of the building (in the order given).
+    polygons : list of shapely.Polygon
+        2D, part ``p`` at index ``p - 1``: a partition of the outline.
+    boundaries : list of str
+        Per split made, why (``"step"`` or ``"gutter"``); empty for one part.
+    """
+
+    building_id: int
+    part_id: np.ndarray
+    polygons: list = field(default_factory=list)
+    boundaries: list = field(default_factory=list)
+
+    @property
+    def n_parts(self) -> int:
+        return len(self.polygons)
+
+
+def _outline_2d(outline):
+    outline = shapely.make_valid(shapely.force_2d(outline))
+    polys = [g for g in shapely.get_parts(outline) if g.geom_type == "Polygon" and g.area > 0]
+    return max(polys, key=lambda g: g.area) if polys else None
+
+
+def _one_part(building_id: int, n: int, outline) -> BuildingParts:
+    return BuildingParts(building_id, np.ones(n, np.int32), [outline] if outline is not None else [], [])
+
+
+def _face_links(faces: list, planes_of_face: np.ndarray, planes: np.ndarray, min_edge: float):
+    """Pairs of faces sharing an edge longer than ``min_edge``: (i, j, shared line, plane gap along it in m)."""
+    tree = shapely.STRtree(faces)
+    left, right = tree.query(faces, predicate="intersects")
+    keep = left < right
+    out = []
+    for i, j in zip(left[keep], right[keep]):
+        shared = faces[i].boundary.intersection(faces[j].boundary)
+        shared = shapely.line_merge(shapely.union_all([g for g in shapely.get_parts(shared)
+                                                        if g.geom_type in ("LineString", "MultiLineString")]))
+        if shared.is_empty or shared.length < min_edge:
+            continue
+        xy = shapely.get_coordinates(shapely.segmentize(shared, 0.5))
+        pa, pb = planes[planes_of_face[i]], planes[planes_of_face[j]]
+        za = -(pa[0] * xy[:, 0] + pa[1] * xy[:, 1] + pa[3]) / pa[2]
+        zb = -(pb[0] * xy[:, 0] + pb[1] * xy[:, 1] + pb[3]) / pb[2]
+        out.append((int(i), int(j), shared, float(np.median(np.abs(za - zb)))))
+    return out
+
+
+def _is_gutter(pa: np.ndarray, pb: np.ndarray, ca: np.ndarray, cb: np.ndarray, line, options: PartOptions) -> bool:
+    """Two planes sloping down towards their shared line from opposite sides."""
+    slope = np.degrees(np.arccos(np.clip([pa[2], pb[2]], -1.0, 1.0)))
+    if (slope < options.min_slope).any():
+        return False
+    down_a, down_b = pa[:2] / np.hypot(*pa[:2]), pb[:2] / np.hypot(*pb[:2])  # downslope in plan
+    if np.degrees(np.arccos(np.clip(down_a @ down_b, -1.0, 1.0))) < options.gutter_angle:
+        return False
+    mid = np.asarray(line.interpolate(0.5, normalized=True).coords[0][:2])
+    return bool(down_a @ (mid - ca) > 0 and down_b @ (mid - cb) > 0)
+
+
+def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes: np.ndarray,
+                options: PartOptions | None = None, *, building_id: int = 0) -> BuildingParts:
+    """Split one building into parts where its roof shows a boundary (height step or party gutter).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        The building's points (m).
+    outline : shapely.Polygon
+        Its roof outline (Z ignored); the parts partition it.
+    faces : list of shapely.Polygon
+        Roof faces tiling the outline (``RoofStructure.faces``).
+    face_plane : list of int
+        Plane index of each face.
+    planes : ndarray of shape (K, 4)
+        ``a X + b Y + c Z + d = 0``, unit normals, ``c > 0``.
+    options : PartOptions, optional
+    building_id : int
+
+    Returns
+    -------
+    BuildingParts
+        One part (the outline) when the roof has no faces or shows no boundary.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> low, high = shapely.box(0, 0, 6, 10), shapely.box(6, 0, 12, 10)
+    >>> planes = np.array([[0, 0, 1.0, -6.0], [0, 0, 1.0, -9.0]])  # flat roofs at 6 m and 9 m
+    >>> xyz = np.array([[3.0, 5.0, 6.0], [9.0, 5.0, 9.0]])
+    >>> parts = split_parts(xyz, shapely.box(0, 0, 12, 10), [low, high], [0, 1], planes)
+    >>> parts.part_id.tolist(), [p.area for p in parts.polygons], parts.boundaries
+    ([1, 2], [60.0, 60.0], ['step'])
+    """
+    options = options or PartOptions()
+    xyz = np.asarray(xyz, dtype=np.float64)
+    outline = _outline_2d(outline) if outline is not None else None
+    if outline is None or not faces:
+        return _one_part(building_id, len(xyz), outline)
+    planes = np.asarray(planes, dtype=np.float64)
+    faces2d = [shapely.force_2d(f) for f in faces]
+    face_plane = np.asarray(face_plane, dtype=np.int64)
+    centre = np.array([np.asarray(f.centroid.coords[0][:2]) for f in faces2d])
+    links = _face_links(faces2d, face_plane, planes, options.min_edge)
+
+    joined, cuts = [], []
+    for i, j, line, gap in links:
+        if gap > options.step_height:
+            cuts.append((i, j, "step"))
+        elif _is_gutter(planes[face_plane[i]], planes[face_plane[j]], centre[i], centre[j], line, options):
+            cuts.append((i, j, "gutter"))
+        else:
+            joined.append((i, j))
+    # faces of one plane are one surface even where another face cuts between them
+    same_plane = [(i, j) for i in range(len(faces2d)) for j in range(i + 1, len(faces2d))
+                  if face_plane[i] == face_plane[j]]
+    group = components(len(faces2d), np.array(joined + same_plane, dtype=np.int64).reshape(-1, 2))
+    pieces = _group_polygons(faces2d, group, outline)
+    pieces = _merge_small(pieces, outline, options)
+    if len(pieces) <= 1:
+        return _one_part(building_id, len(xyz), outline)
+    kinds = sorted({k for i, j, k in cuts if _part_of(pieces, centre[i]) != _part_of(pieces, centre[j])})
+    part_id = _points_to_parts(xyz[:, :2], pieces)
+    return BuildingParts(building_id, part_id, pieces, kinds)
+
+
+def _group_polygons(faces: list, group: np.ndarray, outline) -> list:
+    """One polygon per connected piece of each face group, together a partition of the outline."""
+    pieces = []
+    for g in np.unique(group):
+        merged = shapely.union_all([faces[k] for k in np.flatnonzero(group == g)], grid_size=None)
+        pieces += [p for p in shapely.get_parts(shapely.make_valid(merged)) if p.geom_type == "Polygon"]
+    # an exact partition: earlier pieces win overlaps, the outline's leftovers go to the piece sharing most edge
+    out, taken = [], shapely.Polygon()
+    for p in sorted(pieces, key=lambda g: -g.area):
+        q = _largest(p.intersection(outline).difference(taken))
+        if q is not None:
+            out.append(q)
+            taken = shapely.union_all([taken, q])
+    rest = outline.difference(taken)
+    for r in shapely.get_parts(rest):
+        if r.geom_type != "Polygon" or r.area <= 0 or not out:
+            continue
+        shared = [r.boundary.intersection(p.boundary).length for p in out]
+        k = int(np.argmax(shared)) if max(shared) > 0 else int(np.argmin([r.distance(p) for p in out]))
+        out[k] = _largest(shapely.union_all([out[k], r])) or out[k]
+    return out
+
+
+def _largest(geom):
+    polys = [g for g in shapely.get_parts(shapely.make_valid(geom)) if g.geom_type == "Polygon" and g.area > 1e-6]
+    if not polys:
+        return None
+    return max(polys, key=lambda g: g.area) if len(polys) > 1 else polys[0]
+
+
+def _merge_small(pieces: list, outline, options: PartOptions) -> list:
+    """Merge parts under ``min_area`` or owning under ``min_facade`` of the outline into their longest neighbour."""
+    pieces = list(pieces)
+    ring = outline.boundary
+    while len(pieces) > 1:
+        area = np.array([p.area for p in pieces])
+        facade = np.array([p.boundary.intersection(ring).length for p in pieces])
+        small = np.flatnonzero((area < options.min_area) | (facade < options.min_facade))
+        if not len(small):
+            break
+        k = int(small[np.argmin(area[small])])  # the smallest first: it may make its neighbour big enough
+        shared = np.array([pieces[k].boundary.intersection(p.boundary).length if j != k else -1.0
+                           for j, p in enumerate(pieces)])
+        if shared.max() <= 0:
+            break  # an island part touching nothing: nothing to merge it into
+        j = int(np.argmax(shared))
+        pieces[j] = _largest(shapely.union_all([pieces[j], pieces[k]])) or pieces[j]
+        del pieces[k]
+    # stable order: by lowest (x, y) of the part's centroid, so ids do not depend on the face order
+    return sorted(pieces, key=lambda p: (round(p.centroid.x, 6), round(p.centroid.y, 6)))
+
+
+def _part_of(pieces: list, xy: np.ndarray) -> int:
+    hits = [k for k, p in enumerate(pieces) if shapely.intersects_xy(p, xy[0], xy[1])]
+    return hits[0] if hits else -1
+
+
+def _points_to_parts(xy: np.ndarray, pieces: list) -> np.ndarray:
+    """Part (1..P) of each point: the polygon holding it, else the nearest polygon."""
+    part = np.zeros(len(xy), np.int32)
+    for k, p in enumerate(pieces):
+        inside = (part == 0) & shapely.intersects_xy(p, xy[:, 0], xy[:, 1])
+        part[inside] = k + 1
+    rest = np.flatnonzero(part == 0)
+    if len(rest):
+        tree = shapely.STRtree(pieces)
+        near = tree.query_nearest(shapely.points(xy[rest]), all_matches=False)
+        part[rest[near[0]]] = near[1] + 1
+    return part
+
+
+def parts_layer(parts: list[BuildingParts], heights: dict[int, np.ndarray]):
+    """The ``building_parts`` layer: one PolygonZ per part, at the 70th percentile of its points' heights.
+
+    Parameters
+    ----------
+    parts : list of BuildingParts
+    heights : dict of int to ndarray of shape (N_b,)
+        Per building id, the heights (m) of its points, in the order of
+        ``BuildingParts.part_id``.
+
+    Returns
+    -------
+    rooftrace.io.vector.Layer
+        Attributes: ``building_id``, ``part_id`` (1..P within the building),
+        ``n_parts``, ``area`` (m²), ``n_points``, ``z_min``, ``z_50``,
+        ``z_70``, ``z_max`` (m; NaN for a part holding no point),
+        ``boundaries`` (why the building was split, e.g. ``"step,gutter"``).
+    """
+    from rooftrace.io.vector import Layer
+
+    cols: dict[str, list] = {k: [] for k in ("building_id", "part_id", "n_parts", "area", "n_points", "z_min",
+                                             "z_50", "z_70", "z_max", "boundaries")}
+    geoms = []
+    for bp in parts:
+        z_all = np.asarray(heights.get(bp.building_id, np.zeros(0)), dtype=np.float64)
+        for k, poly in enumerate(bp.polygons, start=1):
+            z = z_all[bp.part_id == k] if len(z_all) == len(bp.part_id) else np.zeros(0)
+            q = np.percentile(z, [0, 50, 70, 100]) if len(z) else np.full(4, np.nan)
+            geoms.append(shapely.force_3d(poly, float(q[2]) if len(z) else 0.0))
+            cols["building_id"].append(int(bp.building_id))
+            cols["part_id"].append(k)
+            cols["n_parts"].append(bp.n_parts)
+            cols["area"].append(float(poly.area))
+            cols["n_points"].append(int(len(z)))
+            for name, v in zip(("z_min", "z_50", "z_70", "z_max"), q):
+                cols[name].append(float(v))
+            cols["boundaries"].append(",".join(bp.boundaries))
+    for k in ("building_id", "part_id", "n_parts", "n_points"):
+        cols[k] = np.asarray(cols[k], dtype=np.int64)
+    for k in ("area", "z_min", "z_50", "z_70", "z_max"):
+        cols[k] = np.asarray(cols[k], dtype=np.float64)
+    return Layer(geoms, cols, "PolygonZ")
