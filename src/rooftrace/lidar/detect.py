@@ -55,7 +55,7 @@ from threadpoolctl import threadpool_limits
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.lidar.buildings import assemble_buildings
+from rooftrace.lidar.buildings import assemble_buildings, group_widths
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
@@ -296,8 +296,15 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         # small clusters (ridges, dormers, roof edges cut off by the height
         # test) take the threshold learnt on the big ones; the building size
         # filter below drops those that do not touch a building
-        building_level = (ent <= threshold) & (lin <= co.max_linearity)
-        linear = big & (lin > co.max_linearity)
+        # a linear object is linear at every scale: its points look linear
+        # and the cluster is narrow in plan.  A roof scanned in lines farther
+        # apart than the points along them looks linear point by point at
+        # low density, but it is wide
+        width = group_widths(pts[high, :2], levels, len(sizes))
+        linear_width = co.linear_width or 2.0 * link_d
+        linear_level = (lin > co.max_linearity) & (width < linear_width)
+        building_level = (ent <= threshold) & ~linear_level
+        linear = big & linear_level
         returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
@@ -307,9 +314,9 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         if co.linear_joins and len(pairs):
             # a narrow roof strip the height test cut into scan lines is a
             # row of linear levels along the roof or wall beside it
-            strips = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
+            strips = linear_level & (ent <= threshold) & ~penetrated
             building_level = join_strips(levels, pairs, pts[high, 2], strips, building_level, 2.0 * link_d)
-        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
+        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams, "linear_width": linear_width,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
