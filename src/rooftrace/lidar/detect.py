@@ -56,13 +56,13 @@ from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings, group_widths
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
 from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
-from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
+from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density, spanning_neighbours
 from rooftrace.progress import Reporter
 
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
@@ -240,9 +240,11 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             s_avg = mean_spacing(clean[:, :2]) if fixed.mean_spacing is None else float(fixed.mean_spacing)
             d_avg = point_density(clean[:, :2]) if fixed.density is None else float(fixed.density)
             sigma_h = height_precision(clean) if fixed.sigma_h is None else float(fixed.sigma_h)
+            k_span = spanning_neighbours(clean[:, :2], d_avg)
         except ValueError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
-        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin)}
+        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin),
+                             "spanning_neighbours": k_span}
 
     with clock("ground"):
         try:
@@ -259,7 +261,10 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
     co = opt.classify
-    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
+    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), co.min_neighbours, co.max_neighbours))
+    # the plane of a normal must rest on more than one scan line (lines far
+    # apart: low density, older surveys), or it turns freely about the line
+    k_normal = max(so.normal_neighbours, k_span)
     # every non-ground point gets eigen-features (walls and low annexes may
     # join a building later); only those above min_height are segmented
     above = np.flatnonzero(~noise & ~ground)
@@ -269,12 +274,12 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         adaptive = co.neighbourhood == "adaptive"
         # the linear-object guard looks at N points: at the smallest adaptive
         # sizes a roof scanned in lines looks linear too (low entropy either way)
-        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours,
+        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=k_normal,
                                       min_neighbours=min(co.min_neighbours, k_nb) if adaptive else None,
                                       neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
-        normals = feats[high, 4:] if so.height_test == "normal" else None
+        normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
@@ -301,9 +306,15 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         # apart than the points along them looks linear point by point at
         # low density, but it is wide
         width = group_widths(pts[high, :2], levels, len(sizes))
-        linear_width = co.linear_width or 2.0 * link_d
+        linear_width = co.linear_width or link_d
         linear_level = (lin > co.max_linearity) & (width < linear_width)
         building_level = (ent <= threshold) & ~linear_level
+        if co.decision == "residual":
+            # a roof face is smooth at any density and scan pattern, a crown is not
+            residual = cluster_medians(levels, feats[high, 7], len(sizes))
+            smooth = residual <= co.max_residual * sigma_h
+            building_level |= smooth & ~linear_level
+            cparams["n_smooth"] = int((big & smooth).sum())
         linear = big & linear_level
         returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
@@ -316,7 +327,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             # row of linear levels along the roof or wall beside it
             strips = linear_level & (ent <= threshold) & ~penetrated
             building_level = join_strips(levels, pairs, pts[high, 2], strips, building_level, 2.0 * link_d)
-        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams, "linear_width": linear_width,
+        params["classify"] = {**options_dict(co), "neighbours": k_nb, "normal_neighbours": k_normal, **cparams, "linear_width": linear_width,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
