@@ -223,7 +223,7 @@ def test_low_shed_next_to_a_crown_is_a_building(seed):
     assert np.unique(det.building_id[shed]).size == 1  # one building, not the house's
     assert det.building_id[shed][0] not in det.building_id[(truth == BUILDING) & (xyz[:, 0] < 27)]
     assert is_b[truth == TREE].mean() < 0.02
-    paper = detect_buildings(PointCloud(xyz, crs=RD), config={"classify": {"neighbourhood": "fixed"}})
+    paper = detect_buildings(PointCloud(xyz, crs=RD), config={"classify": {"neighbourhood": "fixed", "decision": "entropy"}})
     assert (paper.classification[shed] == ASPRS.BUILDING).mean() < 0.5
 
 
