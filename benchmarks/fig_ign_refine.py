@@ -22,12 +22,12 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import rasterio  # noqa: E402
-import shapely  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import rasterio
+import shapely
 
-from rooftrace.io.vector import read_layer  # noqa: E402
+from rooftrace.io.vector import read_layer
 
 ROOT = Path(__file__).resolve().parents[1]
 IGN = ROOT.parent / "shared" / "data" / "ign_montpellier_lidarhd_bdortho"

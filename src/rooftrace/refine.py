@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import shapely
@@ -170,7 +170,7 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     pts = None if points_xyz is None or not len(points_xyz) else np.asarray(points_xyz, float).reshape(-1, 3)
     tree = cKDTree(pts[:, :2]) if pts is not None else None
     jobs = []
-    for i, (poly, bid) in enumerate(zip(outlines, ids)):
+    for i, poly in enumerate(outlines):
         local = sigma = ground = None
         if poly is not None and not poly.is_empty and tree is not None:
             x0, y0, x1, y1 = poly.bounds

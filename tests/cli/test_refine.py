@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 import pyproj
-import shapely
 import pytest
+import shapely
 from shapely.affinity import translate
 
 from rooftrace.cli.main import main

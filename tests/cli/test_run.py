@@ -4,12 +4,11 @@ import json
 
 import laspy
 import numpy as np
+import pyogrio
 import pytest
 
 from rooftrace.cli.main import main
 from rooftrace.evaluate import evaluate
-import pyogrio
-
 from rooftrace.io.vector import read_layer
 
 

@@ -50,13 +50,11 @@ def test_sigkill_mid_write_leaves_no_partial_output(tmp_path, existing):
 
 def test_atomic_path_cleans_up_on_error(tmp_path):
     target = tmp_path / "x.gpkg"
-    with pytest.raises(RuntimeError):
-        with atomic_path(target) as tmp:
-            tmp.write_text("half")
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
     target.write_text("keep")
-    with pytest.raises(OutputExistsError):
-        with atomic_path(target):
-            pass
+    with pytest.raises(OutputExistsError), atomic_path(target):
+        pass
     assert target.read_text() == "keep"

@@ -76,7 +76,7 @@ def test_noisy_hip_lines_within_tolerance(seed):
     model = models.hip(chimney=True, angle=33)
     _, _, _, _, lines = _segment_lines(model, noise=0.05, seed=seed)
     assert sorted(lines.kinds) == sorted(model.ridge_kind)
-    for g, k in zip(lines.lines, lines.kinds):
+    for g in lines.lines:
         # Every extracted line lies on a truth line of its kind: mean plan
         # distance of its points under 0.15 m.
         pts = shapely.segmentize(shapely.force_2d(g), 0.1)

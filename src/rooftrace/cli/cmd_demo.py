@@ -31,9 +31,9 @@ def demo(
     import numpy as np
 
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import atomic_path
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
+    from rooftrace.io.atomic import atomic_path
     from rooftrace.io.vector import read_layer, write_layers
     from rooftrace.pipeline import run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene

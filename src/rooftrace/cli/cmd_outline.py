@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -23,7 +23,7 @@ def outline(
     output: opt.Output,
     single_building: Annotated[bool, typer.Option(
         "--single-building", help="Every input file (PLY, LAS/LAZ or text x y z) is one building.")] = False,
-    alpha: Annotated[Optional[str], typer.Option(
+    alpha: Annotated[str | None, typer.Option(
         "--alpha", help="Alpha-shape strategy: global (S1), building (S2) or point (S3).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -62,7 +62,7 @@ def refine(
     output: opt.Output,
     image: Annotated[Path, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")],
     camera: Annotated[Path, typer.Option("--camera", help="camera.json of the image.")],
-    points: Annotated[Optional[Path], typer.Option("--points", help="LiDAR points (LAS/LAZ): roof planes and the "
+    points: Annotated[Path | None, typer.Option("--points", help="LiDAR points (LAS/LAZ): roof planes and the "
                                                    "terrain-line filter.")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,

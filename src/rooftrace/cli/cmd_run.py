@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -18,11 +18,11 @@ log = logging.getLogger("rooftrace.cli")
 def run(
     inputs: opt.Inputs,
     output: opt.Output,
-    image: Annotated[Optional[Path], typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
-    camera: Annotated[Optional[Path], typer.Option("--camera", help="camera.json of the image.")] = None,
-    alpha: Annotated[Optional[str], typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
+    image: Annotated[Path | None, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
+    camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of the image.")] = None,
+    alpha: Annotated[str | None, typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
-    classified: Annotated[Optional[Path], typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     seed: opt.Seed = 0,
@@ -41,7 +41,11 @@ def run(
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import (
-        check_image_covers, check_image_size, check_points, check_same_crs, require_metric_crs,
+        check_image_covers,
+        check_image_size,
+        check_points,
+        check_same_crs,
+        require_metric_crs,
     )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers

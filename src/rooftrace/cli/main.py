@@ -18,20 +18,21 @@ try:  # typer >= 0.20 vendors click; older releases use the click package
 except ImportError:  # pragma: no cover
     from click import exceptions as click_exc
 
+# command modules register themselves on ``app`` when imported (one line each)
+from rooftrace.cli import (
+    cmd_demo,  # noqa: F401
+    cmd_detect,  # noqa: F401
+    cmd_evaluate,  # noqa: F401
+    cmd_info,  # noqa: F401
+    cmd_outline,  # noqa: F401
+    cmd_refine,  # noqa: F401
+    cmd_resect,  # noqa: F401
+    cmd_run,  # noqa: F401
+    cmd_simulate,  # noqa: F401
+    cmd_snake,  # noqa: F401
+)
 from rooftrace.cli.app import STATE, app
 from rooftrace.errors import InputError
-
-# command modules register themselves on ``app`` when imported (one line each)
-from rooftrace.cli import cmd_info  # noqa: F401,E402
-from rooftrace.cli import cmd_detect  # noqa: F401,E402
-from rooftrace.cli import cmd_outline  # noqa: F401,E402
-from rooftrace.cli import cmd_evaluate  # noqa: F401,E402
-from rooftrace.cli import cmd_refine  # noqa: F401,E402
-from rooftrace.cli import cmd_simulate  # noqa: F401,E402
-from rooftrace.cli import cmd_resect  # noqa: F401,E402
-from rooftrace.cli import cmd_snake  # noqa: F401,E402
-from rooftrace.cli import cmd_run  # noqa: F401,E402
-from rooftrace.cli import cmd_demo  # noqa: F401,E402
 
 __all__ = ["main"]
 

@@ -23,8 +23,8 @@ from rooftrace.grouping.exact import exact_minimise
 from rooftrace.grouping.ga import genetic_minimise
 from rooftrace.grouping.mrf import build_problem
 from rooftrace.grouping.options import BuildingRefinement, RefineOptions, keep_input
-from rooftrace.grouping.registration import GROWTH_RANGE, RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
+from rooftrace.grouping.registration import GROWTH_RANGE, RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.topology import roof_topology
 from rooftrace.image.walls import wall_strips
 

@@ -9,8 +9,8 @@ import contextlib
 import os
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from rooftrace.errors import InputError, OutputExistsError
 
@@ -48,9 +48,8 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = False) -> Iterator[Pa
         yield tmp
         if not tmp.exists():
             raise RuntimeError(f"writer produced no file for {path}")
-        if tmp.is_dir():
-            if path.exists():
-                shutil.rmtree(path) if path.is_dir() else path.unlink()
+        if tmp.is_dir() and path.exists():
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
         os.replace(tmp, path)
     finally:
         if tmp.exists():

@@ -16,6 +16,7 @@ import os
 import struct
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import laspy
 import numpy as np
@@ -23,6 +24,9 @@ import numpy as np
 from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
+
+if TYPE_CHECKING:
+    import pyproj
 
 __all__ = ["read_las", "las_chunks", "chunk_xyz", "check_finite", "write_las", "las_crs", "check_point_count",
            "check_header_bounds", "LAS_SUFFIXES"]
@@ -41,7 +45,7 @@ def _backend():
     return None
 
 
-def las_crs(header: laspy.LasHeader, path: str = "") -> "pyproj.CRS | None":
+def las_crs(header: laspy.LasHeader, path: str = "") -> pyproj.CRS | None:
     """CRS of a LAS header from its WKT or GeoTIFF (E)VLRs, or ``None``."""
     try:
         return header.parse_crs()

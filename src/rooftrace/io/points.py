@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import pyproj
@@ -214,7 +214,7 @@ def summarise_las(paths: Iterable[str | os.PathLike], crs: str | pyproj.CRS | No
     return out
 
 
-def common_crs(paths: list[Path], crss: list) -> "pyproj.CRS | None":
+def common_crs(paths: list[Path], crss: list) -> pyproj.CRS | None:
     """The one CRS of several files (after any ``--crs``); InputError naming the first file that differs."""
     first = crss[0]
     for p, c in zip(paths[1:], crss[1:]):

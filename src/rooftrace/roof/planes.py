@@ -264,7 +264,7 @@ def segment_planes(
     xyz = np.asarray(xyz, dtype=np.float64)
     N = len(xyz)
     min_pts = max(int(np.ceil(min_area / spacing**2)), 6)
-    if N < min_pts:
+    if min_pts > N:
         raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
     tree = cKDTree(xyz)
     nn, nn_c = _two_neighbourhoods(tree, xyz, int(min(k, N)))
@@ -294,7 +294,6 @@ def segment_planes(
     # bending normals can join two planes across a gentle crease.  A
     # component whose plane fit is noisier than the points is cut again with
     # stricter edges (tighter angle, flatter neighbourhoods), down to 3 levels.
-    bad_comp = None
     for level in range(4):
         comp = components(N, np.column_stack([i[e], j[e]]))
         comp = np.where(planar, comp, -1)

@@ -55,24 +55,41 @@ import os
 import pickle
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from rooftrace.errors import InputError
-
-from rooftrace.tiling.split import (  # noqa: F401
-    POINT_DTYPE, TileOptions, _load_cloud, _scan_headers, _write_json, sample_windows, split_to_tiles,
-    tile_cell_ranges, tile_grid,
-)
-from rooftrace.tiling.tile import (  # noqa: F401
-    _core, _extent, _write_classified, building_numbers, estimate_parameters, merge_tiles, owned_buildings,
-    process_tile,
-)
 from rooftrace.tiling.image import (
-    check_image_inputs, cut_neighbourhoods, image_fingerprint, join_neighbourhoods, merged_planes,
+    check_image_inputs,
+    cut_neighbourhoods,
+    image_fingerprint,
+    join_neighbourhoods,
+    merged_planes,
+)
+from rooftrace.tiling.split import (  # noqa: F401
+    POINT_DTYPE,
+    TileOptions,
+    _load_cloud,
+    _scan_headers,
+    _write_json,
+    sample_windows,
+    split_to_tiles,
+    tile_cell_ranges,
+    tile_grid,
+)
+from rooftrace.tiling.tile import (
+    _core,
+    _extent,
+    _write_classified,
+    building_numbers,
+    estimate_parameters,
+    merge_tiles,
+    owned_buildings,
+    process_tile,
 )
 
 __all__ = [
@@ -205,12 +222,12 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     killed, for ``--resume``; it is removed after a successful merge.
     """
     from rooftrace.cli.app import reporter_for
+    from rooftrace.config import validate_config
     from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
-    from rooftrace.config import validate_config
     from rooftrace.refine import RefineOptions
 
     if (image is None) != (camera is None):

@@ -6,9 +6,10 @@ import json
 import logging
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -377,7 +378,7 @@ def _write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def _load_cloud(folder: Path, crs) -> "Any":
+def _load_cloud(folder: Path, crs) -> Any:
     from rooftrace.cloud import PointCloud
 
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []

@@ -7,8 +7,9 @@ import logging
 import os
 import pickle
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -223,7 +224,7 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
     """Store what the parent's image refinement needs of the buildings this tile owns."""
     from rooftrace.tiling.image import neighbourhood_points
 
-    keep = set(int(b) for b in keep_ids)
+    keep = {int(b) for b in keep_ids}
     result["planes"] = {int(s.building_id): np.asarray(s.planes, float) for s in run_out.structures
                         if int(s.building_id) in keep}
     polygons = [o.polygon for o in run_out.outlines if int(o.building_id) in keep]
