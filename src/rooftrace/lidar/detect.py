@@ -62,7 +62,7 @@ from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
 from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
-from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density, spanning_neighbours
+from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
 from rooftrace.progress import Reporter
 
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
@@ -237,14 +237,20 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     with clock("spacing"):
         try:
-            s_avg = mean_spacing(clean[:, :2]) if fixed.mean_spacing is None else float(fixed.mean_spacing)
+            s_avg, gap = fixed.mean_spacing, fixed.scan_gap
+            if s_avg is None or gap is None:
+                measured = edge_spacing(clean[:, :2])
+                s_avg = measured[0] if s_avg is None else s_avg
+                gap = measured[1] if gap is None else gap
+            s_avg, gap = float(s_avg), float(gap)
             d_avg = point_density(clean[:, :2]) if fixed.density is None else float(fixed.density)
             sigma_h = height_precision(clean) if fixed.sigma_h is None else float(fixed.sigma_h)
-            k_span = spanning_neighbours(clean[:, :2], d_avg)
+            k_span = (spanning_neighbours(clean[:, :2], d_avg) if fixed.spanning_neighbours is None
+                      else int(fixed.spanning_neighbours))
         except ValueError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
         params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin),
-                             "spanning_neighbours": k_span}
+                             "scan_gap": gap, "spanning_neighbours": k_span}
 
     with clock("ground"):
         try:
@@ -256,6 +262,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     so = opt.segment
     link_d = so.link_distance or so.link_factor * s_avg
+    # roof levels split by a gap between scan lines are one building
+    merge_d = so.merge_distance or max(link_d, gap)
     # along the normals the pair test must also absorb the normals' own
     # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
@@ -284,7 +292,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
-            **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
+            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }
 
@@ -298,9 +306,6 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             cent = None if fixed.entropy_centroids is None else list(fixed.entropy_centroids)
             cparams = {"method": "fixed", "entropy_threshold": float(fixed.entropy_threshold), "centroids": cent}
         threshold = cparams["entropy_threshold"]
-        # small clusters (ridges, dormers, roof edges cut off by the height
-        # test) take the threshold learnt on the big ones; the building size
-        # filter below drops those that do not touch a building
         # a linear object is linear at every scale: its points look linear
         # and the cluster is narrow in plan.  A roof scanned in lines farther
         # apart than the points along them looks linear point by point at
@@ -308,12 +313,22 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         width = group_widths(pts[high, :2], levels, len(sizes))
         linear_width = co.linear_width or link_d
         linear_level = (lin > co.max_linearity) & (width < linear_width)
+        # small clusters (ridges, dormers, roof edges cut off by the height
+        # test) take the threshold learnt on the big ones; the building size
+        # filter below drops those that do not touch a building
         building_level = (ent <= threshold) & ~linear_level
         if co.decision == "residual":
             # a roof face is smooth at any density and scan pattern, a crown is not
             residual = cluster_medians(levels, feats[high, 7], len(sizes))
             smooth = residual <= co.max_residual * sigma_h
-            building_level |= smooth & ~linear_level
+            centroids = cparams["centroids"]
+            if centroids is None or centroids[1] - centroids[0] < co.min_gap:
+                # one population (only houses, or only trees): the entropy
+                # has nothing to split, and single-return crowns look as
+                # planar as roofs to it; the residual alone decides
+                building_level = smooth & ~linear_level
+            else:
+                building_level |= smooth & ~linear_level
             cparams["n_smooth"] = int((big & smooth).sum())
         linear = big & linear_level
         returns = _penetration(cloud, above)
@@ -333,7 +348,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
             pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
-            min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
+            min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold, merge_distance=merge_d,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)
         level_local = order_labels(pts, np.where(bid_local >= 0, levels_all, -1))
@@ -364,5 +379,6 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         derived=DerivedParams(
             origin=origin, extent=extent, mean_spacing=s_avg, density=d_avg, sigma_h=sigma_h, entropy_threshold=float(threshold),
             entropy_centroids=None if cparams["centroids"] is None else tuple(float(c) for c in cparams["centroids"]),
+            scan_gap=gap, spanning_neighbours=k_span,
         ),
     )

@@ -17,7 +17,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from rooftrace.lidar._kernels import dense_cells, unique_pairs
 
-__all__ = ["mean_spacing", "point_density", "height_precision", "spanning_neighbours"]
+__all__ = ["edge_spacing", "mean_spacing", "point_density", "height_precision", "spanning_neighbours"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,33 @@ def _unique_rows(xy: np.ndarray) -> np.ndarray:
     return s[keep]
 
 
+def _edge_lengths(xy: np.ndarray, max_points: int) -> np.ndarray:
+    """Delaunay edge lengths (m) of the blocks of :func:`_blocks`, each without its edges over mean + 3 std."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] < 2:
+        raise ValueError(f"xy must have shape (N, 2), got {xy.shape}")
+    lengths = []
+    for idx in _blocks(xy[:, :2], max_points):
+        # Qhull loses points to round-off on large map coordinates: centre them
+        pts = _unique_rows(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4))
+        if len(pts) < 3:
+            continue
+        try:
+            tri = Delaunay(pts)
+        except QhullError:
+            continue
+        s = tri.simplices
+        e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
+        e.sort(axis=1)
+        e = unique_pairs(e[:, 0], e[:, 1], len(pts))
+        ln = np.hypot(*(pts[e[:, 0]] - pts[e[:, 1]]).T)
+        ln = ln[ln <= ln.mean() + 3 * ln.std()]
+        lengths.append(ln)
+    if not lengths:
+        raise ValueError("mean spacing needs at least 3 points not on one line")
+    return np.concatenate(lengths)
+
+
 def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
     """Mean point spacing s_avg: the mean length of the Delaunay edges.
 
@@ -80,29 +107,40 @@ def mean_spacing(xy: np.ndarray, *, max_points: int = 60_000) -> float:
     >>> 1.0 < mean_spacing(g) < 1.2
     True
     """
-    xy = np.asarray(xy, dtype=np.float64)
-    if xy.ndim != 2 or xy.shape[1] < 2:
-        raise ValueError(f"xy must have shape (N, 2), got {xy.shape}")
-    lengths = []
-    for idx in _blocks(xy[:, :2], max_points):
-        # Qhull loses points to round-off on large map coordinates: centre them
-        pts = _unique_rows(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4))
-        if len(pts) < 3:
-            continue
-        try:
-            tri = Delaunay(pts)
-        except QhullError:
-            continue
-        s = tri.simplices
-        e = np.concatenate([s[:, [0, 1]], s[:, [1, 2]], s[:, [2, 0]]])
-        e.sort(axis=1)
-        e = unique_pairs(e[:, 0], e[:, 1], len(pts))
-        ln = np.hypot(*(pts[e[:, 0]] - pts[e[:, 1]]).T)
-        ln = ln[ln <= ln.mean() + 3 * ln.std()]
-        lengths.append(ln)
-    if not lengths:
-        raise ValueError("mean spacing needs at least 3 points not on one line")
-    return float(np.concatenate(lengths).mean())
+    return float(_edge_lengths(xy, max_points).mean())
+
+
+def edge_spacing(xy: np.ndarray, quantile: float = 0.99, *, max_points: int = 60_000) -> tuple[float, float]:
+    """s_avg and a high quantile of the Delaunay edge lengths (one triangulation).
+
+    The quantile measures the widest common gaps of the sampling: on points
+    scattered evenly it is about twice s_avg, where scan lines lie farther
+    apart than the points along them it is the gap between the lines (an
+    oscillating mirror's lines open to twice their mean spacing towards
+    the swath edges).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Planimetric coordinates (m).
+    quantile : float, default 0.99
+    max_points : int, default 60000
+        As :func:`mean_spacing`.
+
+    Returns
+    -------
+    (float, float)
+        s_avg (m, exactly :func:`mean_spacing`) and the quantile (m).
+
+    Examples
+    --------
+    >>> x, y = np.meshgrid(np.arange(0, 30, 0.3), np.arange(0, 30, 2.0))
+    >>> s, gap = edge_spacing(np.column_stack([x.ravel(), y.ravel()]))
+    >>> round(gap, 2)
+    2.02
+    """
+    lengths = _edge_lengths(xy, max_points)
+    return float(lengths.mean()), float(np.quantile(lengths, quantile))
 
 
 def point_density(xy: np.ndarray, cell: float = 2.0) -> float:
