@@ -334,9 +334,21 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
-            penetrated = cluster_means(levels, returns[high], len(sizes)) > co.max_penetration
+            share = cluster_means(levels, returns[high], len(sizes))
+            allowed = co.max_penetration
+            if co.edge_allowance:
+                # pulses split on roof edges: the band a spacing wide along a
+                # level's edge is a larger part of it the fewer points it has
+                # (2·sqrt(pi/n) of a disc of n points).  Measured from the
+                # level's shape instead, ragged crowns would get the allowance
+                edge = np.minimum(1.0, 2.0 * np.sqrt(np.pi / np.maximum(sizes, 1)))
+                allowed = co.max_penetration + co.edge_allowance * edge
+            penetrated = share > allowed
+            beside = building_level & penetrated
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
+            if co.penetrated_joins and len(pairs):
+                building_level = join_strips(levels, pairs, pts[high, 2], beside, building_level, 2.0 * link_d)
         if co.linear_joins and len(pairs):
             # a narrow roof strip the height test cut into scan lines is a
             # row of linear levels along the roof or wall beside it
