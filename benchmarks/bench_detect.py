@@ -43,6 +43,7 @@ import numpy as np
 import pyogrio
 import shapely
 
+import _data
 from _results import record
 from rooftrace.cloud import PointCloud
 from rooftrace.io.points import read_points
@@ -303,7 +304,7 @@ def simulator_sweep(densities=(2.0, 3.0, 4.0), seeds=(1, 2, 3), whitebox_seeds=(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument("--data", default=str(_data.DATA))
     ap.add_argument("--sweep", action="store_true", help="also the density sweep (Delft thinned, simulated scenes)")
     ap.add_argument("--only-sweep", action="store_true", help="only the density sweep")
     ap.add_argument("--no-whitebox", action="store_true", help="leave Whitebox Workflows out of the sweep")

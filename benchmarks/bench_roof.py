@@ -34,11 +34,11 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 import shapely
 
+import _data
 from rooftrace.evaluate.metrics import ridge_scores
 from rooftrace.roof import RoofOptions, models, roof_structure
 
@@ -106,7 +106,7 @@ def summarise(rows: list[dict]) -> dict:
     }
 
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = _data.DATA
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 IGN = DATA / "ign_montpellier_lidarhd_bdortho"
 

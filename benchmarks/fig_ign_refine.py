@@ -21,6 +21,8 @@ from pathlib import Path
 
 import matplotlib
 
+import _data
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
@@ -30,7 +32,7 @@ import shapely
 from rooftrace.io.vector import read_layer
 
 ROOT = Path(__file__).resolve().parents[1]
-IGN = ROOT.parent / "shared" / "data" / "ign_montpellier_lidarhd_bdortho"
+IGN = _data.DATA / "ign_montpellier_lidarhd_bdortho"
 RT = str(Path(sys.executable).with_name("rooftrace"))
 
 

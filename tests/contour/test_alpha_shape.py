@@ -2,15 +2,8 @@ import numpy as np
 import pytest
 import shapely
 
-from rooftrace.contour.alpha_shape import (
-    AlphaOptions,
-    alpha_shape,
-    boundary_edges,
-    building_alpha,
-    delaunay_edges,
-    point_spacing,
-    trace_rings,
-)
+from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape, boundary_edges, trace_rings
+from rooftrace.contour.spacing import building_alpha, delaunay_edges, point_spacing
 from rooftrace.errors import GeometryError
 from tests.contour.shapes import COURTYARD, L_SHAPE, RECT, sample
 

@@ -6,8 +6,9 @@ import shapely
 
 from rooftrace.roof import models
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.planes import estimate_spacing, plane_height, segment_planes
+from rooftrace.roof.planes import estimate_spacing, plane_height
 from rooftrace.roof.ridges import intersect_planes, intersection_lines, triple_point
+from rooftrace.roof.segmentation import segment_planes
 
 
 def _plane(p, q, r):

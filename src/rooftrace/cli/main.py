@@ -32,6 +32,7 @@ from rooftrace.cli import (
     cmd_snake,  # noqa: F401
 )
 from rooftrace.cli.app import STATE, app
+from rooftrace.cli.interrupt import interrupt_handlers
 from rooftrace.errors import InputError
 
 __all__ = ["main"]
@@ -64,12 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console script)."""
     logging.captureWarnings(True)
     try:
-        rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
+        with interrupt_handlers():
+            rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
         code = rv if isinstance(rv, int) else 0
     except typer.Exit as exc:
         code = exc.exit_code
-    except typer.Abort:
-        _error("aborted")
+    except typer.Abort:  # click's name for a KeyboardInterrupt (no handler installed, e.g. a thread)
+        _error("interrupted")
         code = 130
     except click_exc.UsageError as exc:
         if type(exc).__name__ == "NoArgsIsHelpError" and exc.ctx is not None:
@@ -95,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         _error(f"internal failure ({type(exc).__name__}: {exc}); rerun with -v for the traceback and report it")
         code = 1
+    finally:
+        atomic = sys.modules.get("rooftrace.io.atomic")
+        if atomic is not None:  # a command that failed leaves no temporary file (a demo's unfinished folder)
+            atomic.remove_temporary()
     return _exit(code, argv)
 
 

@@ -10,7 +10,9 @@ import typer
 Inputs = Annotated[list[Path], typer.Argument(help="Input point clouds (LAS/LAZ; PLY or text x y z where noted).", show_default=False)]
 Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.", show_default=False)]
 OutputDir = Annotated[Path, typer.Option("--output", "-o", help="Output folder.", show_default=False)]
-Crs = Annotated[str | None, typer.Option("--crs", help="Assign or override the input CRS, e.g. EPSG:28992.")]
+Crs = Annotated[str | None, typer.Option("--crs", help=(
+    "Assign or override the input CRS, e.g. EPSG:28992; a compound CRS records the height system too, "
+    "e.g. EPSG:7415 (RD New + NAP height)."))]
 Config = Annotated[Path | None, typer.Option("--config", help="TOML file with stage options, one [table] per stage.")]
 Json = Annotated[bool, typer.Option("--json", help="Print one JSON summary on stdout (logs stay on stderr).")]
 Overwrite = Annotated[bool, typer.Option("--overwrite", help="Replace an existing output.")]
@@ -22,3 +24,21 @@ TileSize = Annotated[float | None, typer.Option("--tile-size", min=1.0, help=(
     "Tile side in metres (default: no tiling; when tiling, about 3 M points a buffered tile)."))]
 Buffer = Annotated[float | None, typer.Option("--buffer", min=0.0, help="Tile buffer in metres (default: derived).")]
 Resume = Annotated[bool, typer.Option("--resume", help="Skip tiles finished by an earlier run into the same output.")]
+IMAGE_HELP = "Aerial image: an orthophoto (georeferenced GeoTIFF, no camera file needed) or a frame image (give --camera)."
+Image = Annotated[Path | None, typer.Option("--image", help=IMAGE_HELP, show_default=False)]
+Camera = Annotated[Path | None, typer.Option("--camera", help=(
+    "camera.json of a frame image (optional for an orthophoto: its GeoTIFF georeference is the camera)."),
+    show_default=False)]
+
+
+def _alpha_strategy(value: str | None) -> str | None:
+    from rooftrace.contour.alpha_shape import STRATEGIES
+    from rooftrace.errors import InputError
+
+    if value is not None and value not in STRATEGIES:
+        raise InputError(f"--alpha must be {', '.join(STRATEGIES[:-1])} or {STRATEGIES[-1]}, got {value!r}")
+    return value
+
+
+Alpha = Annotated[str | None, typer.Option(
+    "--alpha", callback=_alpha_strategy, help="Alpha-shape strategy: global (S1), building (S2) or point (S3).")]

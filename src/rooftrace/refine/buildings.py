@@ -34,8 +34,9 @@ import shapely
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.grouping.building import BuildingRefinement, RefineOptions, keep_input, refine_building
 from rooftrace.grouping.orientation import EO_NAMES, OrientationCorrection, correct_orientation
+from rooftrace.refine.building import refine_building
+from rooftrace.refine.options import BuildingRefinement, RefineOptions, keep_input
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
            "assign_ridges", "correct_from_matches", "orientation_summary"]

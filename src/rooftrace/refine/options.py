@@ -2,7 +2,7 @@
 
 :class:`RefineOptions` holds every option of the refinement (``[mrf]``,
 ``[ga]``, ``[candidates]`` and ``[harris]`` nest in it);
-:class:`BuildingRefinement` is what :func:`rooftrace.grouping.building.refine_building`
+:class:`BuildingRefinement` is what :func:`rooftrace.refine.building.refine_building`
 returns for one building.
 """
 
