@@ -231,17 +231,19 @@ def whitebox_classes(cloud: PointCloud) -> tuple[np.ndarray, float] | None:
     return classes, seconds
 
 
-def _peers(cloud: PointCloud, whitebox: bool):
-    """(method, classes, seconds) of rooftrace and, if asked and installed, Whitebox Workflows."""
-    t0 = time.perf_counter()
-    det = detect_buildings(cloud)
-    yield "rooftrace", det.classification, time.perf_counter() - t0
+def _peers(cloud: PointCloud, whitebox: bool, thesis: bool = False):
+    """(method, classes, seconds) of rooftrace (and its thesis decision) and, if asked and installed, Whitebox Workflows."""
+    for name, config in [("rooftrace", None)] + ([("rooftrace, decision = entropy",
+                                                    {"classify": {"decision": "entropy"}})] if thesis else []):
+        t0 = time.perf_counter()
+        det = detect_buildings(cloud, config=config)
+        yield name, det.classification, time.perf_counter() - t0
     wb = whitebox_classes(cloud) if whitebox else None
     if wb is not None:
         yield "whitebox classify_lidar", *wb
 
 
-def delft_sweep(delft: Path, densities=(2.0, 4.0), seeds=(0,), whitebox: bool = True) -> list[dict]:
+def delft_sweep(delft: Path, densities=(2.0, 4.0), seeds=(0,), whitebox: bool = True, thesis: bool = False) -> list[dict]:
     """Each Delft tile thinned to each density (seeded), building F1 inside the BGT area, per method."""
     area = bgt_area(delft)
     rows = []
@@ -255,7 +257,7 @@ def delft_sweep(delft: Path, densities=(2.0, 4.0), seeds=(0,), whitebox: bool = 
                 truth = cloud.fields["classification"].copy()
                 cloud.fields["classification"][:] = 0
                 inside = shapely.contains_xy(area, cloud.x, cloud.y)
-                for method, cls, sec in _peers(cloud, whitebox):
+                for method, cls, sec in _peers(cloud, whitebox, thesis):
                     fb = f1(cls[inside] == 6, truth[inside] == 6)
                     print(f"| {tile} | {density:g} | {seed} | {method} | {fb[0]:.3f} ({fb[1]:.3f} / {fb[2]:.3f}) "
                           f"| {sec:.1f} |", flush=True)
@@ -266,7 +268,7 @@ def delft_sweep(delft: Path, densities=(2.0, 4.0), seeds=(0,), whitebox: bool = 
     return rows
 
 
-def simulator_sweep(densities=(2.0, 3.0, 4.0), seeds=(1, 2, 3), whitebox_seeds=(1,),
+def simulator_sweep(densities=(2.0, 3.0, 4.0), seeds=(1, 2, 3), whitebox_seeds=(1,), thesis: bool = False,
                     min_area: float = 50.0) -> list[dict]:
     """Simulated 160 m scenes per scan pattern, density and seed: building F1 and the large buildings found."""
     from rooftrace.synth.scene import SceneOptions
@@ -284,7 +286,7 @@ def simulator_sweep(densities=(2.0, 3.0, 4.0), seeds=(1, 2, 3), whitebox_seeds=(
                 truth = scene.cloud.fields["truth_class"] == 6
                 bid = scene.cloud.fields["truth_building_id"]
                 big = [b.building_id for b in scene.buildings if b.footprint.area >= min_area]
-                for method, cls, sec in _peers(scene.cloud, seed in whitebox_seeds):
+                for method, cls, sec in _peers(scene.cloud, seed in whitebox_seeds, thesis):
                     is_b = cls == 6
                     missed = sum(1 for b in big if (bid == b).any() and is_b[bid == b].mean() < 0.5)
                     scores.setdefault(method, []).append((f1(is_b, truth)[0], missed, len(big), sec))
@@ -308,6 +310,8 @@ def main() -> None:
     ap.add_argument("--sweep", action="store_true", help="also the density sweep (Delft thinned, simulated scenes)")
     ap.add_argument("--only-sweep", action="store_true", help="only the density sweep")
     ap.add_argument("--no-whitebox", action="store_true", help="leave Whitebox Workflows out of the sweep")
+    ap.add_argument("--thesis", action="store_true", help="the sweep also with [classify] decision = 'entropy'")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3], help="seeds of the simulated scenes")
     args = ap.parse_args()
     data = Path(args.data)
     delft = data / "3dfier_delft_ahn3_bgt"
@@ -330,8 +334,12 @@ def main() -> None:
             record("detect", "city3d", [{"method": "rooftrace", "metric": "building_f1_leak", "value": sc["leak_f1"],
                                          "target": ">= 0.99"}])
     if args.sweep or args.only_sweep:
-        record("detect_density", "delft_thinned", delft_sweep(delft, whitebox=not args.no_whitebox))
-        record("detect_density", "simulated", simulator_sweep(whitebox_seeds=() if args.no_whitebox else (1,)))
+        tag = "_thesis" if args.thesis and args.no_whitebox else ""
+        record("detect_density", "delft_thinned" + tag, delft_sweep(delft, whitebox=not args.no_whitebox,
+                                                                    thesis=args.thesis))
+        record("detect_density", "simulated" + tag,
+               simulator_sweep(seeds=tuple(args.seeds), whitebox_seeds=() if args.no_whitebox else (args.seeds[0],),
+                               thesis=args.thesis))
 
 
 if __name__ == "__main__":

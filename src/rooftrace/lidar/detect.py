@@ -3,7 +3,11 @@
 Stages and where they follow the thesis (Santos 2019, ch. 3):
 
 1. cell-histogram outliers (§3.1) → class 7;
-2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1);
+2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1), and the scan
+   pattern: the widest common gap (0.99 quantile of the Delaunay edges)
+   and the neighbourhood size reaching across the scan lines
+   (:func:`rooftrace.lidar.spacing.spanning_neighbours`), so every
+   threshold follows the data from 1.5 to 40 pts/m²;
 3. progressive TIN densification (§3.2) → class 2 and the height above
    ground (HAG) of every point;
 4. eigen-features (L, P, S, entropy; N = Ar_min·d_avg neighbours, or by
@@ -12,8 +16,10 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
 5. region growing of the points above ``segment.min_height`` into roof-level
    clusters (§3.3; the height test is measured along the normals);
 6. k-means on the mean entropy of the clusters of at least T_Np points
-   (§3.4) with the guards of :mod:`rooftrace.lidar.classify`; building
-   clusters that touch in plan are merged into buildings.
+   (§3.4) with the guards of :mod:`rooftrace.lidar.classify`, and by
+   default (``classify.decision``) the plane residual of each cluster
+   beside it; building clusters that touch in plan, or lie within the
+   widest scan gap, are merged into buildings.
 
 Beyond the thesis, linear clusters beside a building cluster join it (narrow
 roof strips cut into scan lines, ``classify.linear_joins``); a building then
@@ -292,7 +298,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
-            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d, "min_points": min_pts,
+            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d,
+            "normal_neighbours": k_normal, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }
 
@@ -354,13 +361,14 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             # row of linear levels along the roof or wall beside it
             strips = linear_level & (ent <= threshold) & ~penetrated
             building_level = join_strips(levels, pairs, pts[high, 2], strips, building_level, 2.0 * link_d)
-        params["classify"] = {**options_dict(co), "neighbours": k_nb, "normal_neighbours": k_normal, **cparams, "linear_width": linear_width,
+        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams, "linear_width": linear_width,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
             pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
-            min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold, merge_distance=merge_d,
+            min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
+            merge_distance=merge_d,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)
         level_local = order_labels(pts, np.where(bid_local >= 0, levels_all, -1))
