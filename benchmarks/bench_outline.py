@@ -67,7 +67,8 @@ def _score(polys, truths):
     return float(np.nanmean(pol)), float(np.mean(np.nan_to_num(f))), int(np.isnan(pol).sum())
 
 
-def city3d() -> None:
+def city3d_instances() -> tuple[list[np.ndarray], list]:
+    """The City3D single-building clouds (x, y, z) and their footprints, in the footprint file's order."""
     import json
 
     from plyfile import PlyData
@@ -78,6 +79,11 @@ def city3d() -> None:
         v = PlyData.read(str(CITY3D / f["properties"]["instance_ply"]))["vertex"]
         clouds.append(np.column_stack([v["x"], v["y"], v["z"]]).astype(np.float64))
         truths.append(shapely.geometry.shape(f["geometry"]))
+    return clouds, truths
+
+
+def city3d() -> None:
+    clouds, truths = city3d_instances()
     xyz = np.concatenate(clouds)
     ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
     spacing = float(np.median([cloud_spacing(c[:, :2]) for c in clouds]))

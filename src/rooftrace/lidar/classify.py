@@ -34,8 +34,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.config import optional
 from rooftrace.lidar._kernels import pair_pull
+from rooftrace.options import optional
 
 __all__ = ["ClassifyOptions", "cluster_means", "cluster_medians", "interior_points", "kmeans_1d", "local_penetration",
            "penetration", "separate_buildings"]
@@ -77,7 +77,7 @@ class ClassifyOptions:
         roofs next to walls and crowns keep their planar look.  The k-means
         on the clusters' mean entropy is the same either way.  Delft (AHN3)
         building F1 0.933 -> 0.950, IGN 0.897 -> 0.917 (with
-        ``max_penetration`` 0.3); see benchmarks/RESULTS.md.
+        ``max_penetration`` 0.3); see docs/design-notes.md.
     min_neighbours : int, default 10
         Smallest adaptive neighbourhood.
     neighbour_step : int, default 5
@@ -127,7 +127,7 @@ class ClassifyOptions:
         adaptive neighbourhood, which lets the flat tops of some crowns and
         hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gave
         IGN building F1 0.898 -> 0.911 and Delft area F 0.915 -> 0.918, the
-        rest unchanged (benchmarks/RESULTS.md, measured with the linear
+        rest unchanged (docs/design-notes.md, measured with the linear
         guard on the adaptive size).
     penetrated_joins : bool, default True
         Beyond the thesis: a level over its penetration limit on the

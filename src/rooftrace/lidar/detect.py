@@ -59,7 +59,6 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
-from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings, group_widths
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
@@ -69,13 +68,13 @@ from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
 from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
 from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
+from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
 
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
 
 log = logging.getLogger(__name__)
 
-KNOWN_SECTIONS.update({"outliers", "ground", "segment", "classify"})
 
 
 @dataclass(frozen=True)
@@ -212,6 +211,14 @@ def detect_buildings(
     InputError
         Fewer than 3 points, non-finite coordinates, geographic CRS, or all
         points on one line.
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> detection = detect_buildings(scene.cloud)
+    >>> np.unique(detection.building_id).tolist()
+    [0, 1]
     """
     _check_cloud(cloud)
     opt = options or DetectOptions.from_config(config)
