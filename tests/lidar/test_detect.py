@@ -270,7 +270,8 @@ def test_real_delft_garden_sheds_are_buildings():
              for p in ((84975, 447485), (84953, 447501), (84938, 447586), (84986, 447530))]
     assert all(s.area < 12 for s in sheds)
     opt = DetectOptions()
-    before = dataclasses.replace(opt, classify=dataclasses.replace(opt.classify, penetration_edge=None))
+    before = dataclasses.replace(opt, classify=dataclasses.replace(opt.classify, penetration_edge=None, edge_allowance=0.0,
+                                                                  penetrated_joins=False))
     for options, expect in ((opt, True), (before, False)):
         det = detect_buildings(cloud, options)
         for shed in sheds:
