@@ -20,6 +20,14 @@ the classes in the files:
 
 It also compares the ground stage alone with a baseline a user might script
 (lowest point per 25 m cell + 0.5 m height threshold).
+
+``--sweep`` adds the density sweep: each Delft tile thinned at random
+(seeded) to 2 and 4 pts/m², scored as above, and simulated scenes at 2, 3
+and 4 pts/m² in several scan patterns and seeds (per-point building F1 and
+the buildings of at least 50 m² found, i.e. with half their points class 6),
+for rooftrace and for Whitebox Workflows' ``classify_lidar`` (defaults; a
+compiled classifier GIS users run, ``pip install whitebox-workflows``,
+offline) side by side, with their times.
 """
 
 from __future__ import annotations
@@ -36,9 +44,21 @@ import pyogrio
 import shapely
 
 import _data
+from _results import record
+from rooftrace.cloud import PointCloud
 from rooftrace.io.points import read_points
 from rooftrace.lidar.detect import detect_buildings
 from rooftrace.lidar.ground import grid_minimum_ground
+from rooftrace.lidar.spacing import point_density
+
+#: scan patterns of the simulator sweep (name -> SceneOptions fields)
+PATTERNS = {
+    "zigzag": {},
+    "random": {"scan_pattern": "random"},
+    "parallel, lines 1.5 m": {"scan_pattern": "parallel", "line_spacing": 1.5},
+    "zigzag, lines 1.5 m": {"line_spacing": 1.5},
+    "zigzag, single returns": {"single_return": True},
+}
 
 
 def f1(pred: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -173,19 +193,153 @@ def report_city3d(folder: Path) -> dict:
     return sc
 
 
+def thin(cloud: PointCloud, target: float, seed: int) -> PointCloud:
+    """Seeded random thinning to about ``target`` pts/m² (every point kept with the same probability)."""
+    keep = np.random.default_rng(seed).random(len(cloud)) < target / point_density(cloud.xyz[:, :2])
+    return PointCloud(cloud.xyz[keep], {k: v[keep] for k, v in cloud.fields.items()}, crs=cloud.crs,
+                      sources=cloud.sources)
+
+
+def whitebox_classes(cloud: PointCloud) -> tuple[np.ndarray, float] | None:
+    """Classes from Whitebox Workflows' ``classify_lidar`` (defaults) and its seconds; None when not installed.
+
+    The cloud is written to a temporary LAS file first (not timed) with
+    every class set to 1, as a raw survey would come.
+    """
+    try:
+        import whitebox_workflows
+    except ImportError:
+        return None
+    import tempfile
+
+    import laspy
+
+    from rooftrace.io.las import write_las
+
+    with tempfile.TemporaryDirectory() as tmp:
+        raw = PointCloud(cloud.xyz, {**{k: v for k, v in cloud.fields.items() if not k.startswith("truth")},
+                                     "classification": np.ones(len(cloud), np.uint8)}, crs=cloud.crs)
+        write_las(Path(tmp) / "in.las", raw)
+        wbe = whitebox_workflows.WbEnvironment()
+        wbe.verbose = False
+        t0 = time.perf_counter()
+        out = wbe.lidar.classify_lidar(input=wbe.read_lidar(str(Path(tmp) / "in.las")))
+        wbe.write_lidar(out, str(Path(tmp) / "out.las"))
+        seconds = time.perf_counter() - t0
+        # the tool writes the points in their input order
+        classes = np.asarray(laspy.read(Path(tmp) / "out.las").classification, np.uint8)
+    return classes, seconds
+
+
+def _peers(cloud: PointCloud, whitebox: bool, thesis: bool = False):
+    """(method, classes, seconds) of rooftrace (and its thesis decision) and, if asked and installed, Whitebox Workflows."""
+    for name, config in [("rooftrace", None)] + ([("rooftrace, decision = entropy",
+                                                    {"classify": {"decision": "entropy"}})] if thesis else []):
+        t0 = time.perf_counter()
+        det = detect_buildings(cloud, config=config)
+        yield name, det.classification, time.perf_counter() - t0
+    wb = whitebox_classes(cloud) if whitebox else None
+    if wb is not None:
+        yield "whitebox classify_lidar", *wb
+
+
+def delft_sweep(delft: Path, densities=(2.0, 4.0), seeds=(0,), whitebox: bool = True, thesis: bool = False) -> list[dict]:
+    """Each Delft tile thinned to each density (seeded), building F1 inside the BGT area, per method."""
+    area = bgt_area(delft)
+    rows = []
+    print("\n## Density sweep, Delft AHN3 tiles thinned at random (building F1 inside the BGT area - 2 m)")
+    print("| tile | pts/m² | seed | method | building F1 (P / R) | time (s) |\n|---|---|---|---|---|---|")
+    for tile in ("1", "2"):
+        full = read_points([str(delft / f"ahn3_cropped_{tile}.laz")], "EPSG:28992")
+        for density in densities:
+            for seed in seeds:
+                cloud = thin(full, density, seed)
+                truth = cloud.fields["classification"].copy()
+                cloud.fields["classification"][:] = 0
+                inside = shapely.contains_xy(area, cloud.x, cloud.y)
+                for method, cls, sec in _peers(cloud, whitebox, thesis):
+                    fb = f1(cls[inside] == 6, truth[inside] == 6)
+                    print(f"| {tile} | {density:g} | {seed} | {method} | {fb[0]:.3f} ({fb[1]:.3f} / {fb[2]:.3f}) "
+                          f"| {sec:.1f} |", flush=True)
+                    rows += [{"method": f"{method}, tile {tile}, {density:g} pts/m², seed {seed}", "metric": "building_f1",
+                              "value": fb[0], "target": ">= 0.88" if density <= 2 else ">= 0.92"},
+                             {"method": f"{method}, tile {tile}, {density:g} pts/m², seed {seed}", "metric": "time_s",
+                              "value": sec, "unit": "s"}]
+    return rows
+
+
+def simulator_sweep(densities=(2.0, 3.0, 4.0), seeds=(1, 2, 3), whitebox_seeds=(1,), thesis: bool = False,
+                    min_area: float = 50.0) -> list[dict]:
+    """Simulated 160 m scenes per scan pattern, density and seed: building F1 and the large buildings found."""
+    from rooftrace.synth.scene import SceneOptions
+    from rooftrace.synth.simulate import simulate_scene
+
+    rows = []
+    print("\n## Density sweep, simulated scenes (160 m, default building mix and trees)")
+    print("| pattern | pts/m² | method | building F1 (min over seeds) | buildings ≥ 50 m² missed | time (s, mean) |")
+    print("|---|---|---|---|---|---|")
+    for name, pattern in PATTERNS.items():
+        for density in densities:
+            scores: dict[str, list] = {}
+            for seed in seeds:
+                scene = simulate_scene(SceneOptions(seed=seed, density=density, image=False, **pattern))
+                truth = scene.cloud.fields["truth_class"] == 6
+                bid = scene.cloud.fields["truth_building_id"]
+                big = [b.building_id for b in scene.buildings if b.footprint.area >= min_area]
+                for method, cls, sec in _peers(scene.cloud, seed in whitebox_seeds, thesis):
+                    is_b = cls == 6
+                    missed = sum(1 for b in big if (bid == b).any() and is_b[bid == b].mean() < 0.5)
+                    scores.setdefault(method, []).append((f1(is_b, truth)[0], missed, len(big), sec))
+            for method, runs in scores.items():
+                score = min(r[0] for r in runs)
+                missed = sum(r[1] for r in runs)
+                print(f"| {name} | {density:g} | {method} ({len(runs)} seeds) | {score:.3f} | {missed} of "
+                      f"{sum(r[2] for r in runs)} | {np.mean([r[3] for r in runs]):.1f} |", flush=True)
+                label = f"{method}, {name}, {density:g} pts/m²"
+                rows += [{"method": label, "metric": "building_f1_min", "value": score,
+                          "target": ">= 0.97" if density >= 4 else ">= 0.95"},
+                         {"method": label, "metric": "missed_buildings_50m2", "value": missed, "target": "== 0"},
+                         {"method": label, "metric": "time_s", "value": float(np.mean([r[3] for r in runs])),
+                          "unit": "s"}]
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", default=str(_data.DATA))
+    ap.add_argument("--sweep", action="store_true", help="also the density sweep (Delft thinned, simulated scenes)")
+    ap.add_argument("--only-sweep", action="store_true", help="only the density sweep")
+    ap.add_argument("--no-whitebox", action="store_true", help="leave Whitebox Workflows out of the sweep")
+    ap.add_argument("--thesis", action="store_true", help="the sweep also with [classify] decision = 'entropy'")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3], help="seeds of the simulated scenes")
     args = ap.parse_args()
     data = Path(args.data)
     delft = data / "3dfier_delft_ahn3_bgt"
-    report("Delft AHN3 (inside BGT area - 2 m)",
-           [str(delft / "ahn3_cropped_1.laz"), str(delft / "ahn3_cropped_2.laz")], "EPSG:28992", bgt_area(delft))
-    ign = sorted(glob.glob(str(data / "ign_montpellier_lidarhd_bdortho" / "*.laz")))
-    report("Montpellier IGN LiDAR HD (6 tiles, all points)", ign, None)
-    city3d = data / "city3d_ahn3_single_buildings"
-    if (city3d / "scene001" / "001.ply").exists():
-        report_city3d(city3d)
+    if not args.only_sweep:
+        r = report("Delft AHN3 (inside BGT area - 2 m)",
+                   [str(delft / "ahn3_cropped_1.laz"), str(delft / "ahn3_cropped_2.laz")], "EPSG:28992", bgt_area(delft))
+        record("detect", "delft", [{"method": "rooftrace", "metric": "building_f1", "value": r["building_f1"],
+                                    "target": ">= 0.95"},
+                                   {"method": "rooftrace", "metric": "ground_f1", "value": r["ground_f1"]},
+                                   {"method": "rooftrace", "metric": "time_s", "value": r["seconds"], "unit": "s"}])
+        ign = sorted(glob.glob(str(data / "ign_montpellier_lidarhd_bdortho" / "*.laz")))
+        r = report("Montpellier IGN LiDAR HD (6 tiles, all points)", ign, None)
+        record("detect", "ign", [{"method": "rooftrace", "metric": "building_f1", "value": r["building_f1"],
+                                  "target": ">= 0.91"},
+                                 {"method": "rooftrace", "metric": "ground_f1", "value": r["ground_f1"]},
+                                 {"method": "rooftrace", "metric": "time_s", "value": r["seconds"], "unit": "s"}])
+        city3d = data / "city3d_ahn3_single_buildings"
+        if (city3d / "scene001" / "001.ply").exists():
+            sc = report_city3d(city3d)
+            record("detect", "city3d", [{"method": "rooftrace", "metric": "building_f1_leak", "value": sc["leak_f1"],
+                                         "target": ">= 0.99"}])
+    if args.sweep or args.only_sweep:
+        tag = "_thesis" if args.thesis and args.no_whitebox else ""
+        record("detect_density", "delft_thinned" + tag, delft_sweep(delft, whitebox=not args.no_whitebox,
+                                                                    thesis=args.thesis))
+        record("detect_density", "simulated" + tag,
+               simulator_sweep(seeds=tuple(args.seeds), whitebox_seeds=() if args.no_whitebox else (args.seeds[0],),
+                               thesis=args.thesis))
 
 
 if __name__ == "__main__":

@@ -223,7 +223,7 @@ def test_low_shed_next_to_a_crown_is_a_building(seed):
     assert np.unique(det.building_id[shed]).size == 1  # one building, not the house's
     assert det.building_id[shed][0] not in det.building_id[(truth == BUILDING) & (xyz[:, 0] < 27)]
     assert is_b[truth == TREE].mean() < 0.02
-    paper = detect_buildings(PointCloud(xyz, crs=RD), config={"classify": {"neighbourhood": "fixed"}})
+    paper = detect_buildings(PointCloud(xyz, crs=RD), config={"classify": {"neighbourhood": "fixed", "decision": "entropy"}})
     assert (paper.classification[shed] == ASPRS.BUILDING).mean() < 0.5
 
 
@@ -270,7 +270,8 @@ def test_real_delft_garden_sheds_are_buildings():
              for p in ((84975, 447485), (84953, 447501), (84938, 447586), (84986, 447530))]
     assert all(s.area < 12 for s in sheds)
     opt = DetectOptions()
-    before = dataclasses.replace(opt, classify=dataclasses.replace(opt.classify, penetration_edge=None))
+    before = dataclasses.replace(opt, classify=dataclasses.replace(opt.classify, penetration_edge=None, edge_allowance=0.0,
+                                                                  penetrated_joins=False))
     for options, expect in ((opt, True), (before, False)):
         det = detect_buildings(cloud, options)
         for shed in sheds:

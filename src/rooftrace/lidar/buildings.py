@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, local_penetration, penetration
-from rooftrace.lidar.segment import SegmentOptions, merge_touching
+from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching
 
 __all__ = ["assemble_buildings"]
 
@@ -196,6 +196,7 @@ def assemble_buildings(
     centroids: list | None,
     segment: SegmentOptions,
     classify: ClassifyOptions,
+    merge_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Building of every non-ground point, from its roof levels (see the module notes).
 
@@ -227,6 +228,9 @@ def assemble_buildings(
     centroids : list of two floats or None
         k-means centroids (building, vegetation).
     segment, classify : SegmentOptions, ClassifyOptions
+    merge_distance : float, optional
+        Building levels closer than this in plan (m) are one building;
+        default (and anything shorter) ``link_distance``.
 
     Returns
     -------
@@ -236,7 +240,12 @@ def assemble_buildings(
         ``levels`` spread over ``pts``, -1 for points not segmented.
     """
     so, co = segment, classify
-    group = merge_touching(levels, pairs, building_level)
+    near = pairs
+    if merge_distance is not None and merge_distance > link_distance and building_level.any():
+        # pairs between building levels only: crowns never bridge a gap
+        on = np.flatnonzero(building_level[levels])
+        near = on[link_pairs(pts[high[on], :2], merge_distance)]
+    group = merge_touching(levels, near, building_level)
     group_high = np.where(building_level[levels], group[levels], -1) if len(levels) else levels
     gsize = np.bincount(group_high[group_high >= 0], minlength=int(group.max(initial=-1)) + 1)
     # a building needs one roof level of T_Np points itself; small

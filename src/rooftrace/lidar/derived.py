@@ -48,6 +48,12 @@ class DerivedParams:
         The two k-means centroids (building, vegetation), which bound the
         entropy of absorbed points (``segment.absorb_margin``); ``None`` with a
         fixed ``entropy_threshold`` means one population (no margin).
+    scan_gap : float or None
+        The widest common gap of the sampling (m), the 0.99 quantile of the
+        Delaunay edge lengths (:func:`rooftrace.lidar.spacing.edge_spacing`).
+    spanning_neighbours : int or None
+        Neighbours that reach across the scan lines
+        (:func:`rooftrace.lidar.spacing.spanning_neighbours`).
     """
 
     origin: tuple[float, float] | None = None
@@ -57,9 +63,11 @@ class DerivedParams:
     sigma_h: float | None = None
     entropy_threshold: float | None = None
     entropy_centroids: tuple[float, float] | None = None
+    scan_gap: float | None = None
+    spanning_neighbours: int | None = None
 
     def __post_init__(self) -> None:
-        for name in ("mean_spacing", "density", "sigma_h"):
+        for name in ("mean_spacing", "density", "sigma_h", "scan_gap", "spanning_neighbours"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ValueError(f"derived.{name} must be a finite number > 0, got {v}")
@@ -76,6 +84,8 @@ class DerivedParams:
             "sigma_h": self.sigma_h,
             "entropy_threshold": self.entropy_threshold,
             "entropy_centroids": None if self.entropy_centroids is None else [float(v) for v in self.entropy_centroids],
+            "scan_gap": self.scan_gap,
+            "spanning_neighbours": self.spanning_neighbours,
         }
 
     @classmethod
@@ -92,4 +102,6 @@ class DerivedParams:
             sigma_h=d.get("sigma_h"),
             entropy_threshold=d.get("entropy_threshold"),
             entropy_centroids=None if cent is None else (float(cent[0]), float(cent[1])),
+            scan_gap=d.get("scan_gap"),
+            spanning_neighbours=d.get("spanning_neighbours"),
         )

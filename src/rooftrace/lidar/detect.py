@@ -3,7 +3,11 @@
 Stages and where they follow the thesis (Santos 2019, ch. 3):
 
 1. cell-histogram outliers (§3.1) → class 7;
-2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1);
+2. s_avg, d_avg, sigma_H from the data (§6.1, Table 6.1), and the scan
+   pattern: the widest common gap (0.99 quantile of the Delaunay edges)
+   and the neighbourhood size reaching across the scan lines
+   (:func:`rooftrace.lidar.spacing.spanning_neighbours`), so every
+   threshold follows the data from 1.5 to 40 pts/m²;
 3. progressive TIN densification (§3.2) → class 2 and the height above
    ground (HAG) of every point;
 4. eigen-features (L, P, S, entropy; N = Ar_min·d_avg neighbours, or by
@@ -12,8 +16,10 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
 5. region growing of the points above ``segment.min_height`` into roof-level
    clusters (§3.3; the height test is measured along the normals);
 6. k-means on the mean entropy of the clusters of at least T_Np points
-   (§3.4) with the guards of :mod:`rooftrace.lidar.classify`; building
-   clusters that touch in plan are merged into buildings.
+   (§3.4) with the guards of :mod:`rooftrace.lidar.classify`, and by
+   default (``classify.decision``) the plane residual of each cluster
+   beside it; building clusters that touch in plan, or lie within the
+   widest scan gap, are merged into buildings.
 
 Beyond the thesis, linear clusters beside a building cluster join it (narrow
 roof strips cut into scan lines, ``classify.linear_joins``); a building then
@@ -54,14 +60,14 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.lidar.buildings import assemble_buildings
-from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
+from rooftrace.lidar.buildings import assemble_buildings, group_widths
+from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
 from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
-from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
+from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
 from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
 
@@ -244,12 +250,20 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     with clock("spacing"):
         try:
-            s_avg = mean_spacing(clean[:, :2]) if fixed.mean_spacing is None else float(fixed.mean_spacing)
+            s_avg, gap = fixed.mean_spacing, fixed.scan_gap
+            if s_avg is None or gap is None:
+                measured = edge_spacing(clean[:, :2])
+                s_avg = measured[0] if s_avg is None else s_avg
+                gap = measured[1] if gap is None else gap
+            s_avg, gap = float(s_avg), float(gap)
             d_avg = point_density(clean[:, :2]) if fixed.density is None else float(fixed.density)
             sigma_h = height_precision(clean) if fixed.sigma_h is None else float(fixed.sigma_h)
+            k_span = (spanning_neighbours(clean[:, :2], d_avg) if fixed.spanning_neighbours is None
+                      else int(fixed.spanning_neighbours))
         except ValueError as exc:
             raise InputError(f"{', '.join(cloud.sources) or 'point cloud'}: {exc}") from None
-        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin)}
+        params["spacing"] = {"mean_spacing": s_avg, "density": d_avg, "sigma_h": sigma_h, "origin": list(origin),
+                             "scan_gap": gap, "spanning_neighbours": k_span}
 
     with clock("ground"):
         try:
@@ -261,12 +275,17 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     so = opt.segment
     link_d = so.link_distance or so.link_factor * s_avg
+    # roof levels split by a gap between scan lines are one building
+    merge_d = so.merge_distance or max(link_d, gap)
     # along the normals the pair test must also absorb the normals' own
     # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
     co = opt.classify
-    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), 10, co.max_neighbours))
+    k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), co.min_neighbours, co.max_neighbours))
+    # the plane of a normal must rest on more than one scan line (lines far
+    # apart: low density, older surveys), or it turns freely about the line
+    k_normal = max(so.normal_neighbours, k_span)
     # every non-ground point gets eigen-features (walls and low annexes may
     # join a building later); only those above min_height are segmented
     above = np.flatnonzero(~noise & ~ground)
@@ -276,17 +295,18 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         adaptive = co.neighbourhood == "adaptive"
         # the linear-object guard looks at N points: at the smallest adaptive
         # sizes a roof scanned in lines looks linear too (low entropy either way)
-        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=so.normal_neighbours,
+        feats, lin_n = eigen_features(pts, k_nb, normal_neighbours=k_normal,
                                       min_neighbours=min(co.min_neighbours, k_nb) if adaptive else None,
                                       neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
-        normals = feats[high, 4:] if so.height_test == "normal" else None
+        normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
-            **options_dict(so), "link_distance": link_d, "link_height": link_h, "min_points": min_pts,
+            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d,
+            "normal_neighbours": k_normal, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }
 
@@ -300,29 +320,62 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             cent = None if fixed.entropy_centroids is None else list(fixed.entropy_centroids)
             cparams = {"method": "fixed", "entropy_threshold": float(fixed.entropy_threshold), "centroids": cent}
         threshold = cparams["entropy_threshold"]
+        # a linear object is linear at every scale: its points look linear
+        # and the cluster is narrow in plan.  A roof scanned in lines farther
+        # apart than the points along them looks linear point by point at
+        # low density, but it is wide
+        width = group_widths(pts[high, :2], levels, len(sizes))
+        linear_width = co.linear_width or link_d
+        linear_level = (lin > co.max_linearity) & (width < linear_width)
         # small clusters (ridges, dormers, roof edges cut off by the height
         # test) take the threshold learnt on the big ones; the building size
         # filter below drops those that do not touch a building
-        building_level = (ent <= threshold) & (lin <= co.max_linearity)
-        linear = big & (lin > co.max_linearity)
+        building_level = (ent <= threshold) & ~linear_level
+        if co.decision == "residual":
+            # a roof face is smooth at any density and scan pattern, a crown is not
+            residual = cluster_medians(levels, feats[high, 7], len(sizes))
+            smooth = residual <= co.max_residual * sigma_h
+            centroids = cparams["centroids"]
+            if centroids is None or centroids[1] - centroids[0] < co.min_gap:
+                # one population (only houses, or only trees): the entropy
+                # has nothing to split, and single-return crowns look as
+                # planar as roofs to it; the residual alone decides
+                building_level = smooth & ~linear_level
+            else:
+                building_level |= smooth & ~linear_level
+            cparams["n_smooth"] = int((big & smooth).sum())
+        linear = big & linear_level
         returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
-            penetrated = cluster_means(levels, returns[high], len(sizes)) > co.max_penetration
+            share = cluster_means(levels, returns[high], len(sizes))
+            allowed = co.max_penetration
+            if co.edge_allowance:
+                # pulses split on roof edges: the band a spacing wide along a
+                # level's edge is a larger part of it the fewer points it has
+                # (2·sqrt(pi/n) of a disc of n points).  Measured from the
+                # level's shape instead, ragged crowns would get the allowance
+                edge = np.minimum(1.0, 2.0 * np.sqrt(np.pi / np.maximum(sizes, 1)))
+                allowed = co.max_penetration + co.edge_allowance * edge
+            penetrated = share > allowed
+            beside = building_level & penetrated
             building_level &= ~penetrated
             cparams["n_penetrated"] = int((big & penetrated).sum())
+            if co.penetrated_joins and len(pairs):
+                building_level = join_strips(levels, pairs, pts[high, 2], beside, building_level, 2.0 * link_d)
         if co.linear_joins and len(pairs):
             # a narrow roof strip the height test cut into scan lines is a
             # row of linear levels along the roof or wall beside it
-            strips = (lin > co.max_linearity) & (ent <= threshold) & ~penetrated
+            strips = linear_level & (ent <= threshold) & ~penetrated
             building_level = join_strips(levels, pairs, pts[high, 2], strips, building_level, 2.0 * link_d)
-        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams,
+        params["classify"] = {**options_dict(co), "neighbours": k_nb, **cparams, "linear_width": linear_width,
                               "n_building_levels": int(building_level.sum())}
 
     with clock("buildings"):
         group_all, levels_all = assemble_buildings(
             pts, hag[above], feats[:, 3], high, levels, pairs, building_level, big, returns,
             min_points=min_pts, link_distance=link_d, mean_spacing=s_avg, threshold=threshold,
+            merge_distance=merge_d,
             centroids=cparams["centroids"], segment=so, classify=co)
         bid_local = order_labels(pts, group_all)
         level_local = order_labels(pts, np.where(bid_local >= 0, levels_all, -1))
@@ -353,5 +406,6 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         derived=DerivedParams(
             origin=origin, extent=extent, mean_spacing=s_avg, density=d_avg, sigma_h=sigma_h, entropy_threshold=float(threshold),
             entropy_centroids=None if cparams["centroids"] is None else tuple(float(c) for c in cparams["centroids"]),
+            scan_gap=gap, spanning_neighbours=k_span,
         ),
     )

@@ -14,7 +14,17 @@ Gaussian range noise; crowns give multiple returns; some pulses give
 outliers above or below the surface.  Parallel strips with side overlap
 cover the scene; the pulse rate is set so that the mean density over the
 scene is the requested one, and the mirror frequency so that along- and
-across-track spacings match (1/√density per strip).
+across-track spacings match (1/√density per strip), or so that the scan
+lines lie ``line_spacing`` apart along track (the points along a line are
+then closer or farther apart than the lines, as in most real surveys).
+
+Scan patterns (``SceneOptions.scan_pattern``): ``'zigzag'`` the oscillating
+mirror above (lines alternate in direction, two per mirror period, and
+converge towards the swath edges); ``'parallel'`` a rotating polygon mirror
+(a sawtooth: parallel lines swept in one direction, one per period);
+``'random'`` each pulse at a random time and a random scan angle (no line
+structure; the pulses of a strip are still in time order).  With
+``single_return`` only the first return of each pulse is recorded.
 """
 
 from __future__ import annotations
@@ -54,6 +64,14 @@ def _attitude(v, roll, pitch, yaw_total):
     return _rot(_rot(_rot(v, "x", roll), "y", pitch), "z", yaw_total)
 
 
+def _mirror(x: np.ndarray, pattern: str) -> np.ndarray:
+    """Scan angle as a fraction of the largest one (−1..1) at mirror phase ``x`` (periods)."""
+    if pattern == "zigzag":
+        return (1 - _MIRROR_SINE) * _triangle(x) + _MIRROR_SINE * np.sin(2 * np.pi * x)
+    # parallel (and, on average, random): every scan angle equally often
+    return 2.0 * (x - np.floor(x)) - 1.0
+
+
 def strip_layout(options, heading_deg: float = 10.0) -> dict:
     """Strips over the scene: offsets across track (m), swath (m), mean coverage and pulse rates.
 
@@ -80,17 +98,26 @@ def strip_layout(options, heading_deg: float = 10.0) -> dict:
     # across-track density of one strip per unit pulse rate: the mirror's pattern crowds the swath edges
     x = (np.arange(20000) + 0.5) / 20000
     theta = math.radians(options.scan_angle_deg)
-    pos = options.flying_height * np.tan(theta * ((1 - _MIRROR_SINE) * _triangle(x) + _MIRROR_SINE * np.sin(2 * np.pi * x)))
+    pattern = options.scan_pattern
+    pos = options.flying_height * np.tan(theta * _mirror(x, pattern))
     edges = np.linspace(-swath / 2, swath / 2, 201)
     pdf = np.histogram(pos, edges)[0] / (len(x) * np.diff(edges))
     mids = (edges[1:] + edges[:-1]) / 2
     per_rate = sum(float(np.interp(a - o, mids, pdf, left=0.0, right=0.0).mean()) for o in offsets)
     rate = options.density * options.flight_speed / per_rate
     d_strip = options.density / coverage
-    mirror = math.sqrt(d_strip) * options.flight_speed / 2.0
+    # lines per second = speed / line spacing; a zigzag sweeps two lines a period
+    sweeps = 2.0 if pattern == "zigzag" else 1.0
+    if options.line_spacing is None:
+        line_spacing = 1.0 / math.sqrt(d_strip)
+        mirror = math.sqrt(d_strip) * options.flight_speed / sweeps
+    else:
+        line_spacing = float(options.line_spacing)
+        mirror = options.flight_speed / line_spacing / sweeps
     length = float(np.abs(gx.ravel() * along[0] + gy.ravel() * along[1]).max())
     return dict(along=along, across=across, swath=swath, offsets=offsets, coverage=coverage, strip_density=d_strip,
-                pulse_rate=rate, mirror_hz=mirror, half_length=length)
+                pulse_rate=rate, mirror_hz=mirror, half_length=length, line_spacing=line_spacing,
+                point_spacing=1.0 / (d_strip * line_spacing), pattern=pattern)
 
 
 def _triangle(x):
@@ -111,6 +138,8 @@ def _strip_pulses(options, layout, k, z_ref, rng):
     c = np.asarray(options.center)
     start = c + layout["offsets"][k] * across - fwd * (layout["half_length"] + margin)
     ph = rng.uniform(0, 2 * np.pi, 8)
+    if layout["pattern"] == "random":
+        t = np.sort(rng.uniform(0.0, duration, n))
     drift = 1.5 * np.sin(2 * np.pi * t / 11.0 + ph[0])
     pos = np.empty((n, 3))
     pos[:, :2] = start + np.outer(t * options.flight_speed, fwd) + np.outer(drift, across)
@@ -120,8 +149,11 @@ def _strip_pulses(options, layout, k, z_ref, rng):
     yaw = np.radians(0.3 * np.sin(2 * np.pi * t / 12.0 + ph[5]))
     heading = math.atan2(fwd[1], fwd[0])  # body x axis = flight direction
     phase = rng.uniform()
-    x = layout["mirror_hz"] * t + phase
-    beta = math.radians(options.scan_angle_deg) * ((1 - _MIRROR_SINE) * _triangle(x) + _MIRROR_SINE * np.sin(2 * np.pi * x))
+    if layout["pattern"] == "random":
+        fraction = rng.uniform(-1.0, 1.0, n)
+    else:
+        fraction = _mirror(layout["mirror_hz"] * t + phase, layout["pattern"])
+    beta = math.radians(options.scan_angle_deg) * fraction
     beam = np.column_stack([np.zeros(n), np.sin(beta), -np.cos(beta)])  # R_{alpha,beta} [0, 0, -1]
     beam = _rot(_rot(_rot(beam, "x", _BORESIGHT[0]), "y", _BORESIGHT[1]), "z", _BORESIGHT[2])  # R_delta
     dirs = _attitude(beam, roll, pitch, heading + yaw)  # R(t) R_delta R_ab [0, 0, -1]
@@ -209,6 +241,10 @@ def scan_scene(options, model: SurfaceModel, trees: np.ndarray, wires: np.ndarra
     t_wire = _wire_hits(o, d, wires, t_max, rng) if wires is not None and len(wires) else np.full(n, np.inf)
     u = rng.random((n, 8))
     rt, rk, rtree = pulse_returns(t_s, tin, tout, tid, t_wire, u, _MAX_RETURNS)
+    if options.single_return:
+        # a single-return scanner records the first echo only
+        rt[:, 1:] = np.inf
+        rk[:, 1:] = 0
     nret = (rk > 0).sum(axis=1)
     # outliers: the pulse gives one spurious echo high above (birds, haze) or below (multipath) the surface
     out = rng.random(n) < options.outlier_fraction
@@ -261,6 +297,9 @@ def scan_scene(options, model: SurfaceModel, trees: np.ndarray, wires: np.ndarra
         "strip_coverage": layout["coverage"],
         "pulse_rate_hz": layout["pulse_rate"],
         "mirror_hz": layout["mirror_hz"],
+        "scan_pattern": layout["pattern"],
+        "line_spacing_m": layout["line_spacing"],
+        "point_spacing_m": layout["point_spacing"],
         "pulses": int(n),
         "points": int(len(pulse)),
     }

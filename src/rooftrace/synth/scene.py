@@ -76,6 +76,22 @@ class SceneOptions:
         Trees per hectare of open ground.
     power_line : bool
         Add a three-conductor power line across the scene (ASPRS class 14).
+    scan_pattern : {'zigzag', 'parallel', 'random'}
+        How the pulses fall on the ground (:mod:`rooftrace.synth.als`):
+        ``'zigzag'`` an oscillating mirror (lines alternate in direction and
+        converge at the swath edges), ``'parallel'`` a rotating polygon
+        mirror (parallel lines, one direction), ``'random'`` no line
+        structure (each pulse at a random time and scan angle).
+    line_spacing : float or None
+        Along-track distance between successive scan lines at nadir (m);
+        the point spacing along a line follows from the density.  ``None``:
+        both spacings equal (1/√(density per strip)).  Older and
+        low-density surveys have lines 2-5 times farther apart than the
+        points along them.
+    single_return : bool
+        Record one (the first) return per pulse, as older scanners and
+        archives (AHN2) do: no ground under the crowns, no return numbers
+        above 1.
     cell : float
         Cell of the roof-face raster used by the ray caster (m); faces are
         exact planes, only their boundaries are rasterised.  Raised to
@@ -114,6 +130,9 @@ class SceneOptions:
     trees: bool = True
     tree_density: float = 14.0
     power_line: bool = False
+    scan_pattern: str = "zigzag"
+    line_spacing: float | None = None
+    single_return: bool = False
     cell: float = 0.05
     scene: str = "default"
 
@@ -149,6 +168,11 @@ class SceneOptions:
             raise InputError(f"simulate: camera_offnadir_deg must be between 0 and 30, got {self.camera_offnadir_deg!r}")
         if not 5.0 <= self.sun_elevation_deg <= 90.0:
             raise InputError(f"simulate: sun_elevation_deg must be between 5 and 90, got {self.sun_elevation_deg!r}")
+        if self.scan_pattern not in ("zigzag", "parallel", "random"):
+            raise InputError(f"simulate: scan_pattern must be 'zigzag', 'parallel' or 'random', got {self.scan_pattern!r}")
+        if self.line_spacing is not None and not (isinstance(self.line_spacing, (int, float))
+                                                  and 0.05 <= self.line_spacing <= 20.0):
+            raise InputError(f"simulate: line_spacing must be between 0.05 and 20 m, got {self.line_spacing!r}")
         if self.cell > 0.25:
             raise InputError(f"simulate: cell must be at most 0.25 m, got {self.cell!r}")
         if len(tuple(self.origin)) != 2:
