@@ -78,7 +78,6 @@ class AlphaOptions:
         (thesis Table 6.1), the smallest building worth mapping.
     scale : float
         Multiplies every alpha of the chosen strategy (1 = the thesis).
-<<<<<<< HEAD
         Scan patterns leave wider gaps along roof edges than inside, and the
         union of triangles drops an obtuse triangle at the edge that the
         thesis' edge test keeps; 1.5 bridges both and measured best with the
@@ -90,10 +89,6 @@ class AlphaOptions:
         at most their alpha (closed by construction; default, chosen by
         measurement in docs/design-notes.md, "Outline coverage"), ``edge``
         = the thesis' empty-circle test per edge with its gap repair.
-=======
-        Scan patterns leave wider gaps along roof edges than inside; 1.25
-        bridges them and measured best on City3D/AHN3 (docs/design-notes.md).
->>>>>>> main
     """
 
     section = "alpha"
