@@ -251,8 +251,10 @@ def run_pipeline(
 
     t0 = time.perf_counter()
     outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
-    outlines = outline_buildings(cloud.xyz, building_id, outline_options,
-                                 mean_spacing=detection.mean_spacing, reporter=reporter)
+    # the roof edge lies between the last roof point and the first that is not roof (noise aside)
+    around = (building_id <= 0) & (detection.classification != 7)
+    outlines = outline_buildings(cloud.xyz, building_id, outline_options, mean_spacing=detection.mean_spacing,
+                                 reporter=reporter, context_xy=cloud.xyz[around, :2])
     timings["outline"] = time.perf_counter() - t0
 
     structures: list = []

@@ -65,8 +65,8 @@ def test_shuffle_and_translation_invariance():
 
 def test_outward_correction_measures_better():
     xyz = sample(RECT, 10, seed=5)
-    inner = trace_outline(xyz, OutlineOptions.from_config({}, offset_factor=0.0)).polygon
-    outer = trace_outline(xyz).polygon
+    inner = trace_outline(xyz, OutlineOptions.from_config({}, method="cdspline", offset_factor=0.0)).polygon
+    outer = trace_outline(xyz, OutlineOptions.from_config({}, method="cdspline")).polygon
     assert outer.area > inner.area
     assert area_scores(outer, RECT)["f_score"] > area_scores(inner, RECT)["f_score"]
 

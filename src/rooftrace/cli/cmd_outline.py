@@ -60,6 +60,7 @@ def outline(
     if len(cloud) == 0:
         log.warning("%s: no points; writing an empty roof_outlines layer", where)
     extra = None
+    context = None
     if single_building:
         source = cloud.fields["source_index"].astype(np.int64)
         ids = source + 1
@@ -77,6 +78,8 @@ def outline(
                                  "'rooftrace detect', or use --single-building for a cloud that is one building")
             log.warning("%s: no class-6 (building) points; writing an empty roof_outlines layer", where)
         xyz = cloud.xyz[building]
+        # ASPRS 7 and 18 are noise: every other point is not roof, and the roof edge lies before it
+        context = cloud.xyz[~building & ~np.isin(cls, (7, 18)), :2]
         if "building_id" in cloud.fields:
             ids = cloud.fields["building_id"][building].astype(np.int64)
         else:
@@ -96,7 +99,7 @@ def outline(
             spacing = None
     reporter = reporter_for(quiet)
     try:
-        outlines = outline_buildings(xyz, ids, options, mean_spacing=spacing, reporter=reporter)
+        outlines = outline_buildings(xyz, ids, options, mean_spacing=spacing, reporter=reporter, context_xy=context)
     finally:
         reporter.close()
     if extra is not None:
