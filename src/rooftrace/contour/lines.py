@@ -185,11 +185,18 @@ def bridge_inlets(xy: np.ndarray, width: float) -> np.ndarray:
     return keep if keep.sum() >= 4 else np.ones(len(xy), bool)
 
 
-def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0: float, trim: int) -> Line:
+def _floor(sigma0, idx: np.ndarray) -> float:
+    """The noise floor of a set of ring points: σ0, or the RMS of per-point σ0 values."""
+    if np.ndim(sigma0) == 0:
+        return float(sigma0)
+    return float(np.sqrt(np.mean(sigma0[idx] ** 2)))
+
+
+def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0, trim: int) -> Line:
     # corners of the alpha shape are cut off (few points reach into them): the points at either end
     # of a segment bend away from its wall, so long segments are fitted without them
     core = idx[trim:len(idx) - trim] if len(idx) > 2 * trim + 4 else idx
-    c, d, _ = fit_line(xy_ring[core], sigma0)
+    c, d, _ = fit_line(xy_ring[core], _floor(sigma0, idx))
     r = (xy_ring[idx] - c) @ np.array([d[1], -d[0]])
     if np.dot(d, xy_ring[idx[-1]] - xy_ring[idx[0]]) < 0:
         d = -d
@@ -209,32 +216,33 @@ def _angle(a: Line, b: Line) -> float:
     return float(np.degrees(np.arccos(np.clip(np.dot(a.direction, b.direction), -1.0, 1.0))))
 
 
-def _best_move(xy: np.ndarray, touched: tuple, sigma0: float, trim: int) -> tuple[float, list]:
+def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float, list]:
     """The better of merging lines ``a, run.., b`` into one and dropping the run between them: (BIC gain, new lines)."""
     a, *run, b = touched
     k = len(run)
     n = sum(len(t.idx) for t in touched)
-    before = segment_bic(sum(t.rss for t in touched), n, sum(t.n_params + 1 for t in touched), sigma0)
     run_idx = np.concatenate([r.idx for r in run]) if run else np.zeros(0, np.int64)
+    floor = _floor(sigma0, np.concatenate([a.idx, run_idx, b.idx]))
+    before = segment_bic(sum(t.rss for t in touched), n, sum(t.n_params + 1 for t in touched), floor)
     # one wall: a line through a, the run and b (or through a and b, the run counted against it)
     merged = _fit(xy, np.concatenate([a.idx, run_idx, b.idx]), sigma0, trim)
     if k:
         core = _fit(xy, np.concatenate([a.idx, b.idx]), sigma0, trim)
         core = Line(merged.idx, core.point, core.direction, _rss_to(xy[merged.idx], [core]), span=merged.span)
         merged = min(merged, core, key=lambda ln: ln.rss)
-    moves = [(segment_bic(merged.rss, n, 3, sigma0), [merged])]
+    moves = [(segment_bic(merged.rss, n, 3, floor), [merged])]
     if k and _angle(a, b) >= _PARALLEL_DEG:
         # two walls that meet: their corner replaces the run
         rss = a.rss + b.rss + _rss_to(xy[run_idx], [a, b])
         near_a = np.abs((xy[run_idx] - a.point) @ a.normal) <= np.abs((xy[run_idx] - b.point) @ b.normal)
-        moves.append((segment_bic(rss, n, a.n_params + b.n_params + 2, sigma0),
+        moves.append((segment_bic(rss, n, a.n_params + b.n_params + 2, floor),
                       [_fit(xy, np.concatenate([a.idx, run_idx[near_a]]), sigma0, trim),
                        _fit(xy, np.concatenate([run_idx[~near_a], b.idx]), sigma0, trim)]))
     after, new = min(moves, key=lambda mv: mv[0])
     return before - after, new
 
 
-def simplify_lines(xy: np.ndarray, segments: list, sigma0: float, trim: int = 1, max_run: int = 3) -> list:
+def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_run: int = 3) -> list:
     """Merge and drop straight segments while the BIC of the ring's boundary model decreases.
 
     Parameters
@@ -244,8 +252,8 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0: float, trim: int = 1,
     segments : list
         One entry per segment in ring order: a :class:`Line`, or anything
         else for a curved segment, which is kept as it is.
-    sigma0 : float
-        Noise floor, metres.
+    sigma0 : float or ndarray of shape (N,)
+        Noise floor, metres (per ring point: a set of points takes their RMS).
     trim : int
         End points left out of each line fit.
     max_run : int
@@ -317,7 +325,7 @@ def dominant_direction(lines: list) -> float | None:
     return float((np.arctan2(np.sum(w * np.sin(4 * th)), np.sum(w * np.cos(4 * th))) / 4.0) % (np.pi / 2))
 
 
-def constrain_directions(xy: np.ndarray, lines: list, sigma0: float, trim: int = 1) -> tuple[list, float | None]:
+def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> tuple[list, float | None]:
     """Walls near the dominant direction (mod 90°) take it exactly where the BIC prefers it.
 
     Parameters
@@ -325,8 +333,8 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0: float, trim: int =
     xy : ndarray of shape (N, 2)
     lines : list
         Segments in ring order; entries that are not :class:`Line` (curves) are passed through.
-    sigma0 : float
-        Noise floor, metres.
+    sigma0 : float or ndarray of shape (N,)
+        Noise floor, metres (per ring point).
     trim : int
 
     Returns
@@ -361,11 +369,12 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0: float, trim: int =
                 continue
             d = np.array([np.cos(phi - delta), np.sin(phi - delta)])
             core = ln.idx[trim:len(ln.idx) - trim] if len(ln.idx) > 2 * trim + 4 else ln.idx
-            c, d, _ = fit_line(xy[core], sigma0, direction=d)
+            floor = _floor(sigma0, ln.idx)
+            c, d, _ = fit_line(xy[core], floor, direction=d)
             r = (xy[ln.idx] - c) @ np.array([d[1], -d[0]])
             fixed = Line(ln.idx, c, d, float(r @ r), free=False, span=free.span)
             n = len(ln.idx)
-            if segment_bic(fixed.rss, n, 1, sigma0) <= segment_bic(free.rss, n, 2, sigma0):
+            if segment_bic(fixed.rss, n, 1, floor) <= segment_bic(free.rss, n, 2, floor):
                 out.append(fixed)
                 taken.append(free)
             else:
@@ -492,7 +501,15 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     LineOutline
     """
     xy = points[:, :2]
-    sigma0 = noise_factor * spacing
+    # the boundary scatters over the gaps between the points it runs through: the mean spacing for an
+    # even sampling, but the scan-line distance where the lines end at a roof edge (a saw-tooth)
+    gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
+    step = 0.5 * (gap + np.roll(gap, 1))
+    # per point, smoothed along the ring over a few neighbours: a saw-tooth alternates long and short gaps
+    width = 5
+    kernel = np.ones(width) / width
+    step = np.convolve(np.concatenate([step[-width:], step, step[:width]]), kernel, mode="same")[width:-width]
+    sigma0 = noise_factor * np.maximum(spacing, step)
     trim = 1
     verts, corner_index = spline.ring(densify)
     corner_index = list(corner_index) + [len(verts)]
@@ -508,7 +525,8 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
             res = spline.evaluate(spline.t[idx])[:, :2] - xy[idx]
             rss = float(np.sum(res * res))
             # curved only if the spline's extra control points pay for themselves over the line
-            if segment_bic(rss, len(idx), 2 * d, sigma0) < segment_bic(line.rss, len(idx), 2, sigma0):
+            floor = _floor(sigma0, idx)
+            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
                 segments.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
                 continue
         segments.append(line)
