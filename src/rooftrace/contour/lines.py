@@ -27,6 +27,7 @@ bridged first by a morphological closing.  The edge position is handled by
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -471,7 +472,7 @@ def _curve_normals(v: np.ndarray) -> np.ndarray:
 
 def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: float, edge_factor: float,
                  directions: bool = True, context: EdgeContext | None = None, densify: float = 0.5,
-                 z_tolerance: float = 0.3) -> LineOutline:
+                 z_tolerance: float = 0.3, refit: Callable | None = None) -> LineOutline:
     """Building-shaped ring from the ring points and the CD-spline fitted to them.
 
     Parameters
@@ -495,6 +496,10 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     z_tolerance : float
         A wall gets a vertex where its height profile leaves a straight line
         by more than this (metres; a gable's apex).
+    refit : callable, optional
+        ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring
+        indices, increasing): the spline fitted again when a simplified line
+        bends beyond the noise.
 
     Returns
     -------
@@ -511,28 +516,17 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     step = np.convolve(np.concatenate([step[-width:], step, step[:width]]), kernel, mode="same")[width:-width]
     sigma0 = noise_factor * np.maximum(spacing, step)
     trim = 1
-    verts, corner_index = spline.ring(densify)
-    corner_index = list(corner_index) + [len(verts)]
-    closed = np.vstack([verts, verts[:1]])
-    segments: list = []
-    for k, d in enumerate(spline.degrees):
-        idx = np.flatnonzero(spline.segment == k)
-        idx = idx[np.argsort(spline.t[idx], kind="stable")]
-        if len(idx) < 2:
-            continue
-        line = _fit(xy, idx, sigma0, trim)
-        if d >= 2:
-            res = spline.evaluate(spline.t[idx])[:, :2] - xy[idx]
-            rss = float(np.sum(res * res))
-            # curved only if the spline's extra control points pay for themselves over the line
-            floor = _floor(sigma0, idx)
-            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
-                segments.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
-                continue
-        segments.append(line)
+    segments = _curves_on(points, None, spline, sigma0, trim, densify)
     if len(segments) < 3:
         raise ValueError("line_outline: fewer than 3 segments")
     segments = simplify_lines(xy, segments, sigma0, trim)
+    if refit is not None and any(isinstance(g, Line) and _bends(xy, g, _floor(sigma0, g.idx)) for g in segments):
+        # merged lines can hide a gentle curve the first segmentation cut into straight pieces:
+        # the spline is fitted again on the simplified segments, and the same test decides
+        first = int(np.argmin([g.idx[0] for g in segments]))
+        segments = segments[first:] + segments[:first]  # the spline's corners increase
+        segments = _curves_on(points, segments, refit(np.array([int(g.idx[0]) for g in segments])), sigma0,
+                              trim, densify)
     theta = None
     if directions:
         segments, theta = constrain_directions(xy, segments, sigma0, trim)
@@ -552,6 +546,49 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     ring, corners, degrees = _assemble(xy, points[:, 2], shifted, max(2.0, 5.0 * spacing), z_tolerance)
     rms = float(np.sqrt(np.mean(np.concatenate([r for r, _ in residual_fit]) ** 2)))
     return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
+
+
+def _bends(xy: np.ndarray, line: Line, floor: float) -> bool:
+    """Whether a parabola across the line explains its points better than the line (BIC, noise floor)."""
+    rel = xy[line.idx] - line.point
+    u, v = rel @ line.direction, rel @ line.normal
+    if len(u) < 6:
+        return False
+    coef, *_ = np.linalg.lstsq(np.column_stack([u * u, u, np.ones_like(u)]), v, rcond=None)
+    r = v - np.column_stack([u * u, u, np.ones_like(u)]) @ coef
+    return segment_bic(float(r @ r), len(u), 3, floor) < segment_bic(line.rss, len(u), 2, floor)
+
+
+def _curves_on(points: np.ndarray, segments: list | None, spline, sigma0, trim: int, densify: float) -> list:
+    """Segments of a CD-spline: a curve where the spline beats the line by the BIC, else a fitted line.
+
+    ``segments`` (if given) are the segments the spline was fitted on, in the
+    same order; their points are kept as they are.
+    """
+    xy = points[:, :2]
+    verts, corner_index = spline.ring(densify)
+    corner_index = list(corner_index) + [len(verts)]
+    closed = np.vstack([verts, verts[:1]])
+    out: list = []
+    for k, d in enumerate(spline.degrees):
+        if segments is not None:
+            idx = segments[k].idx
+        else:
+            idx = np.flatnonzero(spline.segment == k)
+            idx = idx[np.argsort(spline.t[idx], kind="stable")]
+        if len(idx) < 2:
+            continue
+        line = segments[k] if segments is not None and isinstance(segments[k], Line) else _fit(xy, idx, sigma0, trim)
+        if d >= 2:
+            res = spline.evaluate(spline.t[idx])[:, :2] - xy[idx]
+            rss = float(np.sum(res * res))
+            # curved only if the spline's extra control points pay for themselves over the line
+            floor = _floor(sigma0, idx)
+            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
+                out.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
+                continue
+        out.append(line)
+    return out
 
 
 def _segment_residual(xy: np.ndarray, s) -> tuple[np.ndarray, np.ndarray]:

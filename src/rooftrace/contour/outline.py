@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
-from rooftrace.contour.cdspline import CDSplineOptions
+from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
 from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.edge import EdgeContext
@@ -157,7 +157,8 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, o
         try:
             shape = line_outline(xyz, spline, spacing, noise_factor=reg.noise_factor, edge_factor=reg.edge_factor,
                                  directions=reg.directions, context=context, densify=options.cdspline.densify,
-                                 z_tolerance=options.corners.t_dist)
+                                 z_tolerance=options.corners.t_dist,
+                                 refit=lambda knots: iterative_cdspline(xyz, knots, options.cdspline))
         except ValueError:
             shape = None
         if shape is not None and _simple(shape.vertices):
