@@ -584,8 +584,18 @@ def _curves_on(points: np.ndarray, segments: list | None, spline, sigma0, trim: 
             rss = float(np.sum(res * res))
             # curved only if the spline's extra control points pay for themselves over the line
             floor = _floor(sigma0, idx)
-            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
-                out.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
+            curve = segment_bic(rss, len(idx), 2 * d, floor)
+            if curve < segment_bic(line.rss, len(idx), 2, floor):
+                # a corner the segmentation missed also bends the segment: two lines meeting at the
+                # point farthest from the chord are the other model a curve has to beat
+                chord = xy[idx[-1]] - xy[idx[0]]
+                off = np.abs(np.cross(chord, xy[idx] - xy[idx[0]])) / max(np.hypot(*chord), 1e-12)
+                cut = int(np.clip(np.argmax(off), 2, len(idx) - 2))
+                pair = [_fit(xy, idx[:cut], sigma0, trim), _fit(xy, idx[cut:], sigma0, trim)]
+                if len(idx) >= 8 and segment_bic(pair[0].rss + pair[1].rss, len(idx), 5, floor) <= curve:
+                    out.extend(pair)
+                else:
+                    out.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
                 continue
         out.append(line)
     return out
