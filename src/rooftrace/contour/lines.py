@@ -67,6 +67,8 @@ class Line:
         False when the direction was fixed to the dominant one (one parameter less).
     span : float
         Extent of its points along the line, metres.
+    noise2 : float
+        Mean squared noise floor σ0² of its points, m².
     """
 
     idx: np.ndarray
@@ -75,6 +77,7 @@ class Line:
     rss: float
     free: bool = True
     span: float = 0.0
+    noise2: float = 0.0
 
     @property
     def normal(self) -> np.ndarray:
@@ -186,22 +189,45 @@ def bridge_inlets(xy: np.ndarray, width: float) -> np.ndarray:
     return keep if keep.sum() >= 4 else np.ones(len(xy), bool)
 
 
-def _floor(sigma0, idx: np.ndarray) -> float:
-    """The noise floor of a set of ring points: σ0, or the RMS of per-point σ0 values."""
-    if np.ndim(sigma0) == 0:
-        return float(sigma0)
-    return float(np.sqrt(np.mean(sigma0[idx] ** 2)))
+def _noise(sigma0, n: int) -> np.ndarray:
+    """σ0 per ring point (a scalar is the same everywhere)."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n,)))
 
 
-def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0, trim: int) -> Line:
+def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0: np.ndarray, trim: int) -> Line:
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    cx, cy, dx, dy, rss, span, noise2 = _fit_segment(xy_ring, idx, sigma0, trim)
+    return Line(idx, np.array([cx, cy]), np.array([dx, dy]), rss, span=span, noise2=noise2)
+
+
+def _pooled(lines) -> float:
+    """The noise floor σ0 of the points of several lines together, metres."""
+    n = sum(len(ln.idx) for ln in lines)
+    return float(np.sqrt(sum(len(ln.idx) * ln.noise2 for ln in lines) / max(n, 1)))
+
+
+@njit(cache=True)
+def _fit_segment(xy, idx, sigma0, trim):  # pragma: no cover - compiled
     # corners of the alpha shape are cut off (few points reach into them): the points at either end
     # of a segment bend away from its wall, so long segments are fitted without them
-    core = idx[trim:len(idx) - trim] if len(idx) > 2 * trim + 4 else idx
-    c, d, _ = fit_line(xy_ring[core], _floor(sigma0, idx))
-    r = (xy_ring[idx] - c) @ np.array([d[1], -d[0]])
-    if np.dot(d, xy_ring[idx[-1]] - xy_ring[idx[0]]) < 0:
-        d = -d
-    return Line(idx, c, d, float(r @ r), span=float(np.ptp(xy_ring[idx] @ d)))
+    n = len(idx)
+    noise2 = 0.0
+    for i in idx:
+        noise2 += sigma0[i] * sigma0[i]
+    noise2 /= n
+    floor = np.sqrt(noise2)
+    core = idx[trim:n - trim] if n > 2 * trim + 4 else idx
+    cx, cy, dx, dy, _ = _fit_line(xy[core], floor, 0.0, 0.0, False, 3)
+    if dx * (xy[idx[n - 1], 0] - xy[idx[0], 0]) + dy * (xy[idx[n - 1], 1] - xy[idx[0], 1]) < 0:
+        dx, dy = -dx, -dy
+    rss = 0.0
+    lo, hi = np.inf, -np.inf
+    for i in idx:
+        r = (xy[i, 0] - cx) * dy - (xy[i, 1] - cy) * dx
+        rss += r * r
+        a = (xy[i, 0] - cx) * dx + (xy[i, 1] - cy) * dy
+        lo, hi = min(lo, a), max(hi, a)
+    return cx, cy, dx, dy, rss, hi - lo, noise2
 
 
 def _rss_to(xy: np.ndarray, lines: list[Line]) -> float:
@@ -223,13 +249,14 @@ def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float
     k = len(run)
     n = sum(len(t.idx) for t in touched)
     run_idx = np.concatenate([r.idx for r in run]) if run else np.zeros(0, np.int64)
-    floor = _floor(sigma0, np.concatenate([a.idx, run_idx, b.idx]))
+    floor = _pooled(touched)
     before = segment_bic(sum(t.rss for t in touched), n, sum(t.n_params + 1 for t in touched), floor)
     # one wall: a line through a, the run and b (or through a and b, the run counted against it)
     merged = _fit(xy, np.concatenate([a.idx, run_idx, b.idx]), sigma0, trim)
     if k:
         core = _fit(xy, np.concatenate([a.idx, b.idx]), sigma0, trim)
-        core = Line(merged.idx, core.point, core.direction, _rss_to(xy[merged.idx], [core]), span=merged.span)
+        core = Line(merged.idx, core.point, core.direction, _rss_to(xy[merged.idx], [core]), span=merged.span,
+                    noise2=merged.noise2)
         merged = min(merged, core, key=lambda ln: ln.rss)
     moves = [(segment_bic(merged.rss, n, 3, floor), [merged])]
     if k and _angle(a, b) >= _PARALLEL_DEG:
@@ -277,13 +304,13 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_ru
     lowers the BIC.
     """
     segments = list(segments)
+    sigma0 = _noise(sigma0, len(xy))
     scored: dict = {}  # moves by the segments they touch (compared by identity): most survive a move
     while sum(isinstance(s, Line) for s in segments) > 3:
         m = len(segments)
-        best = None
+        moves = []
         for start in range(m):
-            a = segments[start]
-            if not isinstance(a, Line):
+            if not isinstance(segments[start], Line):
                 continue
             for k in range(0, min(max_run, m - 4) + 1):
                 touched = tuple(segments[(start + j) % m] for j in range(k + 2))
@@ -292,16 +319,28 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_ru
                 if touched not in scored:
                     scored[touched] = _best_move(xy, touched, sigma0, trim)
                 gain, new = scored[touched]
-                if gain > 0 and (best is None or gain > best[0]):
-                    best = (gain, start, k, new)
-        if best is None:
+                if gain > 0:
+                    moves.append((gain, start, k, new))
+        if not moves:
             break
-        _, start, k, new = best
-        drop = {(start + j) % m for j in range(k + 2)}
+        # the best move, and with it every other move in gain order that touches none of the
+        # segments already changed: moves on disjoint segments do not change each other's BIC
+        moves.sort(key=lambda mv: -mv[0])
+        busy: set[int] = set()
+        chosen = {}
+        n_lines = sum(isinstance(s, Line) for s in segments)
+        for gain, start, k, new in moves:
+            span = {(start + j) % m for j in range(k + 2)}
+            if span & busy or n_lines - (k + 2) + len(new) < 3:
+                continue
+            busy |= {(start + j) % m for j in range(-1, k + 3)}  # and their neighbours: the next move's corners
+            chosen[start] = (k, new)
+            n_lines += len(new) - (k + 2)
+        drop = {(start + j) % m for start, (k, _) in chosen.items() for j in range(k + 2)}
         out = []
         for j in range(m):
-            if j == start:
-                out.extend(new)  # a run across the end of the list leaves them last: still cyclic order
+            if j in chosen:
+                out.extend(chosen[j][1])  # a run across the end of the list leaves them last: still cyclic
             elif j not in drop:
                 out.append(segments[j])
         segments = out
@@ -352,6 +391,7 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> 
     direction is re-estimated from the walls that took it, and the choice
     made again.
     """
+    sigma0 = _noise(sigma0, len(xy))
     theta = dominant_direction(lines)
     if theta is None:
         return lines, None
@@ -370,10 +410,10 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> 
                 continue
             d = np.array([np.cos(phi - delta), np.sin(phi - delta)])
             core = ln.idx[trim:len(ln.idx) - trim] if len(ln.idx) > 2 * trim + 4 else ln.idx
-            floor = _floor(sigma0, ln.idx)
+            floor = float(np.sqrt(free.noise2))
             c, d, _ = fit_line(xy[core], floor, direction=d)
             r = (xy[ln.idx] - c) @ np.array([d[1], -d[0]])
-            fixed = Line(ln.idx, c, d, float(r @ r), free=False, span=free.span)
+            fixed = Line(ln.idx, c, d, float(r @ r), free=False, span=free.span, noise2=free.noise2)
             n = len(ln.idx)
             if segment_bic(fixed.rss, n, 1, floor) <= segment_bic(free.rss, n, 2, floor):
                 out.append(fixed)
@@ -520,7 +560,7 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     if len(segments) < 3:
         raise ValueError("line_outline: fewer than 3 segments")
     segments = simplify_lines(xy, segments, sigma0, trim)
-    if refit is not None and any(isinstance(g, Line) and _bends(xy, g, _floor(sigma0, g.idx)) for g in segments):
+    if refit is not None and any(isinstance(g, Line) and _bends(xy, g) for g in segments):
         # merged lines can hide a gentle curve the first segmentation cut into straight pieces:
         # the spline is fitted again on the simplified segments, and the same test decides
         first = int(np.argmin([g.idx[0] for g in segments]))
@@ -538,7 +578,7 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         shift, ok = edge_shift(xy[s.idx], res, normal, spacing, context, edge_factor)
         measured += ok
         if isinstance(s, Line):
-            shifted.append(Line(s.idx, s.point + shift * s.normal, s.direction, s.rss, s.free, s.span))
+            shifted.append(Line(s.idx, s.point + shift * s.normal, s.direction, s.rss, s.free, s.span, s.noise2))
         else:
             v = s.vertices.copy()
             v[:, :2] += shift * _curve_normals(v)
@@ -548,8 +588,9 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
 
 
-def _bends(xy: np.ndarray, line: Line, floor: float) -> bool:
+def _bends(xy: np.ndarray, line: Line) -> bool:
     """Whether a parabola across the line explains its points better than the line (BIC, noise floor)."""
+    floor = float(np.sqrt(line.noise2))
     rel = xy[line.idx] - line.point
     u, v = rel @ line.direction, rel @ line.normal
     if len(u) < 6:
@@ -583,7 +624,7 @@ def _curves_on(points: np.ndarray, segments: list | None, spline, sigma0, trim: 
             res = spline.evaluate(spline.t[idx])[:, :2] - xy[idx]
             rss = float(np.sum(res * res))
             # curved only if the spline's extra control points pay for themselves over the line
-            floor = _floor(sigma0, idx)
+            floor = float(np.sqrt(line.noise2))
             curve = segment_bic(rss, len(idx), 2 * d, floor)
             if curve < segment_bic(line.rss, len(idx), 2, floor):
                 # a corner the segmentation missed also bends the segment: two lines meeting at the
