@@ -196,6 +196,8 @@ def _noise(sigma0, n: int) -> np.ndarray:
 
 def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0: np.ndarray, trim: int) -> Line:
     idx = np.ascontiguousarray(idx, dtype=np.int64)
+    if np.ndim(sigma0) == 0:
+        sigma0 = _noise(sigma0, len(xy_ring))
     cx, cy, dx, dy, rss, span, noise2 = _fit_segment(xy_ring, idx, sigma0, trim)
     return Line(idx, np.array([cx, cy]), np.array([dx, dy]), rss, span=span, noise2=noise2)
 
