@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 
 #: lines meeting at less than this angle (degrees) are parallel: a step (jog) joins them, not an intersection
 _PARALLEL_DEG = 15.0
+#: two lines splitting a curved segment turn by at least this (degrees) where the curve hides a corner
+_CORNER_DEG = 45.0
 #: a wall within this angle (degrees) of the dominant direction or its perpendicular is a candidate for it
 _DIRECTION_DEG = 20.0
 
@@ -623,19 +625,22 @@ def _curves_on(points: np.ndarray, segments: list | None, spline, sigma0, trim: 
             continue
         line = segments[k] if segments is not None and isinstance(segments[k], Line) else _fit(xy, idx, sigma0, trim)
         if d >= 2:
-            res = spline.evaluate(spline.t[idx])[:, :2] - xy[idx]
-            rss = float(np.sum(res * res))
+            # distances across the curve, as the lines' are (not to the point's spline parameter)
+            arc = closed[corner_index[k]:corner_index[k + 1] + 1]
+            res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
+            rss = float(res @ res)
             # curved only if the spline's extra control points pay for themselves over the line
             floor = float(np.sqrt(line.noise2))
-            curve = segment_bic(rss, len(idx), 2 * d, floor)
-            if curve < segment_bic(line.rss, len(idx), 2, floor):
+            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
                 # a corner the segmentation missed also bends the segment: two lines meeting at the
                 # point farthest from the chord are the other model a curve has to beat
                 chord = xy[idx[-1]] - xy[idx[0]]
                 off = np.abs(np.cross(chord, xy[idx] - xy[idx[0]])) / max(np.hypot(*chord), 1e-12)
                 cut = int(np.clip(np.argmax(off), 2, len(idx) - 2))
                 pair = [_fit(xy, idx[:cut], sigma0, trim), _fit(xy, idx[cut:], sigma0, trim)]
-                if len(idx) >= 8 and segment_bic(pair[0].rss + pair[1].rss, len(idx), 5, floor) <= curve:
+                # (a smooth curve cannot turn sharply: at a missed corner the two lines fit closer, and
+                # meet at an angle no arc piece between two Douglas-Peucker corners turns through)
+                if len(idx) >= 8 and pair[0].rss + pair[1].rss <= rss and _angle(*pair) >= _CORNER_DEG:
                     out.extend(pair)
                 else:
                     out.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
