@@ -1,4 +1,4 @@
-# The two commands a fresh machine needs: `make demo` and `make test`.
+# The two commands a fresh machine needs: `make demo` and `make test` (lint, tests, doctests).
 # Each creates (or updates) .venv from pyproject.toml with the pinned versions
 # in constraints.txt, then runs.
 
@@ -19,7 +19,9 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(VENV)/bin/rooftrace demo -o $(DEMO_DIR) --overwrite
 
+# ruff (configured in pyproject.toml), then the tests and the docstrings' doctests
 test: $(STAMP)
+	$(VENV)/bin/ruff check src tests benchmarks docs
 	$(PY) -m pytest -n 2 --dist loadfile -q
 
 clean:

@@ -37,6 +37,7 @@ import shapely
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
+import _data
 from rooftrace.image.candidates import CandidateOptions, extract_candidates
 from rooftrace.synth import SceneOptions, simulate_scene
 
@@ -142,7 +143,7 @@ def run_scene(seed: int, shift: float, variants: dict, density: float) -> dict:
     return result
 
 
-IGN = Path(__file__).resolve().parents[2] / "shared" / "data" / "ign_montpellier_lidarhd_bdortho"
+IGN = _data.DATA / "ign_montpellier_lidarhd_bdortho"
 
 
 def ign_buildings(xyz: np.ndarray, n: int = 4, min_points: int = 300):

@@ -21,12 +21,14 @@ from pathlib import Path
 import numpy as np
 import shapely
 
+import _data
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from rooftrace.io.vector import read_layer  # noqa: E402
 
-DELFT = ROOT.parent / "shared" / "data" / "3dfier_delft_ahn3_bgt"
+DELFT = _data.DATA / "3dfier_delft_ahn3_bgt"
 SHIFTS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4)
 
 

@@ -35,6 +35,7 @@ import numpy as np
 import pyogrio
 import shapely
 
+import _data
 from rooftrace.io.points import read_points
 from rooftrace.lidar.detect import detect_buildings
 from rooftrace.lidar.ground import grid_minimum_ground
@@ -174,7 +175,7 @@ def report_city3d(folder: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument("--data", default=str(_data.DATA))
     args = ap.parse_args()
     data = Path(args.data)
     delft = data / "3dfier_delft_ahn3_bgt"

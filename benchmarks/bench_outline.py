@@ -22,14 +22,16 @@ from pathlib import Path
 import numpy as np
 import shapely
 
+import _data
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from rooftrace.contour.alpha_shape import mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.contour.outline import OutlineOptions, outline_buildings, trace_outline  # noqa: E402
+from rooftrace.contour.spacing import building_mean_spacing as cloud_spacing  # noqa: E402
 from rooftrace.evaluate.metrics import area_scores, polis  # noqa: E402
 
-DATA = ROOT.parent / "shared" / "data"
+DATA = _data.DATA
 CITY3D = DATA / "city3d_ahn3_single_buildings" / "instances_002"
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 

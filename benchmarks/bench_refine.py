@@ -130,7 +130,7 @@ def emulated_roofs(scene, seed: int):
             continue
         tz = shapely.get_coordinates(geom, include_z=True)
 
-        def ring(r):
+        def ring(r, tz=tz):
             xy = np.asarray(r.coords)[:-1]
             z = tz[np.argmin(np.linalg.norm(tz[None, :, :2] - xy[:, None], axis=2), axis=1), 2]
             xy = xy + rng.normal(0, 0.35 * s, xy.shape)
@@ -193,7 +193,6 @@ def run_case(seed: int, density: float, perturb_px: float = 3.0, options: Refine
     with tempfile.TemporaryDirectory() as tmp:
         paths = write_scene(tmp, scene, perturbed_camera_px=perturb_px)
         cam_perturbed = read_camera(paths["camera_perturbed"])
-    t_sim = time.perf_counter() - t0
     polys, ids, planes, ridges, ridge_ids = lidar_roofs(scene, mode, seed)
     kw = dict(points_xyz=scene.cloud.xyz, planes=planes, building_ids=ids,
               ridge_building_ids=ridge_ids, options=options, seed=seed)

@@ -38,11 +38,9 @@ import time
 import numpy as np
 import shapely
 
-from pathlib import Path
-
+import _data
 from rooftrace.evaluate.metrics import ridge_scores
-from rooftrace.roof import RoofOptions, roof_structure
-from rooftrace.roof import models
+from rooftrace.roof import RoofOptions, models, roof_structure
 
 TARGETS = {"completeness": 0.95, "correctness": 0.95, "position_error": 0.15, "slope_error": 1.5}
 
@@ -108,7 +106,7 @@ def summarise(rows: list[dict]) -> dict:
     }
 
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = _data.DATA
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
 IGN = DATA / "ign_montpellier_lidarhd_bdortho"
 
@@ -234,7 +232,7 @@ def run_synth(seeds: list[int], density: float, use_outline: bool, options: Roof
         sc = simulate_scene(SceneOptions(seed=seed, density=density, image=False))
         cl, truth = sc.cloud, sc.truth
         tb, tc = cl.fields["truth_building_id"], cl.fields["truth_class"]
-        R, O, F = truth["ridges"], truth["roof_outlines"], truth["roof_faces"]
+        R, O, F = truth["ridges"], truth["roof_outlines"], truth["roof_faces"]  # noqa: E741
         rb, fb = np.asarray(R.attributes["building_id"]), np.asarray(F.attributes["building_id"])
         for g, bid, kind in zip(O.geometries, O.attributes["building_id"], O.attributes["kind"]):
             xyz = cl.xyz[(tb == bid) & (tc == 6)]

@@ -39,6 +39,8 @@ import numpy as np
 import psutil
 import shapely
 
+import _data
+
 ROOT = Path(__file__).resolve().parents[1]
 RT = str(Path(sys.executable).with_name("rooftrace"))
 
@@ -203,7 +205,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="what", required=True)
     d = sub.add_parser("delft")
-    d.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data")
+    d.add_argument("--data", type=Path, default=_data.DATA)
     b = sub.add_parser("block")
     b.add_argument("--block", type=Path, default=Path("/tmp/rooftrace-block"))
     b.add_argument("--tile-size", type=float, default=None, help="default: derived from the density, as run's")

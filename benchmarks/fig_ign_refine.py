@@ -21,16 +21,18 @@ from pathlib import Path
 
 import matplotlib
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import rasterio  # noqa: E402
-import shapely  # noqa: E402
+import _data
 
-from rooftrace.io.vector import read_layer  # noqa: E402
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import rasterio
+import shapely
+
+from rooftrace.io.vector import read_layer
 
 ROOT = Path(__file__).resolve().parents[1]
-IGN = ROOT.parent / "shared" / "data" / "ign_montpellier_lidarhd_bdortho"
+IGN = _data.DATA / "ign_montpellier_lidarhd_bdortho"
 RT = str(Path(sys.executable).with_name("rooftrace"))
 
 

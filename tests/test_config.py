@@ -63,10 +63,10 @@ def test_good_config_and_overrides(tmp_path):
 
 def test_false_switches_an_optional_test_off(tmp_path):
     """TOML has no null: `false` turns off a test that defaults to a value, `"auto"` derives one."""
-    from rooftrace.grouping.options import RefineOptions
     from rooftrace.lidar.classify import ClassifyOptions
     from rooftrace.lidar.detect import DetectOptions
     from rooftrace.lidar.segment import SegmentOptions
+    from rooftrace.refine.options import RefineOptions
 
     assert ClassifyOptions().max_penetration is not None and SegmentOptions().min_width is not None
     cfg = load_config(_cfg(tmp_path, "[classify]\nmax_penetration = false\nmax_patch_penetration = false\n"

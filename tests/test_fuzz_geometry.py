@@ -161,10 +161,11 @@ def test_run_pipeline_never_aborts_on_a_degenerate_building(kind):
 
 def test_an_unexpected_stage_error_in_one_building_does_not_stop_the_others(monkeypatch):
     """Qhull or LAPACK failing on one building gives it status 'failed: ...'; the others are outlined."""
+    from scipy.spatial import QhullError
+
     import rooftrace.contour.outline as outline_mod
     import rooftrace.roof as roof_mod
     from rooftrace.pipeline import run_pipeline
-    from scipy.spatial import QhullError
     from tests.cli.badfiles import scene_xyz
 
     real = outline_mod.trace_outline

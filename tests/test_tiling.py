@@ -27,7 +27,7 @@ from rooftrace.tiling import (
     tile_grid,
 )
 
-from .conftest import DELFT
+from .conftest import DELFT, need
 
 LAYERS = ("roof_outlines", "ridges", "roof_faces")
 # a 100 m synthetic block cut into 2 x 2 tiles of 50 m; outlier cells of
@@ -178,7 +178,7 @@ def test_the_default_tile_holds_about_three_million_points_with_its_buffer():
 
 
 def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
-    from rooftrace.tiling.tile import near_open_side
+    from rooftrace.tiling.split import near_open_side
 
     # a 100 x 10 m tile box in a 200 x 10 m input: only its east side has data beyond it
     boxes = np.array([[1.0, 5, 3, 6], [97, 5, 99, 6], [50, 8.5, 52, 9.5], [40, 2, 60, 4]])
@@ -350,9 +350,7 @@ def test_delft_tiles_detect_every_building_with_the_points_of_one_piece(tmp_path
     from rooftrace.lidar.detect import detect_buildings
     from rooftrace.tiling import _core, _extent, _load_cloud
 
-    files = [DELFT / "ahn3_cropped_1.laz", DELFT / "ahn3_cropped_2.laz"]
-    if not all(f.exists() for f in files):
-        pytest.skip(f"real data not available: {DELFT}")
+    files = [need(DELFT / "ahn3_cropped_1.laz"), need(DELFT / "ahn3_cropped_2.laz")]
     whole_cloud = read_points(files, "EPSG:28992")
     whole = detect_buildings(whole_cloud)
     index = split_to_tiles(files, tmp_path, TileOptions(tile_size=250.0, buffer=60.0))

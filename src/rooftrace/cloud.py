@@ -77,7 +77,7 @@ class PointCloud:
     def z(self) -> np.ndarray:
         return self.xyz[:, 2]
 
-    def subset(self, mask_or_index: np.ndarray) -> "PointCloud":
+    def subset(self, mask_or_index: np.ndarray) -> PointCloud:
         """Return the points selected by a boolean mask or an index array."""
         return PointCloud(
             self.xyz[mask_or_index],
@@ -88,7 +88,7 @@ class PointCloud:
         )
 
     @classmethod
-    def concatenate(cls, clouds: list["PointCloud"]) -> "PointCloud":
+    def concatenate(cls, clouds: list[PointCloud]) -> PointCloud:
         """Join clouds; fields missing in one cloud are filled with zeros."""
         if not clouds:
             raise ValueError("no point clouds to concatenate")

@@ -45,7 +45,7 @@ KNOWN_SECTIONS: set[str] = {"run"}
 #: modules whose import registers every section and its options dataclass(es)
 _STAGE_MODULES = (
     "rooftrace.lidar.detect", "rooftrace.contour.outline", "rooftrace.roof", "rooftrace.refine",
-    "rooftrace.grouping.building", "rooftrace.image.candidates", "rooftrace.image.corners",
+    "rooftrace.refine.building", "rooftrace.image.candidates", "rooftrace.image.corners",
     "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth",
 )
 

@@ -55,16 +55,15 @@ class RunResult:
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
+        from rooftrace.contour.buildings import outline_statuses
+
         det = self.detection
         classes, counts = np.unique(det.classification, return_counts=True)
-        statuses: dict[str, int] = {}
-        for o in self.outlines:
-            statuses[o.status] = statuses.get(o.status, 0) + 1
         return {
             "points": int(len(det.classification)),
             "classes": {int(c): int(n) for c, n in zip(classes, counts)},
             "buildings": len(self.outlines),
-            "outline_status": statuses,
+            "outline_status": outline_statuses(self.outlines),
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
             "refined": self.refined is not None,

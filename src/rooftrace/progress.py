@@ -7,7 +7,7 @@ supplies a rich progress bar on stderr, library users get the silent default.
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+from collections.abc import Iterator
 
 __all__ = ["Reporter", "NullReporter"]
 
@@ -25,7 +25,7 @@ class Reporter:
         pass
 
     @contextlib.contextmanager
-    def stage(self, name: str, total: float | None = None) -> Iterator["Reporter"]:
+    def stage(self, name: str, total: float | None = None) -> Iterator[Reporter]:
         self.start(name, total)
         try:
             yield self

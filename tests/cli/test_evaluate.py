@@ -11,6 +11,7 @@ import shapely
 from shapely import LineString, Polygon, box
 from shapely.affinity import translate
 
+from rooftrace.cli.app import rounded
 from rooftrace.cli.main import main
 from rooftrace.io.vector import Layer, write_layers
 from tests.conftest import DELFT, need
@@ -48,7 +49,12 @@ def test_evaluate_writes_metrics_and_report(tmp_path, files, capsys):
     assert m["completeness"] == pytest.approx(tp / sum(p.area for p in ref), abs=1e-9)
     assert m["correctness"] == pytest.approx(tp / sum(p.area for p in ext), abs=1e-9)
     assert m["polis_mean"] == pytest.approx(0.2, abs=1e-9) and m["hausdorff_mean"] == pytest.approx(0.4, abs=1e-9)
-    assert summary["polis_mean"] == m["polis_mean"]
+    assert summary["polis_mean"] == rounded(m["polis_mean"])  # the --json summary is rounded, metrics.json is not
+    # the shape scores: same rectangles shifted by 0.4 m, every corner found within 0.5 m
+    assert (m["corner_ratio_median"], m["corner_ratio_within_1_5"]) == (1.0, 1.0)
+    assert (m["corner_completeness"], m["corner_correctness"]) == (1.0, 1.0)
+    assert m["corner_offset_mean"] == pytest.approx(0.4) and summary["corner_offset_mean"] == rounded(m["corner_offset_mean"])
+    assert [b["n_corners_reference"] for b in m["buildings"]] == [4, 4, 4]
     assert [b["reference_ids"] for b in m["buildings"]] == [[10], [11], [12]]
     assert m["inputs"]["reference_layer"] == "roof_outlines" and m["inputs"]["extracted_layer"] == "ext"
     for key in ("completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean", "rmse_x",
@@ -60,7 +66,11 @@ def test_evaluate_writes_metrics_and_report(tmp_path, files, capsys):
     assert main(["evaluate", str(e), str(r), "-o", str(out), "--overwrite", "--no-merge-blocks"]) == 0
     out_text = capsys.readouterr().out
     assert "polis_mean" in out_text and "0.200 m" in out_text
+    assert "corner_ratio_median" in out_text and "1.00×" in out_text and "0.400 m" in out_text
     assert json.loads((out / "metrics.json").read_text())["matching_rule"] == "one-to-one"
+    # a tolerance below the shift: no corner matches
+    assert main(["evaluate", str(e), str(r), "-o", str(out), "--overwrite", "--corner-tolerance", "0.3", "-q"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["corner_completeness"] == 0.0
 
 
 def test_aoi_and_ridges(tmp_path):
@@ -89,6 +99,7 @@ def test_user_errors(tmp_path, files, capsys):
         ([str(lines), str(r)], "must be polygons"),
         ([str(e), str(r), "--layer", "nolayer"], "no layer"),
         ([str(e), str(r), "--min-overlap", "0"], "--min-overlap"),
+        ([str(e), str(r), "--corner-tolerance", "0"], "--corner-tolerance"),
         ([str(e), str(r), "--aoi", str(lines)], "must be polygons"),
     ]
     for k, (args, text) in enumerate(cases):

@@ -44,7 +44,7 @@ def test_sigkill_at_any_moment_leaves_no_partial_output(tmp_path):
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)
     finished = 0
-    for proc, delay, out, existing in runs:
+    for proc, _delay, out, existing in runs:
         code = proc.wait(timeout=120)
         assert code in (0, -signal.SIGKILL), proc.stderr.read().decode()
         finished += code == 0

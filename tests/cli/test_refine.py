@@ -7,8 +7,8 @@ from dataclasses import replace
 
 import numpy as np
 import pyproj
-import shapely
 import pytest
+import shapely
 from shapely.affinity import translate
 
 from rooftrace.cli.main import main
@@ -16,7 +16,7 @@ from rooftrace.evaluate.metrics import polis
 from rooftrace.io.camera import write_camera
 from rooftrace.io.raster import write_geotiff
 from rooftrace.io.vector import Layer, read_layer, write_layers
-from tests.test_refine import _perturb, _scene
+from tests.refine.test_buildings import _perturb, _scene
 
 RD = pyproj.CRS.from_user_input("EPSG:28992")
 

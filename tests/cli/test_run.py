@@ -4,12 +4,12 @@ import json
 
 import laspy
 import numpy as np
+import pyogrio
 import pytest
 
+from rooftrace.cli.app import rounded
 from rooftrace.cli.main import main
 from rooftrace.evaluate import evaluate
-import pyogrio
-
 from rooftrace.io.vector import read_layer
 
 
@@ -71,10 +71,29 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     for name in ("report.html", "metrics.json", "result.gpkg", "truth.gpkg", "points.laz", "image.tif"):
         assert (out / name).is_file(), name
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["f_score"] == summary["f_score"] > 0.85
+    assert rounded(metrics["f_score"]) == summary["f_score"] > 0.85  # the --json summary is rounded
     assert "polis_mean_lidar_only" in summary
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html
     # a second demo into the same folder needs --overwrite
     assert main(["demo", "-o", str(out), "--size", "50", "--density", "6"]) == 2
     assert "--overwrite" in capsys.readouterr().err
+    # --overwrite replaces the whole folder: nothing of the run with the image stays beside a --no-image one
+    before = {p.name for p in out.iterdir()}
+    assert main(["demo", "-o", str(out), "--size", "50", "--density", "6", "--seed", "2", "--no-image",
+                 "--overwrite", "-q"]) == 0
+    after = {p.name for p in out.iterdir()}
+    assert {"image.tif", "camera.json"} <= before and not after & {"image.tif", "camera.json"}
+    assert {"report.html", "metrics.json", "result.gpkg", "truth.gpkg", "points.laz", ".rooftrace-demo"} <= after
+    assert [p.name for p in tmp_path.iterdir()] == ["demo"]  # no temporary folder beside it
+
+
+def test_demo_overwrite_refuses_a_folder_that_is_not_a_demo(tmp_path, capsys):
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "notes.txt").write_text("keep me")
+    assert main(["demo", "-o", str(folder), "--size", "50", "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {folder}: not the output of an earlier demo") and err.count("\n") == 1
+    assert [p.name for p in folder.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]

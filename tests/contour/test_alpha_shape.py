@@ -1,10 +1,9 @@
 import numpy as np
 import pytest
 import shapely
-from scipy.spatial import Delaunay
 
-from rooftrace.contour.alpha_shape import (AlphaOptions, alpha_shape, boundary_edges, building_alpha, trace_rings,
-                                           delaunay_edges, point_spacing)
+from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape, boundary_edges, trace_rings
+from rooftrace.contour.spacing import building_alpha, delaunay_edges, point_spacing
 from rooftrace.errors import GeometryError
 from tests.contour.shapes import COURTYARD, L_SHAPE, RECT, sample
 

@@ -3,8 +3,7 @@ import pytest
 from scipy.interpolate import BSpline
 from scipy.special import comb
 
-from rooftrace.contour.cdspline import (CDSplineOptions, cd_basis, chord_parameters, fit_cdspline,
-                                        iterative_cdspline)
+from rooftrace.contour.cdspline import CDSplineOptions, cd_basis, chord_parameters, fit_cdspline, iterative_cdspline
 
 
 def _bernstein(u, d):

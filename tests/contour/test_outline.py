@@ -2,8 +2,14 @@ import numpy as np
 import pytest
 import shapely
 
-from rooftrace.contour.outline import (OutlineOptions, RoofOutline, connected_buildings, outline_buildings,
-                                       outlines_layer, trace_outline)
+from rooftrace.contour.outline import (
+    OutlineOptions,
+    RoofOutline,
+    connected_buildings,
+    outline_buildings,
+    outlines_layer,
+    trace_outline,
+)
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.evaluate.metrics import area_scores, polis
 from tests.contour.shapes import CIRCLE, COURTYARD, L_SHAPE, RECT, STADIUM, sample

@@ -7,7 +7,13 @@ import pytest
 
 from rooftrace.grouping.exact import brute_force_minimise
 from rooftrace.grouping.mrf import (
-    MRFOptions, build_problem, corner_term, length_term, orientation_term, proximity_term, rectangularity_term,
+    MRFOptions,
+    build_problem,
+    corner_term,
+    length_term,
+    orientation_term,
+    proximity_term,
+    rectangularity_term,
 )
 from tests.grouping.common import ring_pairs, synthetic_roof
 

@@ -9,8 +9,8 @@ import pytest
 
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.grouping.orientation import correct_orientation
-from rooftrace.refine import orientation_summary
 from rooftrace.image.camera import FrameCamera, OrthoCamera
+from rooftrace.refine import orientation_summary
 
 TRUE_EO = np.array([20.0, -10.0, 1008.0, 0.01, -0.008, 0.05])
 

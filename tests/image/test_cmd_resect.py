@@ -36,7 +36,7 @@ def test_resect_writes_an_oriented_camera(tmp_path, rng, capsys):
     # recovered within the precision it reports (X0 and phi correlate strongly over a small block)
     z = (cam.exterior - TRUE_EO) / np.sqrt(np.diag(cam.exterior_covariance))
     assert np.abs(z).max() < 4
-    assert summary["std"]["X0"] == pytest.approx(np.sqrt(cam.exterior_covariance[0, 0]))
+    assert summary["std"]["X0"] == pytest.approx(np.sqrt(cam.exterior_covariance[0, 0]), rel=1e-3)  # rounded in --json
     # no overwrite without --overwrite; plain text output otherwise
     assert main(["resect", str(gcps), "--camera-in", str(cam_in), "-o", str(out)]) == 2
     assert "exists" in capsys.readouterr().err

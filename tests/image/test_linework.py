@@ -1,8 +1,15 @@
 import numpy as np
 import pytest
 
-from rooftrace.image.linework import (angle_difference, filter_candidates, fit_segments, merge_collinear,
-                                      segment_angles, segment_lengths, select_canny_steger)
+from rooftrace.image.linework import (
+    angle_difference,
+    filter_candidates,
+    fit_segments,
+    merge_collinear,
+    segment_angles,
+    segment_lengths,
+    select_canny_steger,
+)
 
 
 def _seg(x0, y0, x1, y1):

@@ -1,8 +1,7 @@
 import numpy as np
 import pytest
 
-from rooftrace.image.steger import (hessian_line_points, line_position_bias, line_response, steger_lines,
-                                    steger_sigma)
+from rooftrace.image.steger import hessian_line_points, line_position_bias, line_response, steger_lines, steger_sigma
 
 
 def _profile_image(profile_fn, shape=(30, 61), ss=64):

@@ -3,11 +3,9 @@ import numpy as np
 import pyproj
 import pytest
 
-from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError, OutputExistsError
 from rooftrace.io.las import read_las, write_las
 from rooftrace.io.points import read_points
-
 from tests.conftest import DELFT, IGN, need
 
 

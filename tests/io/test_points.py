@@ -1,10 +1,9 @@
 import numpy as np
-import pytest
 import pyproj
+import pytest
 
 from rooftrace.errors import InputError
 from rooftrace.io.points import read_points
-
 from tests.conftest import CITY3D, need
 
 
@@ -16,7 +15,8 @@ def test_text_cloud_with_header_and_commas(tmp_path):
     assert cloud.crs.to_epsg() == 28992
 
 
-@pytest.mark.parametrize("content,match", [("1 2\n3 4\n", "3 numeric columns"), ("a b c\nd e f\n", "not a text point cloud"), ("", "empty")])
+@pytest.mark.parametrize("content,match", [("1 2\n3 4\n", "3 numeric columns"),
+                                           ("a b c\nd e f\n", "not a text point cloud"), ("", "empty")])
 def test_bad_text(tmp_path, content, match):
     p = tmp_path / "bad.xyz"
     p.write_text(content)

@@ -5,7 +5,7 @@ import pytest
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import make_options
 from rooftrace.errors import InputError
-from rooftrace.lidar.detect import DetectOptions, Detection, detect_buildings
+from rooftrace.lidar.detect import Detection, DetectOptions, detect_buildings
 from rooftrace.lidar.segment import SegmentOptions
 from tests.lidar.scenes import BUILDING, GROUND, TREE, f1, scene
 
@@ -125,8 +125,8 @@ def test_bad_clouds(xyz, crs, match):
 
 
 def test_real_ign_tile_against_its_classes():
-    from tests.conftest import IGN, need
     from rooftrace.io.points import read_points
+    from tests.conftest import IGN, need
 
     path = need(IGN / "test_data_77050_627755_LA93_IGN69.laz")
     cloud = read_points(path)

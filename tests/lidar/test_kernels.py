@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar._kernels import (GridKnn, dense_unique, lowest_per_group, lowest_point_per_group, pair_pull,
-                                     sort_by_bucket)
+from rooftrace.lidar._kernels import (
+    GridKnn,
+    dense_unique,
+    lowest_per_group,
+    lowest_point_per_group,
+    pair_pull,
+    sort_by_bucket,
+)
 
 
 def _clouds(rng):

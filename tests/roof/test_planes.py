@@ -5,7 +5,8 @@ import pytest
 
 from rooftrace.errors import GeometryError
 from rooftrace.roof import models
-from rooftrace.roof.planes import estimate_spacing, fit_planes, plane_height, point_normals, segment_planes
+from rooftrace.roof.planes import estimate_spacing, fit_planes, plane_height, point_normals
+from rooftrace.roof.segmentation import segment_planes
 
 
 def _truth_match(labels, face, K):
@@ -161,7 +162,7 @@ def test_two_neighbourhoods_equal_two_queries(n_side):
     also where distances tie (a grid with duplicated points)."""
     from scipy.spatial import cKDTree
 
-    from rooftrace.roof.planes import _two_neighbourhoods
+    from rooftrace.roof.segmentation import _two_neighbourhoods
 
     g = np.mgrid[0:n_side, 0:n_side, 0:2].reshape(3, -1).T.astype(float)
     rng = np.random.default_rng(2)

@@ -6,8 +6,9 @@ import shapely
 
 from rooftrace.roof import models
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.planes import estimate_spacing, plane_height, segment_planes
+from rooftrace.roof.planes import estimate_spacing, plane_height
 from rooftrace.roof.ridges import intersect_planes, intersection_lines, triple_point
+from rooftrace.roof.segmentation import segment_planes
 
 
 def _plane(p, q, r):
@@ -76,7 +77,7 @@ def test_noisy_hip_lines_within_tolerance(seed):
     model = models.hip(chimney=True, angle=33)
     _, _, _, _, lines = _segment_lines(model, noise=0.05, seed=seed)
     assert sorted(lines.kinds) == sorted(model.ridge_kind)
-    for g, k in zip(lines.lines, lines.kinds):
+    for g in lines.lines:
         # Every extracted line lies on a truth line of its kind: mean plan
         # distance of its points under 0.15 m.
         pts = shapely.segmentize(shapely.force_2d(g), 0.1)

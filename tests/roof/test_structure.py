@@ -9,8 +9,7 @@ import shapely.affinity
 from rooftrace.config import make_options
 from rooftrace.errors import InputError
 from rooftrace.io.vector import read_layer, write_layers
-from rooftrace.roof import RoofOptions, RoofStructure, faces_layer, ridges_layer, roof_structure
-from rooftrace.roof import models
+from rooftrace.roof import RoofOptions, RoofStructure, faces_layer, models, ridges_layer, roof_structure
 from rooftrace.roof.structure import point_hull
 
 

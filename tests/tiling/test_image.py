@@ -166,7 +166,7 @@ def test_resume_refuses_another_image_or_camera(scene, untiled, tmp_path, capsys
         m.setattr(rooftrace.tiling, "_execute", killed)
         with pytest.raises(Killed):
             run_tiled([scene / "points.laz"], out, TileOptions(tile_size=30.0, buffer=15.0),
-                      config={"outliers": {"cell": 15.0}}, image=scene / "image.tif", camera=camera, quiet=True)
+                      config={"outliers": {"cell": 15.0}}, image=scene / "image.tif", camera=camera)
     assert (Path(str(out) + ".parts") / "run.json").exists()
 
     other = tmp_path / "other.tif"

@@ -10,7 +10,7 @@ from typing import Any
 
 import typer
 
-__all__ = ["app", "setup_logging", "emit_json", "RichReporter", "reporter_for"]
+__all__ = ["app", "setup_logging", "emit_json", "rounded", "RichReporter", "reporter_for"]
 
 app = typer.Typer(
     name="rooftrace",
@@ -41,9 +41,44 @@ def setup_logging(quiet: bool = False, verbose: bool = False) -> None:
 
 
 def emit_json(summary: dict[str, Any]) -> None:
-    """One JSON object on stdout (the ``--json`` summary)."""
-    sys.stdout.write(json.dumps(summary, default=_jsonable, sort_keys=False) + "\n")
+    """One JSON object on stdout (the ``--json`` summary), its numbers :func:`rounded`."""
+    sys.stdout.write(json.dumps(rounded(summary), default=_jsonable, sort_keys=False) + "\n")
     sys.stdout.flush()
+
+
+def rounded(value: Any, decimals: int = 3, digits: int = 4) -> Any:
+    """Floats rounded to ``decimals`` places or ``digits`` significant digits, whichever keeps more.
+
+    Three decimals keep map coordinates to the millimetre (85000.001) and
+    seconds to the millisecond; four significant digits keep small
+    quantities (a height precision of 0.02252 m, a variance of 1.2e-08)
+    and drop binary noise (-0.5680000000000001 -> -0.568).  Containers are
+    rounded item by item; keys, ints, bools, None and strings pass through.
+
+    Examples
+    --------
+    >>> rounded({"z": -0.5680000000000001, "density": 14.073153819610031, "x": [85000.0012, 1.234567e-08]})
+    {'z': -0.568, 'density': 14.073, 'x': [85000.001, 1.235e-08]}
+    """
+    import math
+
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {k: rounded(v, decimals, digits) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [rounded(v, decimals, digits) for v in value]
+    if isinstance(value, np.ndarray):
+        return rounded(value.tolist(), decimals, digits)
+    if isinstance(value, (float, np.floating)) and not isinstance(value, bool):
+        value = float(value)
+        if value == 0.0 or not math.isfinite(value):
+            return value
+        places = max(decimals, digits - 1 - math.floor(math.log10(abs(value))))
+        return round(value, places)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
 
 
 def _jsonable(obj: Any) -> Any:

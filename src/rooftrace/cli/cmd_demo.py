@@ -13,6 +13,15 @@ from rooftrace.cli.app import app, emit_json, reporter_for, setup_logging
 
 log = logging.getLogger("rooftrace.cli")
 
+#: the file that marks a folder as a demo's output (so that --overwrite may replace it)
+MARKER = ".rooftrace-demo"
+
+
+def looks_like_demo(folder: Path) -> bool:
+    """True for a folder an earlier ``rooftrace demo`` wrote (its marker, or its four main files)."""
+    return (folder / MARKER).is_file() or all(
+        (folder / name).is_file() for name in ("report.html", "metrics.json", "truth.gpkg", "result.gpkg"))
+
 
 @app.command("demo")
 def demo(
@@ -31,9 +40,9 @@ def demo(
     import numpy as np
 
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import atomic_path
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
+    from rooftrace.io.atomic import atomic_path, replace_folder, temporary_path
     from rooftrace.io.vector import read_layer, write_layers
     from rooftrace.pipeline import run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
@@ -42,9 +51,20 @@ def demo(
     output = Path(output)
     if output.exists() and not output.is_dir():
         raise InputError(f"{output}: exists and is not a folder")
-    if output.exists() and any(output.iterdir()) and not overwrite:
-        raise InputError(f"{output}: folder is not empty; pass --overwrite to replace its files")
-    output.mkdir(parents=True, exist_ok=True)
+    if output.exists() and any(output.iterdir()):
+        if not overwrite:
+            raise InputError(f"{output}: folder is not empty; pass --overwrite to replace its files")
+        if not looks_like_demo(output):
+            raise InputError(f"{output}: not the output of an earlier demo (no {MARKER}, report.html, metrics.json, "
+                             "truth.gpkg and result.gpkg); --overwrite replaces only a demo folder, choose another "
+                             "-o or empty it yourself")
+    output.absolute().parent.mkdir(parents=True, exist_ok=True)
+    # built in a hidden sibling and swapped in at the end: no file of an earlier run stays (the image
+    # of a run with it beside a --no-image result), and a failure or an interrupt leaves the old folder
+    # (the command line removes the unfinished one: rooftrace.io.atomic.remove_temporary)
+    final, output = output, temporary_path(output, folder=True)
+    (output / MARKER).write_text("written by rooftrace demo; 'rooftrace demo --overwrite' may replace this folder\n",
+                                 encoding="utf-8")
 
     log.info("simulating a %.0f m scene at %.1f pts/m² (seed %d)", size, density, seed)
     scene = simulate_scene(SceneOptions(seed=seed, size=size, density=density, image=not no_image))
@@ -76,7 +96,9 @@ def demo(
                           points_xy=cloud.xyz[building, :2] if building is not None else None,
                           extracted_ridges=ridges, reference_ridges=reference_ridges,
                           title=f"rooftrace demo — synthetic scene, seed {seed}")
-    summary = {"output": str(output), "report": str(report), **{k: metrics.get(k) for k in (
+    replace_folder(output, final)
+    report = final / report.relative_to(output)
+    summary = {"output": str(final), "report": str(report), **{k: metrics.get(k) for k in (
         "completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean",
         "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched",
         "ridge_completeness", "ridge_correctness", "ridge_position_error")}}

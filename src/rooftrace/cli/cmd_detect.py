@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -35,11 +35,11 @@ def detect(
     output: opt.Output,
     crs: opt.Crs = None,
     config: opt.Config = None,
-    min_area: Annotated[Optional[float], typer.Option(
+    min_area: Annotated[float | None, typer.Option(
         "--min-area", min=0.01, help="Smallest building kept, Ar_min (m²); default 4.")] = None,
-    min_height: Annotated[Optional[float], typer.Option(
+    min_height: Annotated[float | None, typer.Option(
         "--min-height", min=0.0, help="Lowest height above ground of roof points (m); default 2.")] = None,
-    seed_cell: Annotated[Optional[float], typer.Option(
+    seed_cell: Annotated[float | None, typer.Option(
         "--seed-cell", min=1.0, help="Ground seed grid cell (m), larger than the largest building; default 30.")] = None,
     json_: opt.Json = False,
     overwrite: opt.Overwrite = False,

@@ -6,7 +6,7 @@ import json
 import logging
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -104,7 +104,9 @@ def _table(metrics: dict, out_dir: Path) -> None:
             text = "–"
         elif key.startswith("n_"):
             text = str(v)
-        elif key.startswith(("polis", "hausdorff", "rmse", "ridge_position")):
+        elif key == "corner_ratio_median":
+            text = f"{v:.2f}×"
+        elif key.startswith(("polis", "hausdorff", "rmse", "ridge_position", "corner_offset")):
             text = f"{v:.3f} m"
         elif "_area" in key:
             text = f"{v:,.1f} m²"
@@ -123,14 +125,14 @@ def evaluate_cmd(
                                               show_default=False)],
     reference: Annotated[Path, typer.Argument(help="Reference outlines, same formats.", show_default=False)],
     output: opt.OutputDir,
-    aoi: Annotated[Optional[Path], typer.Option("--aoi", help="Area of interest: a polygon vector file (first "
+    aoi: Annotated[Path | None, typer.Option("--aoi", help="Area of interest: a polygon vector file (first "
                                                 "layer). Areas are clipped to it; buildings whose interior "
                                                 "point lies inside it are evaluated.")] = None,
-    layer: Annotated[Optional[str], typer.Option("--layer", help="Layer of EXTRACTED (default: roof_outlines "
+    layer: Annotated[str | None, typer.Option("--layer", help="Layer of EXTRACTED (default: roof_outlines "
                                                  "if present, else the first).")] = None,
-    reference_layer: Annotated[Optional[str], typer.Option("--reference-layer", help="Layer of REFERENCE "
+    reference_layer: Annotated[str | None, typer.Option("--reference-layer", help="Layer of REFERENCE "
                                                            "(default: roof_outlines if present, else the first).")] = None,
-    points: Annotated[Optional[Path], typer.Option("--points", help="LAS/LAZ drawn under the outlines in the "
+    points: Annotated[Path | None, typer.Option("--points", help="LAS/LAZ drawn under the outlines in the "
                                                    "plots (class 6 when classified).")] = None,
     min_overlap: Annotated[float, typer.Option("--min-overlap",
                                                help="Overlap fraction (of the smaller polygon) to match, and of a "
@@ -145,13 +147,18 @@ def evaluate_cmd(
                                                       "boundary are reported apart (fp_area_boundary, "
                                                       "fn_area_boundary): where an outline runs, not which "
                                                       "buildings were found.", show_default=True)] = 1.0,
+    corner_tolerance: Annotated[float, typer.Option("--corner-tolerance",
+                                                    help="Largest distance (m) at which an extracted corner "
+                                                         "matches a reference corner (corner completeness, "
+                                                         "correctness and offset).", show_default=True)] = 0.5,
     crs: opt.Crs = None,
     json_: opt.Json = False,
     overwrite: opt.Overwrite = False,
     quiet: opt.Quiet = False,
 ) -> None:
     """Compare extracted roof outlines with reference ones: completeness, correctness, F-score, quality,
-    PoLiS, Hausdorff and RMSE, overall and per building; writes DIR/metrics.json and DIR/report.html."""
+    PoLiS, Hausdorff, RMSE and the corner scores of the shape (corner count ratio, corner completeness,
+    correctness and offset), overall and per building; writes DIR/metrics.json and DIR/report.html."""
     import shapely
 
     from rooftrace.errors import InputError, OutputExistsError
@@ -166,6 +173,8 @@ def evaluate_cmd(
         raise InputError(f"--ridge-buffer must be a positive distance in metres, got {ridge_buffer}")
     if not boundary_band > 0.0:
         raise InputError(f"--boundary-band must be a positive distance in metres, got {boundary_band}")
+    if not corner_tolerance > 0.0:
+        raise InputError(f"--corner-tolerance must be a positive distance in metres, got {corner_tolerance}")
     for path in (extracted, reference, aoi, points):
         if path is not None and not path.exists():
             raise InputError(f"{path}: no such file")
@@ -202,7 +211,8 @@ def evaluate_cmd(
 
     metrics = evaluate(ext, ref, aoi=area, extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
                        ridge_buffer=ridge_buffer, min_overlap=min_overlap, merge_blocks=not no_merge_blocks,
-                       extracted_ids=ext_ids, reference_ids=ref_ids, boundary_band=boundary_band)
+                       extracted_ids=ext_ids, reference_ids=ref_ids, boundary_band=boundary_band,
+                       corner_tolerance=corner_tolerance)
     metrics["inputs"] = {"extracted": str(extracted), "extracted_layer": ext_layer,
                          "reference": str(reference), "reference_layer": ref_layer,
                          "aoi": str(aoi) if aoi is not None else None,

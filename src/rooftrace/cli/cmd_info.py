@@ -48,9 +48,44 @@ def info(inputs: opt.Inputs, crs: opt.Crs = None, json_: opt.Json = False) -> No
     if json_:
         emit_json(summary)
         return
-    run = summary.pop("run")
-    for key, value in summary.items():
-        typer.echo(f"{key:>13}: {value}")
+    for line in describe(summary, file_crs):
+        typer.echo(line)
+
+
+def describe(summary: dict, crs=None) -> list[str]:
+    """The lines ``info`` prints: rounded numbers with their units.
+
+    Coordinates in the CRS's unit (metres for a projected CRS) to the
+    millimetre, the density to 0.01 pts/m².
+    """
+    from rooftrace.io.checks import horizontal_crs
+
+    unit = ""  # without a CRS the unit is unknown
+    h = horizontal_crs(crs)
+    if h is not None and h.axis_info:
+        unit = {"metre": "m", "degree": "°", "US survey foot": "US ft", "foot": "ft"}.get(
+            h.axis_info[0].unit_name, h.axis_info[0].unit_name)
+    z_unit = "m"
+    if crs is not None and crs.is_compound and crs.sub_crs_list[-1].axis_info:
+        z_unit = {"metre": "m"}.get(crs.sub_crs_list[-1].axis_info[0].unit_name, crs.sub_crs_list[-1].axis_info[0].unit_name)
+    b = summary["bounds"]
+    name = f" ({crs.name})" if crs is not None and crs.name and crs.name != summary["crs"] else ""
+    density = summary["density_bbox"]
+    classes = summary.get("classes")
+    rows = [
+        ("points", str(summary["points"])),
+        ("crs", f"{summary['crs'] or 'none (assign one with --crs)'}{name}"),
+        ("bounds", f"x {b[0]:.3f} to {b[3]:.3f}{' ' * bool(unit)}{unit}, y {b[1]:.3f} to {b[4]:.3f}"
+                   f"{' ' * bool(unit)}{unit}, z {b[2]:.3f} to {b[5]:.3f}{' ' * bool(unit)}{z_unit if unit else ''}"),
+        ("density_bbox", "none (no area)" if density is None else
+         f"{density:.2f} pts/{unit}² (over the bounding box)" if unit else
+         f"{density:.2f} points per square unit of the coordinates (over the bounding box; no CRS)"),
+        ("dimensions", ", ".join(summary["dimensions"])),
+    ]
+    if classes is not None:
+        rows.append(("classes", ", ".join(f"{k}: {v}" for k, v in classes.items())))
+    run = summary["run"]
     how = "in tiles" if run["tiled"] else "in one piece"
-    typer.echo(f"{'run':>13}: {how} (about {run['memory_one_piece_gib']:g} GiB in one piece; "
-               f"{run['memory_available_gib']:g} GiB available)")
+    rows.append(("run", f"{how} (about {run['memory_one_piece_gib']:.2f} GiB in one piece; "
+                        f"{run['memory_available_gib']:.2f} GiB available)"))
+    return [f"{key:>13}: {value}" for key, value in rows]

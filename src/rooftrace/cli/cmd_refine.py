@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -60,9 +60,9 @@ def refine(
     outlines_path: Annotated[Path, typer.Argument(metavar="OUTLINES", help="GeoPackage with a roof_outlines layer "
                                                   "(PolygonZ) and optionally ridges (LineStringZ).")],
     output: opt.Output,
-    image: Annotated[Path, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")],
-    camera: Annotated[Path, typer.Option("--camera", help="camera.json of the image.")],
-    points: Annotated[Optional[Path], typer.Option("--points", help="LiDAR points (LAS/LAZ): roof planes and the "
+    image: Annotated[Path, typer.Option("--image", help=opt.IMAGE_HELP, show_default=False)],
+    camera: opt.Camera = None,
+    points: Annotated[Path | None, typer.Option("--points", help="LiDAR points (LAS/LAZ): roof planes and the "
                                                    "terrain-line filter.")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
@@ -79,7 +79,7 @@ def refine(
     from rooftrace.config import load_config
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.camera import read_camera
+    from rooftrace.io.camera import image_camera
     from rooftrace.io.checks import check_image_covers, check_image_size, check_same_crs, require_metric_crs
     from rooftrace.io.raster import read_image
     from rooftrace.io.vector import Layer, read_layer, write_layers
@@ -103,15 +103,15 @@ def refine(
     ridges = read_layer(outlines_path, "ridges", missing_ok=True) or Layer([], {}, "LineStringZ")
     target_crs = pyproj.CRS.from_user_input(crs) if crs else outlines.crs
     require_metric_crs(target_crs, str(outlines_path))
-    cam = read_camera(camera, image)
-    check_same_crs(target_crs, cam.crs, str(outlines_path), str(camera))
+    cam = image_camera(image, camera)
+    check_same_crs(target_crs, cam.crs, str(outlines_path), str(camera or image))
     geoms = [g if g is None or shapely.has_z(g) else shapely.force_3d(g) for g in outlines.geometries]
     vertices = [shapely.get_coordinates(g, include_z=True) for g in geoms if g is not None and not g.is_empty]
     vertices = np.concatenate(vertices) if vertices else np.empty((0, 3))
     vertices[np.isnan(vertices[:, 2]), 2] = 0.0
     check_image_covers(cam, vertices, str(image))
     grey = read_image(image)
-    check_image_size(grey.shape[::-1], cam, str(image), str(camera))
+    check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
     if not len(vertices):
         # no buildings upstream is a result, not a mistake: pass the empty layers on
         log.warning("%s: the roof_outlines layer has no outlines; writing empty layers to %s", outlines_path, output)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -75,7 +75,7 @@ def resect(
     camera_in: Annotated[Path, typer.Option("--camera-in", help="camera.json with the interior orientation "
                                             "and a starting exterior orientation.", show_default=False)],
     output: opt.Output,
-    sigma_px: Annotated[Optional[float], typer.Option("--sigma-px", min=0.0, help="A-priori precision of the "
+    sigma_px: Annotated[float | None, typer.Option("--sigma-px", min=0.0, help="A-priori precision of the "
                                                       "GCP image measurements (px), used with only 3 GCPs. [default: 1]")] = None,
     config: opt.Config = None,
     json_: opt.Json = False,

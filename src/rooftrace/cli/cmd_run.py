@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
@@ -18,11 +18,11 @@ log = logging.getLogger("rooftrace.cli")
 def run(
     inputs: opt.Inputs,
     output: opt.Output,
-    image: Annotated[Optional[Path], typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).")] = None,
-    camera: Annotated[Optional[Path], typer.Option("--camera", help="camera.json of the image.")] = None,
-    alpha: Annotated[Optional[str], typer.Option("--alpha", help="Alpha-shape strategy: global, building or point.")] = None,
+    image: opt.Image = None,
+    camera: opt.Camera = None,
+    alpha: opt.Alpha = None,
     no_planes: Annotated[bool, typer.Option("--no-planes", help="Skip roof planes, ridges and faces.")] = False,
-    classified: Annotated[Optional[Path], typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
+    classified: Annotated[Path | None, typer.Option("--classified", help="Also write the classified points (LAZ).")] = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     seed: opt.Seed = 0,
@@ -36,12 +36,24 @@ def run(
     quiet: opt.Quiet = False,
 ) -> None:
     """Detect buildings, trace and regularise roof outlines, find roof planes and ridges;
-    refine them with the image when --image and --camera are given."""
+    refine them with the image when --image is given.
+
+    \b
+    An orthophoto (a georeferenced GeoTIFF) needs no camera file:
+      rooftrace run tile.laz --image ortho.tif -o roofs.gpkg
+    An aerial frame image needs its orientation:
+      rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
+    """
     from rooftrace.config import load_config
+    from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import check_output
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import (
-        check_image_covers, check_image_size, check_points, check_same_crs, require_metric_crs,
+        check_image_covers,
+        check_image_size,
+        check_points,
+        check_same_crs,
+        require_metric_crs,
     )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
@@ -49,10 +61,8 @@ def run(
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
-    if alpha is not None and alpha not in ("global", "building", "point"):
-        raise InputError(f"--alpha must be global, building or point, got {alpha!r}")
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     if output.suffix.lower() != ".gpkg":
         raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
     check_output(output, overwrite)
@@ -74,10 +84,14 @@ def run(
     if tiled and announced != 0:
         from rooftrace.tiling import TileOptions, run_tiled
 
-        summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                        scheduler=scheduler, resume=resume),
-                            crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                            seed=seed, overwrite=overwrite, quiet=quiet, classified=classified)
+        reporter = reporter_for(quiet)
+        try:
+            summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
+                                                            scheduler=scheduler, resume=resume),
+                                crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
+                                seed=seed, overwrite=overwrite, reporter=reporter, classified=classified)
+        finally:
+            reporter.close()
         if not summary.get("buildings"):
             log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
         if json_:
@@ -90,14 +104,14 @@ def run(
     check_points(cloud.xyz, where)
     grey = cam = None
     if image is not None:
-        from rooftrace.io.camera import read_camera
+        from rooftrace.io.camera import image_camera
         from rooftrace.io.raster import read_image
 
-        cam = read_camera(camera, image)
-        check_same_crs(cloud.crs, cam.crs, where, str(camera))
+        cam = image_camera(image, camera)
+        check_same_crs(cloud.crs, cam.crs, where, str(camera or image))
         check_image_covers(cam, cloud.xyz, str(image))
         grey = read_image(image)
-        check_image_size(grey.shape[::-1], cam, str(image), str(camera))
+        check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
 
     if len(cloud) == 0:
         _write_empty(output, classified, cloud, overwrite, json_, where)
@@ -108,19 +122,18 @@ def run(
                               seed=seed, reporter=reporter)
     finally:
         reporter.close()
-    write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():  # both outputs new, or both as they were
+        write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=result.detection.classification,
-                  building_id=result.detection.building_id, overwrite=overwrite)
+            write_las(classified, cloud, classification=result.detection.classification,
+                      building_id=result.detection.building_id, overwrite=overwrite)
     summary = {"output": str(output), **result.summary()}
-    failed = [o.building_id for o in result.outlines if o.polygon is None]
     if not result.outlines:
         log.warning("%s: no buildings found; the layers of %s are empty", where, output)
-    elif failed:
-        log.warning("%d of %d buildings have no outline (see their 'status' attribute): ids %s", len(failed),
-                    len(result.outlines), ", ".join(map(str, failed[:20])) + (" ..." if len(failed) > 20 else ""))
+    else:
+        warn_failed_outlines(result.outlines)
     if json_:
         emit_json(summary)
     else:
@@ -132,16 +145,18 @@ def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where:
     """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
     import numpy as np
 
+    from rooftrace.io.atomic import commit_together
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
     log.warning("%s: no points; writing empty layers to %s", where, output)
-    write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
-    if classified is not None:
-        from rooftrace.io.las import write_las
+    with commit_together():
+        write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+        if classified is not None:
+            from rooftrace.io.las import write_las
 
-        write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
-                  overwrite=overwrite)
+            write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
+                      overwrite=overwrite)
     if json_:
         emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
                    "ridges": 0, "roof_faces": 0, "refined": False})

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import numpy as np
 import typer
@@ -13,12 +13,12 @@ from rooftrace.cli.app import STATE, app, emit_json, reporter_for, setup_logging
 from rooftrace.config import load_config, make_options
 from rooftrace.errors import InputError, OutputExistsError
 
-Density = Annotated[Optional[float], typer.Option("--density", help="Mean ALS pulse density (pts/m²). [default: 12]")]
-Size = Annotated[Optional[float], typer.Option("--size", help="Side of the square scene (m). [default: 160]")]
-Gsd = Annotated[Optional[float], typer.Option("--gsd", help="Image ground sample distance (m/pixel). [default: 0.2]")]
-SeedOpt = Annotated[Optional[int], typer.Option("--seed", min=0, help="Seed of everything random (>= 0). [default: 1]")]
+Density = Annotated[float | None, typer.Option("--density", help="Mean ALS pulse density (pts/m²). [default: 12]")]
+Size = Annotated[float | None, typer.Option("--size", help="Side of the square scene (m). [default: 160]")]
+Gsd = Annotated[float | None, typer.Option("--gsd", help="Image ground sample distance (m/pixel). [default: 0.2]")]
+SeedOpt = Annotated[int | None, typer.Option("--seed", min=0, help="Seed of everything random (>= 0). [default: 1]")]
 Ortho = Annotated[bool, typer.Option("--orthophoto", help="Render a true orthophoto GeoTIFF instead of a frame image.")]
-Perturb = Annotated[Optional[float], typer.Option(
+Perturb = Annotated[float | None, typer.Option(
     "--perturb-camera", min=0.01, help="Also write camera_perturbed.json, off by about this many pixels.")]
 NoImage = Annotated[bool, typer.Option("--no-image", help="Skip the image (LiDAR and truth only).")]
 PowerLine = Annotated[bool, typer.Option("--power-line", help="Add a power line (ASPRS class 14 in the truth).")]

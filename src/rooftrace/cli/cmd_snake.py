@@ -57,9 +57,7 @@ def seed_groups(layer, where: str) -> list[tuple[object, np.ndarray]]:
 @app.command("snake")
 def snake(
     output: opt.Output,
-    image: Annotated[Path, typer.Option("--image", help="Aerial frame image or orthophoto (GeoTIFF).",
-                                        show_default=False)],
-    camera: Annotated[Path, typer.Option("--camera", help="camera.json of the image.", show_default=False)],
+    image: Annotated[Path, typer.Option("--image", help=opt.IMAGE_HELP, show_default=False)],
     points: Annotated[list[Path], typer.Option("--points", help="LiDAR point cloud(s) (LAS/LAZ); repeat for several.",
                                                show_default=False)],
     seeds: Annotated[Path, typer.Option("--seeds", help="Seed points near the roof corners (GeoJSON/GPKG): Point "
@@ -67,6 +65,7 @@ def snake(
                                         "'building' attribute.", show_default=False)],
     seeds_in_pixels: Annotated[bool, typer.Option("--seeds-in-pixels", help="Seed coordinates are image pixels "
                                                   "(column, row; centres at integers), not map coordinates.")] = False,
+    camera: opt.Camera = None,
     crs: opt.Crs = None,
     config: opt.Config = None,
     json_: opt.Json = False,
@@ -80,7 +79,7 @@ def snake(
     from rooftrace.config import load_config, make_options
     from rooftrace.errors import GeometryError, InputError
     from rooftrace.io.atomic import check_output
-    from rooftrace.io.camera import read_camera
+    from rooftrace.io.camera import image_camera
     from rooftrace.io.checks import check_points, check_same_crs, require_metric_crs
     from rooftrace.io.points import read_points
     from rooftrace.io.raster import read_image
@@ -99,11 +98,11 @@ def snake(
                          "give a cloud that covers the seeds")
     require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
     check_points(cloud.xyz, where)
-    cam = read_camera(camera, image)
-    check_same_crs(cloud.crs, getattr(cam, "crs", None), where, str(camera))
+    cam = image_camera(image, camera)
+    check_same_crs(cloud.crs, getattr(cam, "crs", None), where, str(camera or image))
     grey = read_image(image)
     if tuple(grey.shape[::-1]) != tuple(cam.image_size):
-        raise InputError(f"{image}: {grey.shape[1]} x {grey.shape[0]} px, but {camera} describes "
+        raise InputError(f"{image}: {grey.shape[1]} x {grey.shape[0]} px, but {camera or image} describes "
                          f"{cam.image_size[0]} x {cam.image_size[1]} px; give the camera file of this image")
     layer = read_layer(seeds)
     groups = seed_groups(layer, str(seeds))

@@ -18,20 +18,22 @@ try:  # typer >= 0.20 vendors click; older releases use the click package
 except ImportError:  # pragma: no cover
     from click import exceptions as click_exc
 
-from rooftrace.cli.app import STATE, app
-from rooftrace.errors import InputError
-
 # command modules register themselves on ``app`` when imported (one line each)
-from rooftrace.cli import cmd_info  # noqa: F401,E402
-from rooftrace.cli import cmd_detect  # noqa: F401,E402
-from rooftrace.cli import cmd_outline  # noqa: F401,E402
-from rooftrace.cli import cmd_evaluate  # noqa: F401,E402
-from rooftrace.cli import cmd_refine  # noqa: F401,E402
-from rooftrace.cli import cmd_simulate  # noqa: F401,E402
-from rooftrace.cli import cmd_resect  # noqa: F401,E402
-from rooftrace.cli import cmd_snake  # noqa: F401,E402
-from rooftrace.cli import cmd_run  # noqa: F401,E402
-from rooftrace.cli import cmd_demo  # noqa: F401,E402
+from rooftrace.cli import (
+    cmd_demo,  # noqa: F401
+    cmd_detect,  # noqa: F401
+    cmd_evaluate,  # noqa: F401
+    cmd_info,  # noqa: F401
+    cmd_outline,  # noqa: F401
+    cmd_refine,  # noqa: F401
+    cmd_resect,  # noqa: F401
+    cmd_run,  # noqa: F401
+    cmd_simulate,  # noqa: F401
+    cmd_snake,  # noqa: F401
+)
+from rooftrace.cli.app import STATE, app
+from rooftrace.cli.interrupt import interrupt_handlers
+from rooftrace.errors import InputError
 
 __all__ = ["main"]
 
@@ -63,12 +65,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit code (also used as the console script)."""
     logging.captureWarnings(True)
     try:
-        rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
+        with interrupt_handlers():
+            rv = app(args=argv, standalone_mode=False, prog_name="rooftrace")
         code = rv if isinstance(rv, int) else 0
     except typer.Exit as exc:
         code = exc.exit_code
-    except typer.Abort:
-        _error("aborted")
+    except typer.Abort:  # click's name for a KeyboardInterrupt (no handler installed, e.g. a thread)
+        _error("interrupted")
         code = 130
     except click_exc.UsageError as exc:
         if type(exc).__name__ == "NoArgsIsHelpError" and exc.ctx is not None:
@@ -94,6 +97,10 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         _error(f"internal failure ({type(exc).__name__}: {exc}); rerun with -v for the traceback and report it")
         code = 1
+    finally:
+        atomic = sys.modules.get("rooftrace.io.atomic")
+        if atomic is not None:  # a command that failed leaves no temporary file (a demo's unfinished folder)
+            atomic.remove_temporary()
     return _exit(code, argv)
 
 

@@ -17,17 +17,13 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.contour.spacing import building_alpha, delaunay_edges, mean_spacing, point_spacing
+from rooftrace.contour.spacing import building_alpha, delaunay_edges, point_spacing
 from rooftrace.errors import GeometryError
 
 __all__ = [
     "AlphaOptions",
     "AlphaShape",
     "alpha_shape",
-    "delaunay_edges",
-    "mean_spacing",
-    "building_alpha",
-    "point_spacing",
     "boundary_edges",
     "repair_boundary",
     "trace_rings",

@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import functools
 import logging
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import warnings
-
 from scipy import sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 

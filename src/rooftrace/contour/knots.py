@@ -119,9 +119,9 @@ def spline_outline(points: np.ndarray, corners: np.ndarray, candidates: np.ndarr
                     new = iterative_cdspline(points, trial, options)
                 except GeometryError:
                     continue
-                if sum(new.degrees) <= sum(fit.degrees) + 1 and new.sigma <= 1.02 * fit.sigma:
-                    if best is None or new.sigma < best[1].sigma:
-                        best = (trial, new)
+                if (sum(new.degrees) <= sum(fit.degrees) + 1 and new.sigma <= 1.02 * fit.sigma
+                        and (best is None or new.sigma < best[1].sigma)):
+                    best = (trial, new)
             if best is not None:
                 corners, fit = best
                 changed = True

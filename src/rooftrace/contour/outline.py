@@ -20,9 +20,9 @@ from threadpoolctl import threadpool_limits
 from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
 from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
-from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.edge import EdgeContext
+from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.lines import bridge_inlets, line_outline
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.contour.repair import make_valid_outline
@@ -73,7 +73,7 @@ class OutlineOptions:
     regularize: RegularizeOptions = field(default_factory=RegularizeOptions)
 
     @classmethod
-    def from_config(cls, config: dict | None = None, **overrides: Any) -> "OutlineOptions":
+    def from_config(cls, config: dict | None = None, **overrides: Any) -> OutlineOptions:
         """Options from a TOML config dict (tables ``surface``, ``alpha``, ``corners``, ``cdspline``, ``regularize``).
 
         Keyword overrides name a field of any of the five stages (e.g.

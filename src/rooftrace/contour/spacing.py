@@ -1,6 +1,7 @@
 """Delaunay edges and the spacings behind the three alpha strategies (thesis §4.2).
 
-S1 takes the cloud's mean spacing s_avg (:func:`mean_spacing`), S2 the
+S1 takes the cloud's mean spacing s_avg (from the detection, or the median
+of :func:`building_mean_spacing` over the buildings), S2 the
 building's mean Delaunay edge length without the long edges
 (:func:`building_alpha`, eq. 4.4), S3 a spacing per point from the edges
 inside a 3 m circle (:func:`point_spacing`, eq. 4.5).  S3 is our own numba
@@ -16,7 +17,7 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 
-__all__ = ["delaunay_edges", "mean_spacing", "building_alpha", "point_spacing"]
+__all__ = ["delaunay_edges", "building_mean_spacing", "building_alpha", "point_spacing"]
 
 
 def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,8 +57,35 @@ def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e, lengths
 
 
-def mean_spacing(xy: np.ndarray) -> float:
-    """s_avg: mean Delaunay edge length in metres (thesis §6.2), long edges (> mean + 3 std) removed."""
+def building_mean_spacing(xy: np.ndarray) -> float:
+    """Mean spacing of one building's points: the mean edge length of their whole Delaunay triangulation.
+
+    The thesis' s_avg (§6.2) for a few thousand points: every edge, long
+    edges (> mean + 3 std) removed.  A whole cloud's s_avg is
+    :func:`rooftrace.lidar.spacing.mean_spacing`, which samples blocks so
+    that its cost stays bounded.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Planimetric coordinates (m); duplicates are merged.
+
+    Returns
+    -------
+    float
+        Metres.
+
+    Raises
+    ------
+    GeometryError
+        Fewer than 3 distinct points, or all on one line.
+
+    Examples
+    --------
+    >>> g = np.stack(np.meshgrid(np.arange(5.0), np.arange(5.0)), -1).reshape(-1, 2)
+    >>> round(building_mean_spacing(g), 3)
+    1.118
+    """
     _, lengths = delaunay_edges(np.unique(np.asarray(xy, dtype=np.float64)[:, :2], axis=0))
     return building_alpha(lengths)
 

@@ -19,6 +19,7 @@ from rooftrace.evaluate.matching import coverage, match_buildings
 from rooftrace.evaluate.metrics import (
     area_scores,
     boundary_errors,
+    corner_metrics,
     hausdorff,
     polis,
     ridge_scores,
@@ -35,6 +36,8 @@ SUMMARY_KEYS = (
     "fn_area", "fp_area", "fn_area_boundary", "fp_area_boundary",
     "object_completeness", "object_correctness",
     "polis_mean", "polis_3d_mean", "hausdorff_mean", "rmse_x", "rmse_y", "rmse_z",
+    "corner_ratio_median", "corner_ratio_within_1_5", "corner_completeness", "corner_correctness",
+    "corner_offset_mean",
     "n_reference", "n_extracted", "n_matched",
     "ridge_completeness", "ridge_correctness", "ridge_position_error",
 )
@@ -96,7 +99,31 @@ def _jsonable(value):
     return value
 
 
-def _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels) -> dict:
+#: a unit's corner count is "within 1.5×" the reference's when their ratio lies in [1/1.5, 1.5]
+_CORNER_RATIO_BAND = 1.5
+
+
+def _corner_summary(matched: list[dict], tolerance: float) -> dict:
+    """Scene-level corner scores over the matched units: pooled counts, median ratio."""
+    n_e = sum(b["n_corners"] for b in matched)
+    n_r = sum(b["n_corners_reference"] for b in matched)
+    n_m = sum(b["n_corners_matched"] for b in matched)
+    ratios = np.asarray([b["corner_ratio"] for b in matched if b["n_corners_reference"] > 0], dtype=float)
+    offset = sum(b["corner_offset"] * b["n_corners_matched"] for b in matched if b["n_corners_matched"])
+    within = (ratios >= 1 / _CORNER_RATIO_BAND) & (ratios <= _CORNER_RATIO_BAND)
+    return {
+        "corner_ratio_median": float(np.median(ratios)) if len(ratios) else math.nan,
+        "corner_ratio_within_1_5": float(within.mean()) if len(ratios) else math.nan,
+        "corner_completeness": n_m / n_r if n_r else math.nan,
+        "corner_correctness": n_m / n_e if n_e else math.nan,
+        "corner_offset_mean": offset / n_m if n_m else math.nan,
+        "n_corners": n_e, "n_corners_reference": n_r, "n_corners_matched": n_m,
+        "corner_tolerance": float(tolerance),
+    }
+
+
+def _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels,
+                 corner_tolerance) -> dict:
     e = _unit_geometry(ext, e_ids) if e_ids else None
     r = _unit_geometry(ref, r_ids) if r_ids else None
     status = "matched" if e_ids and r_ids else ("missed" if r_ids else "false_positive")
@@ -123,6 +150,7 @@ def _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_
         "rmse_x": float(rmse[0]), "rmse_y": float(rmse[1]), "rmse_z": float(rmse[2]),
         "n_reference_vertices": int(len(res)),
     })
+    rec.update(corner_metrics(e, r, corner_tolerance))
     return rec, res
 
 
@@ -139,6 +167,7 @@ def evaluate(
     extracted_ids: Sequence | None = None,
     reference_ids: Sequence | None = None,
     boundary_band: float = 1.0,
+    corner_tolerance: float = 0.5,
 ) -> dict:
     """Evaluate extracted roof outlines against reference ones (thesis §3.5).
 
@@ -163,6 +192,12 @@ def evaluate(
         :mod:`rooftrace.evaluate.matching`); False for one-to-one matching.
     extracted_ids, reference_ids : sequence, optional
         Labels written into the per-building records (default: indices).
+    boundary_band : float, default 1.0
+        Half-width (m) of the band along the reference boundary in which FP
+        and FN areas are also reported apart.
+    corner_tolerance : float, default 0.5
+        Largest distance (m) of a matched pair of corners (see
+        :func:`~rooftrace.evaluate.metrics.corner_metrics`).
 
     Returns
     -------
@@ -180,13 +215,22 @@ def evaluate(
         ``object_correctness``; means over matched units ``polis_mean``,
         ``polis_median``, ``polis_3d_mean``, ``hausdorff_mean``,
         ``hausdorff_max``; ``rmse_x``, ``rmse_y``, ``rmse_z`` pooled over the
-        reference vertices of all matched units (m); ``matching_rule`` and
+        reference vertices of all matched units (m); shape scores over the
+        matched units: ``corner_ratio_median`` (median of extracted over
+        reference corner counts), ``corner_ratio_within_1_5`` (share of units
+        whose ratio lies in [1/1.5, 1.5]), ``corner_completeness`` and
+        ``corner_correctness`` (matched corners over all reference /
+        extracted corners, pooled), ``corner_offset_mean`` (mean distance of
+        the matched corner pairs, m), the pooled counts ``n_corners``,
+        ``n_corners_reference``, ``n_corners_matched`` and
+        ``corner_tolerance``; ``matching_rule`` and
         ``matching_rule_description``; the ridge keys of
         :func:`~rooftrace.evaluate.metrics.ridge_scores` when ridges are
         given; and ``buildings``, one record per unit (matched, missed or
         false_positive) with its ids (``reference_ids``, ``extracted_ids``:
         the given labels; ``reference_index``, ``extracted_index``: positions
-        in the input sequences) and metrics.
+        in the input sequences) and metrics, among them the corner scores
+        of :func:`~rooftrace.evaluate.metrics.corner_metrics`.
 
     Examples
     --------
@@ -195,6 +239,8 @@ def evaluate(
     >>> m["completeness"], m["polis_mean"], m["n_matched"]
     (0.9, 0.5, 1)
     """
+    if not corner_tolerance > 0:
+        raise ValueError(f"corner_tolerance must be > 0, not {corner_tolerance}")
     ext_all = list(extracted)
     ref_all = list(reference)
     ext_labels = list(extracted_ids) if extracted_ids is not None else list(range(len(ext_all)))
@@ -229,7 +275,8 @@ def evaluate(
 
     buildings, residuals = [], []
     for k, (e_ids, r_ids) in enumerate(m.units):
-        rec, res = _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels)
+        rec, res = _unit_record(k, e_ids, r_ids, ext, ref, ext_keep, ref_keep, ext_labels, ref_labels,
+                                corner_tolerance)
         buildings.append(rec)
         if rec["status"] == "matched":
             residuals.append(res)
@@ -253,6 +300,7 @@ def evaluate(
         "hausdorff_max": max((b["hausdorff"] for b in matched), default=math.nan),
         "rmse_x": float(rmse[0]), "rmse_y": float(rmse[1]), "rmse_z": float(rmse[2]),
         "n_rmse_vertices": int(len(res)),
+        **_corner_summary(matched, corner_tolerance),
         "n_reference": int(len(ref)),
         "n_extracted": int(len(ext)),
         "n_matched": len(matched),

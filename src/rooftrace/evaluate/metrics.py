@@ -2,7 +2,8 @@
 
 Area-based scores (completeness, correctness, F-score, ISPRS quality),
 line-based distances (Hausdorff, PoLiS in 2D and 3D, RMSE of reference
-vertices in x, y, z) and buffer scores of ridge lines.
+vertices in x, y, z), corner scores of the shape (count ratio, completeness,
+correctness, offset) and buffer scores of ridge lines.
 
 Conventions shared by every function:
 
@@ -12,7 +13,8 @@ Conventions shared by every function:
 * a ``None`` or empty geometry gives NaN (shapely's convention), never an error.
 
 Rings, segments and the closest-point search live in
-:mod:`rooftrace.evaluate._geometry`.
+:mod:`rooftrace.evaluate._geometry`; what a corner is, in
+:mod:`rooftrace.evaluate.corners`.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from rooftrace.evaluate._geometry import _closest_on_segments, _polygonal, ring_segments, ring_vertices
+from rooftrace.evaluate.corners import COLLINEAR_TOLERANCE, CURVE_TURN, match_corners, outline_corners
 
 __all__ = [
     "polis",
@@ -35,6 +38,8 @@ __all__ = [
     "area_scores",
     "boundary_errors",
     "ridge_scores",
+    "corner_metrics",
+    "outline_corners",
     "ring_vertices",
     "ring_segments",
 ]
@@ -269,6 +274,66 @@ def area_scores(extracted, reference) -> dict[str, float]:
         "tp": tp,
         "fn": fn,
         "fp": fp,
+    }
+
+
+def corner_metrics(extracted, reference, tolerance: float = 0.5, *,
+                   collinear_tolerance: float = COLLINEAR_TOLERANCE,
+                   curve_turn: float = CURVE_TURN) -> dict:
+    """Corner scores of an extracted outline against its reference: is it the same shape?
+
+    Corners are those of :func:`~rooftrace.evaluate.corners.outline_corners`
+    (a vertex where the ring turns, collinear vertices within 2 cm and
+    vertices along curves set aside). They are matched one-to-one within
+    ``tolerance``: the most pairs, then the smallest total distance.
+
+    Parameters
+    ----------
+    extracted, reference : Polygon, MultiPolygon, a sequence of them, or None
+    tolerance : float, default 0.5
+        Largest distance of a matched corner pair (CRS units, m).
+    collinear_tolerance, curve_turn : float
+        Passed to :func:`~rooftrace.evaluate.corners.outline_corners` (m, degrees).
+
+    Returns
+    -------
+    dict
+        ``n_corners``, ``n_corners_reference``, ``n_corners_matched``
+        (counts); ``corner_ratio`` n_corners / n_corners_reference (1 is the
+        reference's count, 2 twice as many corners; NaN when the reference
+        has none); ``corner_completeness`` the share of reference corners
+        matched and ``corner_correctness`` the share of extracted corners
+        matched (0–1; NaN when that side has no corner);
+        ``corner_offset`` the mean distance of the matched pairs (m; NaN
+        without pairs).
+
+    Examples
+    --------
+    A rectangle against an L-shaped reference sharing three of its corners:
+
+    >>> from shapely import Polygon, box
+    >>> ell = Polygon([(0, 0), (10, 0), (10, 4), (6, 4), (6, 8), (0, 8)])
+    >>> c = corner_metrics(box(0, 0, 10, 8), ell)
+    >>> c["n_corners"], c["n_corners_reference"], c["corner_completeness"], c["corner_correctness"]
+    (4, 6, 0.5, 0.75)
+    """
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)):
+        raise TypeError(f"tolerance must be a number, not {tolerance!r}")
+    if not tolerance > 0:
+        raise ValueError(f"tolerance must be > 0, not {tolerance}")
+    opts = {"collinear_tolerance": collinear_tolerance, "curve_turn": curve_turn}
+    ce = outline_corners(_polygonal(extracted, "extracted"), **opts)
+    cr = outline_corners(_polygonal(reference, "reference"), **opts)
+    pairs, dist = match_corners(ce, cr, float(tolerance))
+    ne, nr, nm = len(ce), len(cr), len(pairs)
+    return {
+        "n_corners": ne,
+        "n_corners_reference": nr,
+        "n_corners_matched": nm,
+        "corner_ratio": _ratio(ne, nr),
+        "corner_completeness": _ratio(nm, nr),
+        "corner_correctness": _ratio(nm, ne),
+        "corner_offset": float(dist.mean()) if nm else math.nan,
     }
 
 

@@ -43,6 +43,11 @@ _SUMMARY = (
     ("rmse_x", "RMSE x", "m"),
     ("rmse_y", "RMSE y", "m"),
     ("rmse_z", "RMSE z", "m"),
+    ("corner_ratio_median", "Corner count ratio, median (extracted / reference)", "x"),
+    ("corner_ratio_within_1_5", "Units with a corner ratio within 1.5×", "%"),
+    ("corner_completeness", "Corner completeness", "%"),
+    ("corner_correctness", "Corner correctness", "%"),
+    ("corner_offset_mean", "Corner offset, mean", "m"),
     ("n_reference", "Reference buildings", ""),
     ("n_extracted", "Extracted buildings", ""),
     ("n_matched", "Matched units", ""),
@@ -58,6 +63,9 @@ _COLUMNS = (("unit", "unit", ""), ("status", "status", ""), ("reference_ids", "r
             ("extracted_ids", "extracted", ""), ("area_reference", "area ref (m²)", "a"),
             ("completeness", "compl.", "%"), ("correctness", "corr.", "%"), ("quality", "quality", "%"),
             ("polis", "PoLiS (m)", "m"), ("polis_3d", "PoLiS 3D (m)", "m"), ("hausdorff", "Hausdorff (m)", "m"),
+            ("n_corners", "corners", ""), ("n_corners_reference", "ref. corners", ""),
+            ("corner_completeness", "corner compl.", "%"), ("corner_correctness", "corner corr.", "%"),
+            ("corner_offset", "corner offset (m)", "m"),
             ("rmse_x", "RMSE x", "m"), ("rmse_y", "RMSE y", "m"), ("rmse_z", "RMSE z", "m"))
 _MAX_ROWS = 500
 _CSS = """
@@ -81,6 +89,8 @@ def _fmt(value, unit: str) -> str:
         return f"{100 * value:.1f}\u00a0%"
     if unit == "m":
         return f"{value:.3f}"
+    if unit == "x":
+        return f"{value:.2f}×"
     if unit == "a":
         return f"{value:.1f}"
     return html.escape(str(value))
@@ -124,7 +134,9 @@ def report_html(metrics: dict, images: dict[str, bytes], *, title: str = "rooftr
 <body>
 <h1>{esc(title)}</h1>
 <p class="note">Area scores after Wiedemann et al. (1998) and the ISPRS quality; PoLiS after Avbelj et al. (2015);
-RMSE of reference vertices against their closest points on the extracted outline. Matching rule: {rule}.
+RMSE of reference vertices against their closest points on the extracted outline. Corners are the vertices
+where an outline turns (vertices within 2&nbsp;cm of their neighbours' line and vertices along curves set aside),
+matched one-to-one within {_fmt(metrics.get("corner_tolerance"), "m")}&nbsp;m. Matching rule: {rule}.
 {f"Area of interest: {aoi:.1f} m²." if aoi else ""}</p>
 <h2>Summary</h2>
 <table class="summary">{rows}</table>

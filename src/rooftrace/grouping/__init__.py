@@ -4,7 +4,11 @@ from rooftrace.grouping.exact import ExactResult, brute_force_minimise, exact_mi
 from rooftrace.grouping.ga import GAOptions, GAResult, genetic_minimise
 from rooftrace.grouping.mrf import GroupingProblem, MRFOptions, build_problem
 from rooftrace.grouping.reconstruct import (
-    ImageReconstruction, junction_planes, reconstruct_image, ridge_lines, to_object_space,
+    ImageReconstruction,
+    junction_planes,
+    reconstruct_image,
+    ridge_lines,
+    to_object_space,
 )
 from rooftrace.grouping.topology import Junction, RoofTopology, roof_topology
 

@@ -142,7 +142,7 @@ def exact_minimise(problem: GroupingProblem, max_table: int = 2**22) -> ExactRes
             factors.append((others, reduced))
         else:
             constant += float(reduced)
-    for scope, table in factors:  # only constants can remain
+    for _scope, table in factors:  # only constants can remain
         constant += float(np.sum(table))
     choice = np.zeros(m, int)
     for v, others, arg in reversed(trace):

@@ -259,7 +259,7 @@ def build_problem(references: np.ndarray, candidates, pairs: np.ndarray, corners
     penalties : sequence of M ndarrays (K_s,), optional
         Extra unary energy per candidate, added as is (not one of seed
         000's terms: e.g. the wall-foot penalty of
-        :class:`~rooftrace.grouping.building.RefineOptions`).
+        :class:`~rooftrace.refine.building.RefineOptions`).
 
     Returns
     -------

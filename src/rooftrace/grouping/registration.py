@@ -66,7 +66,7 @@ class RoofShift:
     offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
     normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
-    def shrunk(self, prior_variance: float) -> "RoofShift":
+    def shrunk(self, prior_variance: float) -> RoofShift:
         """The translation weighted against a prior of zero with ``prior_variance`` (px², per axis).
 
         ``t · σ_C² / (σ_C² + σ_t²)``: with a camera whose orientation is

@@ -71,7 +71,7 @@ class FrameCamera:
     def rotation(self) -> np.ndarray:
         return rotation_matrix(*np.asarray(self.exterior[3:6], float))
 
-    def with_exterior(self, exterior: np.ndarray, covariance: np.ndarray | None = None) -> "FrameCamera":
+    def with_exterior(self, exterior: np.ndarray, covariance: np.ndarray | None = None) -> FrameCamera:
         """Copy with another exterior orientation (and covariance)."""
         cov = self.exterior_covariance if covariance is None else covariance
         return replace(self, exterior=np.asarray(exterior, float), exterior_covariance=cov)

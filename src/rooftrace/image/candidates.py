@@ -26,21 +26,26 @@ Pixel coordinates are ``(col, row)`` with pixel centres at integers.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
 from rooftrace.config import KNOWN_SECTIONS
-from rooftrace.image.edges import canny_edges, link_chains
-from rooftrace.image.linework import fit_segments, filter_candidates, merge_collinear, select_canny_steger
-from rooftrace.image.edges import noise_sigma
+from rooftrace.image.edges import canny_edges, link_chains, noise_sigma
+from rooftrace.image.linework import filter_candidates, fit_segments, merge_collinear, select_canny_steger
+from rooftrace.image.projection import (
+    clip_to_window,
+    in_window,
+    line_windows,
+    project_lines,
+    window_frame,
+    window_slices,
+)
 from rooftrace.image.refit import refit_lines
-from rooftrace.image.walls import mark_wall_lines
-from rooftrace.image.projection import (clip_to_window, in_window, line_windows, project_lines, window_frame,
-                                        window_slices)
 from rooftrace.image.steger import steger_lines, steger_sigma
 from rooftrace.image.terrain import PixelHeights, sample_segments, terrain_lines
+from rooftrace.image.walls import mark_wall_lines
 
 __all__ = ["CandidateOptions", "LineCandidates", "extract_candidates", "KINDS"]
 

@@ -141,7 +141,7 @@ def line_resection(camera, lines3d, image_lines, *, weights=None, use_prior: boo
     eo = eo0.copy()
     r = residual(eo)
     converged = False
-    for it in range(1, opt.max_iterations + 1):
+    for it in range(1, opt.max_iterations + 1):  # noqa: B007 (the count is reported after the loop)
         a = jacobian(eo)
         if not (np.isfinite(a).all() and np.isfinite(r).all()):
             break

@@ -19,7 +19,7 @@ References
 from __future__ import annotations
 
 import logging
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -336,7 +336,7 @@ def merge_collinear(
     segments : ndarray of shape (K', 2, 2)
     sources : list of str
     """
-    seg = [s for s in _as_segments(segments)]
+    seg = list(_as_segments(segments))
     src = list(sources) if sources is not None else ["?"] * len(seg)
     if len(src) != len(seg):
         raise ValueError(f"sources has {len(src)} entries for {len(seg)} segments")

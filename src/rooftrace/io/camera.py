@@ -3,6 +3,8 @@
 ``"type": "frame"`` gives a :class:`~rooftrace.image.camera.FrameCamera`;
 ``"type": "orthophoto"`` gives an :class:`~rooftrace.image.camera.OrthoCamera`
 whose affine transform comes from the GeoTIFF itself (pass ``image``).
+:func:`image_camera` is what the commands call: a georeferenced orthophoto
+needs no camera file at all.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from rooftrace.errors import InputError
 from rooftrace.image.camera import FrameCamera, OrthoCamera
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["read_camera", "write_camera", "camera_to_dict", "camera_from_dict"]
+__all__ = ["read_camera", "image_camera", "write_camera", "camera_to_dict", "camera_from_dict"]
 
 _FORMAT_HINT = "fix the camera file (its format is in docs/errors.md, 'Camera file')"
 _EXTERIOR = ("X0", "Y0", "Z0", "omega_deg", "phi_deg", "kappa_deg")
@@ -127,6 +129,40 @@ def read_camera(path: str | os.PathLike, image: str | os.PathLike | None = None)
         if not str(exc).startswith(str(path)):  # an image error (orthophoto) names its own file first
             raise
         raise InputError(f"{exc}; {_FORMAT_HINT}") from None
+
+
+def image_camera(image: str | os.PathLike, camera: str | os.PathLike | None = None):
+    """The camera of ``--image``: read from ``camera`` when given, else the orthophoto's georeference.
+
+    Parameters
+    ----------
+    image : path-like
+        The aerial frame image or the orthophoto (GeoTIFF).
+    camera : path-like, optional
+        Its ``camera.json``.  Without it the image must be a georeferenced
+        orthophoto: its affine transform and CRS are the camera
+        (``{"type": "orthophoto"}`` in a file gives the same).
+
+    Returns
+    -------
+    FrameCamera or OrthoCamera
+
+    Raises
+    ------
+    InputError
+        No camera file and an image without georeference (a frame image),
+        or a camera file that does not fit the image.
+    """
+    if camera is not None:
+        return read_camera(camera, image)
+    from rooftrace.io.raster import read_raster_meta
+
+    meta = read_raster_meta(image)
+    if meta.transform is None:
+        raise InputError(f"{image}: no georeference, so the image needs its orientation: give --camera camera.json "
+                         "(a frame camera, see docs/image.md), or give a georeferenced orthophoto (GeoTIFF), "
+                         "which needs no camera file")
+    return OrthoCamera(meta.size, meta.transform, meta.crs, 0.0)
 
 
 def camera_to_dict(camera: FrameCamera) -> dict:

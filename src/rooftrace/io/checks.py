@@ -13,12 +13,30 @@ import numpy as np
 
 from rooftrace.errors import InputError
 
-__all__ = ["require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size", "check_points"]
+__all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
+           "check_points"]
 
 #: a cloud narrower than this across its main direction (metres) is a line, not an area
 _MIN_WIDTH = 0.01
 
 log = logging.getLogger(__name__)
+
+
+def horizontal_crs(crs):
+    """The horizontal part of a CRS: the first member of a compound CRS (e.g. RD New of EPSG:7415), else itself.
+
+    The geometry checks (metres, agreement of two CRSs) look at this part
+    only; the vertical one (NAP height) is recorded with the outputs.
+
+    Examples
+    --------
+    >>> import pyproj
+    >>> horizontal_crs(pyproj.CRS("EPSG:7415")).to_epsg()
+    28992
+    """
+    if crs is not None and crs.is_compound and crs.sub_crs_list:
+        return crs.sub_crs_list[0]
+    return crs
 
 
 def require_metric_crs(crs, where: str, xy: np.ndarray | None = None) -> None:
@@ -39,7 +57,8 @@ def require_metric_crs(crs, where: str, xy: np.ndarray | None = None) -> None:
     Raises
     ------
     InputError
-        Geographic CRS, or no CRS and coordinates that look like degrees.
+        Geographic CRS (or a compound one whose horizontal part is), a
+        vertical CRS alone, or no CRS and coordinates that look like degrees.
     """
     if crs is None:
         if xy is not None and len(xy):
@@ -50,7 +69,10 @@ def require_metric_crs(crs, where: str, xy: np.ndarray | None = None) -> None:
                                  "in metres, or assign the right one with --crs if they are metres")
         log.warning("%s: no CRS; outputs will have none (assign one with --crs)", where)
         return
-    if crs.is_geographic:
+    if crs.is_vertical and not crs.is_compound:
+        raise InputError(f"{where}: CRS {crs.name} is a height system only; give the horizontal CRS with it, "
+                         "e.g. --crs EPSG:28992+5709 (or EPSG:7415) for RD New + NAP height")
+    if horizontal_crs(crs).is_geographic:
         raise InputError(f"{where}: CRS {crs.name} is geographic (degrees); reproject to a projected CRS in metres "
                          "or assign the right one with --crs")
 
@@ -61,8 +83,7 @@ def check_same_crs(a, b, what_a: str, what_b: str) -> None:
         return
     if not a.equals(b, ignore_axis_order=True):
         # a vertical component (e.g. EPSG:28992+5709) does not change planimetry
-        sa = a.sub_crs_list[0] if a.is_compound else a
-        sb = b.sub_crs_list[0] if b.is_compound else b
+        sa, sb = horizontal_crs(a), horizontal_crs(b)
         if not sa.equals(sb, ignore_axis_order=True) and not _same_coordinates(sa, sb):
             raise InputError(f"{what_a} ({a.name}) and {what_b} ({b.name}) have different CRSs; reproject one of them")
 

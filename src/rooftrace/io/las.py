@@ -5,7 +5,9 @@ dimension (standard and extra bytes), and takes the CRS from the WKT or
 GeoTIFF VLRs/EVLRs (laspy's ``parse_crs``).  Writing keeps the first input's
 point format, scales, offsets and extra dimensions, adds ``classification``
 values and an int32 extra dimension ``building_id``, and goes through
-:func:`rooftrace.io.atomic.atomic_path`.
+:func:`rooftrace.io.atomic.atomic_path`: :func:`write_las` writes a cloud held
+in memory, :func:`write_las_labels` streams input files to one output with
+new labels, chunk by chunk (the classified points of a tiled run).
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ import copy
 import logging
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import laspy
 import numpy as np
@@ -24,8 +27,11 @@ from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["read_las", "las_chunks", "chunk_xyz", "check_finite", "write_las", "las_crs", "check_point_count",
-           "check_header_bounds", "LAS_SUFFIXES"]
+if TYPE_CHECKING:
+    import pyproj
+
+__all__ = ["read_las", "las_chunks", "chunk_xyz", "check_finite", "write_las", "write_las_labels", "las_crs",
+           "check_point_count", "check_header_bounds", "check_point_formats", "LAS_SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +47,7 @@ def _backend():
     return None
 
 
-def las_crs(header: laspy.LasHeader, path: str = "") -> "pyproj.CRS | None":
+def las_crs(header: laspy.LasHeader, path: str = "") -> pyproj.CRS | None:
     """CRS of a LAS header from its WKT or GeoTIFF (E)VLRs, or ``None``."""
     try:
         return header.parse_crs()
@@ -287,3 +293,58 @@ def write_las(
     with atomic_path(path, overwrite) as tmp:
         las.write(tmp, laz_backend=_backend() if path.suffix.lower() == ".laz" else None)
     return path
+
+
+def check_point_formats(paths: Sequence[Path]) -> None:
+    """Refuse inputs of different point formats: one classified file keeps the dimensions of all."""
+    formats = {}
+    for p in paths:
+        with laspy.open(p) as reader:
+            formats[p] = reader.header.point_format.id
+    if len(set(formats.values())) > 1:
+        listing = ", ".join(f"{p.name}: {f}" for p, f in formats.items())
+        raise InputError(f"--classified with tiles needs inputs of one LAS point format ({listing}); convert them "
+                         "to one format (e.g. las2las -set_point_type) or write the classified points per file "
+                         "with 'rooftrace detect'")
+
+
+def write_las_labels(paths: Sequence[Path], output: str | os.PathLike, classification: np.ndarray,
+                     building_id: np.ndarray, *, crs=None, overwrite: bool = False,
+                     chunk_size: int = 1_000_000) -> Path:
+    """Write the input points with new classes and a ``building_id`` extra dimension, chunk by chunk.
+
+    Every dimension of the inputs is kept; the first file gives the point
+    format, version, scales and offsets (coordinates of the other files are
+    re-quantised to them).
+    """
+    output = Path(output)
+    with laspy.open(paths[0]) as first:
+        # the first header as it is: its VLRs carry the extra dimensions' descriptions
+        header = copy.deepcopy(first.header)
+    header.point_count = 0
+    if "building_id" not in header.point_format.dimension_names:
+        header.add_extra_dims([laspy.ExtraBytesParams(name="building_id", type=np.int32)])
+    if crs is not None:
+        header.add_crs(crs)
+    names = [d for d in header.point_format.dimension_names
+             if d not in ("X", "Y", "Z", "classification", "building_id")]
+    start = 0
+    with atomic_path(output, overwrite) as tmp:
+        compress = output.suffix.lower() == ".laz"
+        with laspy.open(tmp, mode="w", header=header, do_compress=compress,
+                        laz_backend=_backend() if compress else None) as writer:
+            for p in paths:
+                with laspy.open(p, laz_backend=_backend()) as reader:
+                    for chunk in reader.chunk_iterator(chunk_size):
+                        n = len(chunk)
+                        out = laspy.ScaleAwarePointRecord.zeros(n, header=header)
+                        have = set(chunk.point_format.dimension_names)
+                        for name in names:
+                            if name in have:
+                                out[name] = chunk[name]
+                        out.x, out.y, out.z = chunk.x, chunk.y, chunk.z
+                        out.classification = classification[start:start + n]
+                        out["building_id"] = building_id[start:start + n]
+                        writer.write_points(out)
+                        start += n
+    return output

@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 import pyproj
 
 from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError
+from rooftrace.io.checks import horizontal_crs
 from rooftrace.io.las import (
     LAS_SUFFIXES,
     check_finite,
@@ -153,7 +154,12 @@ def read_points(
         c = _read_one(p)
         if user_crs is not None:
             if c.crs is not None and not c.crs.equals(user_crs, ignore_axis_order=True):
-                log.warning("%s: file CRS %s overridden by --crs %s", p, c.crs.name, user_crs.name)
+                if user_crs.is_compound and c.crs.equals(horizontal_crs(user_crs), ignore_axis_order=True):
+                    # the file's CRS with its height system: nothing moves, the outputs record both
+                    log.info("%s: --crs %s adds the height system %s to the file's CRS", p, user_crs.name,
+                             user_crs.sub_crs_list[-1].name)
+                else:
+                    log.warning("%s: file CRS %s overridden by --crs %s", p, c.crs.name, user_crs.name)
             c.crs = user_crs
         c.fields["source_index"] = np.full(len(c), i, np.uint16)
         clouds.append(c)
@@ -214,7 +220,7 @@ def summarise_las(paths: Iterable[str | os.PathLike], crs: str | pyproj.CRS | No
     return out
 
 
-def common_crs(paths: list[Path], crss: list) -> "pyproj.CRS | None":
+def common_crs(paths: list[Path], crss: list) -> pyproj.CRS | None:
     """The one CRS of several files (after any ``--crs``); InputError naming the first file that differs."""
     first = crss[0]
     for p, c in zip(paths[1:], crss[1:]):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +29,10 @@ def _open(path: Path):
     if not path.is_file():
         raise InputError(f"{path}: no such image file")
     try:
-        return rasterio.open(path)
+        with warnings.catch_warnings():
+            # a frame image has no georeference by nature: the camera file is its orientation
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            return rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
         raise InputError(f"{path}: not a readable image ({exc})") from None
 

@@ -14,9 +14,10 @@ Shapefiles are still read.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pyogrio
@@ -29,6 +30,10 @@ from rooftrace.io.atomic import atomic_path
 __all__ = ["Layer", "write_layers", "read_layer", "list_layers", "vector_driver"]
 
 _DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".fgb": "FlatGeobuf"}
+#: GeoPackage 1.3: GDAL >= 3.7 writes 1.4 by default, which GDAL 3.6 (Debian 12, QGIS LTR builds of
+#: that age) opens with "v1.4.0 may only be partially supported"; the layers need nothing of 1.4
+GPKG_VERSION = "1.3"
+_DATASET_OPTIONS = {"GPKG": {"VERSION": GPKG_VERSION}}
 #: multi-file formats, read but never written (no atomic replacement of a set of files)
 _MULTI_FILE = {".shp": "Shapefile", ".shx": "Shapefile", ".dbf": "Shapefile", ".tab": "MapInfo TAB", ".mif": "MapInfo MIF"}
 
@@ -117,7 +122,7 @@ def write_layers(
             pyogrio.raw.write(
                 str(tmp), geoms, data, fields, layer=name, driver=driver,
                 geometry_type=_ogr_type(layer.geometry_type), crs=wkt,
-                append=False,
+                append=False, dataset_options=_DATASET_OPTIONS.get(driver),
             )
     return path
 

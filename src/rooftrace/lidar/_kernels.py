@@ -7,8 +7,8 @@ they replace breaks them, or handed back to it).
 
 from __future__ import annotations
 
-import numpy as np
 import numba
+import numpy as np
 from numba import njit
 
 __all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull",

@@ -223,7 +223,6 @@ def interior_points(xy: np.ndarray, labels: np.ndarray, pairs: np.ndarray, radiu
     [[0, 0, 0, 0, 0], [0, 1, 1, 1, 0]]
     """
     xy = np.asarray(xy, dtype=np.float64)
-    n = len(xy)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     count, pull = pair_pull(np.ascontiguousarray(xy), np.ascontiguousarray(labels, dtype=np.int64),
                             np.ascontiguousarray(pairs))

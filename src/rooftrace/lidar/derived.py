@@ -79,7 +79,7 @@ class DerivedParams:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "DerivedParams":
+    def from_dict(cls, d: dict[str, Any]) -> DerivedParams:
         """Inverse of :meth:`to_dict`."""
         origin = d.get("origin")
         extent = d.get("extent")

@@ -82,7 +82,7 @@ class DetectOptions:
     classify: ClassifyOptions = field(default_factory=ClassifyOptions)
 
     @classmethod
-    def from_config(cls, config: dict | None = None, **overrides: Any) -> "DetectOptions":
+    def from_config(cls, config: dict | None = None, **overrides: Any) -> DetectOptions:
         """Build from a TOML config dict (:func:`rooftrace.config.load_config`) and per-stage overrides.
 
         ``overrides`` maps a section name (``"segment"`` ...) to a dict of

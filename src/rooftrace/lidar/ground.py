@@ -8,7 +8,7 @@ TIN is rebuilt and the test repeated until nothing is added.
 
 Three choices keep this fast on city blocks (850k points in a few seconds):
 the TIN is Shewchuk's Triangle with our own point location
-(:mod:`rooftrace.lidar.tin`; 47 s -> 2 s on a 1.2 M-point scene against
+(:mod:`rooftrace.lidar.ground_tin`; 47 s -> 2 s on a 1.2 M-point scene against
 Qhull), the densification runs on the lowest point of each small cell
 (about ``max(1 m, 3·s_avg)`` wide; the ground is never above the lowest
 point of its cell), and every accepted point of a round is added at once.  Every point of the cloud is
@@ -32,7 +32,7 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
 from rooftrace.lidar._kernels import dense_cells, dense_unique, lowest_per_group
-from rooftrace.lidar.tin import locate, serpentine_order, triangulate
+from rooftrace.lidar.ground_tin import locate, serpentine_order, triangulate
 
 __all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
 

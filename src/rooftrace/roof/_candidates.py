@@ -86,9 +86,9 @@ def _cell_choice(cand, segidx, ptr, line, near, sign, z):  # pragma: no cover - 
                     votes += 1
                     continue  # one plane: same height, never a violation
                 s = segidx[cand[r, i], cand[r, j]]
-                if s >= 0 and near[pos[s]]:
-                    if (sign[s] > 0 and z[r, i] > z[r, j]) or (sign[s] < 0 and z[r, i] < z[r, j]):
-                        viol += 1
+                if s >= 0 and near[pos[s]] and ((sign[s] > 0 and z[r, i] > z[r, j])
+                                                 or (sign[s] < 0 and z[r, i] < z[r, j])):
+                    viol += 1
             score = viol * (k + 1) * (k + 1) - votes * (k + 1) + i
             if i == 0 or score < best:
                 best, best_j = score, i

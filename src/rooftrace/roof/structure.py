@@ -3,7 +3,7 @@
 :func:`roof_structure` chains the roof stage (DESIGN.md stage 8):
 
 1. segment the roof points into planes and fit them by least squares
-   (:func:`rooftrace.roof.planes.segment_planes`);
+   (:func:`rooftrace.roof.segmentation.segment_planes`);
 2. find adjacent planes (:func:`rooftrace.roof.adjacency.plane_adjacency`);
 3. intersect adjacent planes into ridge, hip and valley lines clipped to
    their shared boundary, ends snapped to junctions and to the outline
@@ -31,8 +31,9 @@ from rooftrace import config
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
-from rooftrace.roof.planes import estimate_spacing, segment_planes
+from rooftrace.roof.planes import estimate_spacing
 from rooftrace.roof.ridges import intersection_lines
+from rooftrace.roof.segmentation import segment_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 

@@ -131,7 +131,6 @@ def render_scene(roofs: list[Roof], *, trees: list[tuple[float, float, float, fl
     # ground: plane z = 10 + 0.02 x + 0.01 y
     gplane = np.array([0.02, 0.01, -1.0, 10.0])
     t_best = -(origin @ gplane[:3] + gplane[3]) / (d @ gplane[:3])
-    hit = origin + t_best[:, None] * d
     tex = ndimage.gaussian_filter(rng.normal(size=(npx, npx)), 3.0)
     grey = 0.35 + 0.06 * tex.ravel() / tex.std()
     for roof in roofs:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.snake.tin import Tin, roof_surface
+from rooftrace.snake.surface import Tin, roof_surface
 
 __all__ = ["pixel_seeds_to_object"]
 

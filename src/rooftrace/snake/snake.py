@@ -30,9 +30,8 @@ import numpy as np
 from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.snake.dp import cycle_dp
-from rooftrace.snake.energy import (EdgeField, angle_energy, edge_field, height_energy, side_energy,
-                                   spacing_energy)
-from rooftrace.snake.tin import RasterSurface, Tin, roof_surface, vertex_heights
+from rooftrace.snake.energy import EdgeField, angle_energy, edge_field, height_energy, side_energy, spacing_energy
+from rooftrace.snake.surface import RasterSurface, Tin, roof_surface, vertex_heights
 
 __all__ = ["SnakeOptions", "SnakeResult", "snake_outline"]
 

@@ -197,7 +197,7 @@ class Building:
     def rectangle(cls, building_id: int, center, length: float, width: float, *, angle_deg: float = 0.0,
                   kind: str = "gable", eave_height: float = 6.0, ridge_height: float = 9.0,
                   overhang: float = 0.5, overhang_sides: tuple[float, float, float, float] | None = None,
-                  **extra) -> "Building":
+                  **extra) -> Building:
         """A rectangle with a flat, shed, gable, hip, pyramid or split-level roof.
 
         ``length`` lies along ``angle_deg`` (the ridge direction), ``width``
@@ -226,7 +226,7 @@ class Building:
     @classmethod
     def wings(cls, building_id: int, center, main_length: float, width: float, wings: list[tuple[float, float]],
               *, angle_deg: float = 0.0, kind: str = "gable", eave_height: float = 6.0, ridge_height: float = 9.0,
-              overhang: float = 0.5, shape: str = "l_shape", **extra) -> "Building":
+              overhang: float = 0.5, shape: str = "l_shape", **extra) -> Building:
         """A main wing with perpendicular wings on its +v side (L, T, U shapes).
 
         ``wings`` lists (s, length) pairs: the wing's centre along the main
@@ -250,24 +250,24 @@ class Building:
         return cls(building_id, shape, foot, eave_height, ridge, o, blocks, **extra)
 
     @classmethod
-    def l_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> "Building":
+    def l_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> Building:
         """An L: a wing at the +u end of the main wing reaching ``reach`` m beyond it."""
         return cls.wings(building_id, center, length, width, [(length / 2 - width / 2, reach)], shape="l_shape", **kw)
 
     @classmethod
-    def t_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> "Building":
+    def t_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> Building:
         """A T: a wing in the middle of the main wing."""
         return cls.wings(building_id, center, length, width, [(0.0, reach)], shape="t_shape", **kw)
 
     @classmethod
-    def u_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> "Building":
+    def u_shape(cls, building_id: int, center, length: float, width: float, reach: float, **kw) -> Building:
         """A U: wings at both ends of the main wing."""
         s = length / 2 - width / 2
         return cls.wings(building_id, center, length, width, [(s, reach), (-s, reach)], shape="u_shape", **kw)
 
     @classmethod
     def from_polygon(cls, building_id: int, footprint: Polygon, *, kind: str = "flat", eave_height: float = 6.0,
-                     overhang: float = 0.0, **extra) -> "Building":
+                     overhang: float = 0.0, **extra) -> Building:
         """Any footprint (holes allowed) with a flat roof at ``eave_height``."""
         if not isinstance(footprint, Polygon) or footprint.is_empty or not footprint.is_valid:
             raise ValueError("footprint must be a valid, non-empty shapely Polygon")
@@ -276,14 +276,14 @@ class Building:
 
     @classmethod
     def round(cls, building_id: int, center, radius: float, *, eave_height: float = 8.0, overhang: float = 0.0,
-              **extra) -> "Building":
+              **extra) -> Building:
         """A round building (circle densified to :data:`CURVE_STEP`) with a flat roof."""
         return cls.from_polygon(building_id, _circle(center, radius), kind="round", eave_height=eave_height,
                                 overhang=overhang, **extra)
 
     @classmethod
     def stadium(cls, building_id: int, center, length: float, width: float, *, angle_deg: float = 0.0,
-                eave_height: float = 7.0, overhang: float = 0.0, **extra) -> "Building":
+                eave_height: float = 7.0, overhang: float = 0.0, **extra) -> Building:
         """A rectangle with semicircular ends (total ``length`` along ``angle_deg``), flat roof."""
         c, u, v = _frame(center, angle_deg)
         half = max(length / 2 - width / 2, 0.0)
@@ -294,7 +294,7 @@ class Building:
 
     @classmethod
     def arc(cls, building_id: int, center, radius: float, width: float, sweep_deg: float, *, start_deg: float = 0.0,
-            eave_height: float = 7.0, overhang: float = 0.0, **extra) -> "Building":
+            eave_height: float = 7.0, overhang: float = 0.0, **extra) -> Building:
         """A gently curved building: an annular sector of mid ``radius`` about ``center``."""
         r0, r1 = radius - width / 2, radius + width / 2
         n = max(8, int(math.ceil(math.radians(sweep_deg) * r1 / CURVE_STEP)))
@@ -306,7 +306,7 @@ class Building:
 
     @classmethod
     def courtyard(cls, building_id: int, center, length: float, width: float, ring: float, *, angle_deg: float = 0.0,
-                  eave_height: float = 9.0, overhang: float = 0.3, **extra) -> "Building":
+                  eave_height: float = 9.0, overhang: float = 0.3, **extra) -> Building:
         """A rectangular block around an inner courtyard (a hole) of wing depth ``ring``, flat roof."""
         c, u, v = _frame(center, angle_deg)
         outer = _rect(c, u, v, -length / 2, length / 2, -width / 2, width / 2)
@@ -317,7 +317,7 @@ class Building:
     @classmethod
     def terrace(cls, first_id: int, center, widths: list[float], depth: float, *, angle_deg: float = 0.0,
                 eave_heights: list[float], ridge_heights: list[float], kind: str = "gable",
-                overhang: float = 0.4, **extra) -> list["Building"]:
+                overhang: float = 0.4, **extra) -> list[Building]:
         """A row of adjacent houses sharing walls (one building each), ridges along the row.
 
         No overhang over shared walls; the row's ends and long sides have
@@ -337,7 +337,7 @@ class Building:
 
     # ------------------------------------------------------------- additions
     def with_annex(self, center, length: float, width: float, *, angle_deg: float = 0.0, eave_height: float = 3.0,
-                   overhang: float = 0.3, wall_side: str = "-v") -> "Building":
+                   overhang: float = 0.3, wall_side: str = "-v") -> Building:
         """Add a lower flat-roofed annex (same building); ``wall_side`` is its side against the main wall."""
         ov = {"-v": (overhang, overhang, overhang, 0.0), "+v": (overhang, overhang, 0.0, overhang),
               "-u": (overhang, 0.0, overhang, overhang), "+u": (0.0, overhang, overhang, overhang)}[wall_side]
@@ -348,7 +348,7 @@ class Building:
         return self
 
     def with_dormers(self, positions: list[float], *, size: float = 2.4, depth: float = 2.2,
-                     slope_deg: float = 8.0) -> "Building":
+                     slope_deg: float = 8.0) -> Building:
         """Add shed dormers on the +v plane of a rectangular gable: ``positions`` along the ridge (m from the centre).
 
         A dormer starts 0.6 m below the ridge line and rises out of the main

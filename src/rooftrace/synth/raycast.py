@@ -269,7 +269,7 @@ def shadow_rays(points, sun, labels, x0, y1, cell, planes, tc, coarse, cx0, cy1,
         big = min(big, ccell / hl)
     for i in prange(n):
         ox, oy, oz = points[i, 0], points[i, 1], points[i, 2]
-        if not (ox == ox):
+        if ox != ox:  # NaN
             continue
         t = 0.03
         t_end = (z_top - oz) / sz

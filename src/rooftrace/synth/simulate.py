@@ -23,7 +23,7 @@ from rooftrace.synth.buildings import Building
 from rooftrace.synth.mix import ROOF_PALETTE, WALL_PALETTE, default_buildings
 from rooftrace.synth.raycast import SurfaceModel
 from rooftrace.synth.scene import PowerLine, SceneOptions, Terrain, Trees, make_power_line, make_terrain, place_trees
-from rooftrace.synth.truth import RoofFace, Ridge, plane_z, roof_faces, roof_outline_3d, roof_ridges
+from rooftrace.synth.truth import Ridge, RoofFace, plane_z, roof_faces, roof_outline_3d, roof_ridges
 
 __all__ = ["Scene", "simulate_scene", "write_scene", "surface_model", "truth_layers", "SCENE_FILES"]
 

@@ -55,24 +55,42 @@ import os
 import pickle
 import shutil
 import time
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from rooftrace.errors import InputError
-
-from rooftrace.tiling.split import (  # noqa: F401
-    POINT_DTYPE, TileOptions, _load_cloud, _scan_headers, _write_json, sample_windows, split_to_tiles,
-    tile_cell_ranges, tile_grid,
-)
-from rooftrace.tiling.tile import (  # noqa: F401
-    _core, _extent, _write_classified, building_numbers, estimate_parameters, merge_tiles, owned_buildings,
-    process_tile,
-)
+from rooftrace.progress import Reporter
 from rooftrace.tiling.image import (
-    check_image_inputs, cut_neighbourhoods, image_fingerprint, join_neighbourhoods, merged_planes,
+    check_image_inputs,
+    cut_neighbourhoods,
+    image_fingerprint,
+    join_neighbourhoods,
+    merged_planes,
+)
+from rooftrace.tiling.split import (  # noqa: F401
+    POINT_DTYPE,
+    TileOptions,
+    _load_cloud,
+    _scan_headers,
+    _write_json,
+    sample_windows,
+    split_to_tiles,
+    tile_cell_ranges,
+    tile_grid,
+)
+from rooftrace.tiling.tile import (
+    _core,
+    _extent,
+    _write_classified,
+    building_numbers,
+    estimate_parameters,
+    merge_tiles,
+    owned_buildings,
+    process_tile,
 )
 
 __all__ = [
@@ -149,9 +167,8 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
 
 
 def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path, cam, cfg: dict | None, seed: int,
-                   quiet: bool):
+                   reporter: Reporter):
     """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
-    from rooftrace.cli.app import reporter_for
     from rooftrace.io.checks import check_image_size
     from rooftrace.io.raster import read_image
     from rooftrace.pipeline import refine_layers
@@ -160,17 +177,13 @@ def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path,
     check_image_size(grey.shape[::-1], cam, str(image), str(camera))  # the file may have changed since the check
     points = join_neighbourhoods(results)
     planes = merged_planes(results, building_numbers(results))
-    reporter = reporter_for(quiet)
-    try:
-        with reporter.stage("image refinement", total=None):
-            return refine_layers(layers, planes, points, grey, cam, config=cfg, seed=seed)
-    finally:
-        reporter.close()
+    with reporter.stage("image refinement", total=None):
+        return refine_layers(layers, planes, points, grey, cam, config=cfg, seed=seed)
 
 
 def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
               config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
-              seed: int = 0, overwrite: bool = False, quiet: bool = False,
+              seed: int = 0, overwrite: bool = False, reporter: Reporter | None = None,
               classified: os.PathLike | None = None) -> dict[str, Any]:
     """Tile, measure the parameters, process and merge.
 
@@ -181,10 +194,13 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     output : path-like
         GeoPackage to write (atomically).
     options : TileOptions
-    crs, config, alpha, planes, seed, overwrite, quiet
+    crs, config, alpha, planes, seed, overwrite
         As ``rooftrace run``.
+    reporter : Reporter, optional
+        Progress callbacks (silent by default).
     image, camera : path-like, optional
-        Aerial image and its ``camera.json``: the merged buildings are
+        Aerial image and its ``camera.json`` (None for a georeferenced
+        orthophoto, whose GeoTIFF is its camera): the merged buildings are
         refined with it in one pass, as an untiled run refines them
         (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
     classified : path-like, optional
@@ -204,17 +220,16 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     The run folder ``OUTPUT.parts`` is kept when the run fails or is
     killed, for ``--resume``; it is removed after a successful merge.
     """
-    from rooftrace.cli.app import reporter_for
-    from rooftrace.io.atomic import check_output
+    from rooftrace.config import validate_config
+    from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import Layer, write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
-    from rooftrace.config import validate_config
     from rooftrace.refine import RefineOptions
 
-    if (image is None) != (camera is None):
-        raise InputError("--image and --camera go together; give both (the image and its camera.json) or neither")
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
     output = check_output(output, overwrite)
     if config:
         validate_config(config)
@@ -229,7 +244,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         raise InputError("no input files given")
     head = _scan_headers(paths)
     if classified is not None:
-        from rooftrace.tile_points import check_point_formats
+        from rooftrace.io.las import check_point_formats
 
         classified = check_output(classified, overwrite)
         check_point_formats(paths)
@@ -246,7 +261,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     cam = None
     if image is not None:
         # the untiled run's checks, on the headers, before minutes of tile work
-        cam = check_image_inputs(Path(image), Path(camera), crs_obj, head, ", ".join(map(str, paths)))
+        cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
+                                 ", ".join(map(str, paths)))
     run_dir = Path(str(output) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
@@ -256,7 +272,8 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
             "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
-            **({"image": image_fingerprint(Path(image), Path(camera))} if image is not None else {})}
+            **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
+               if image is not None else {})}
     meta = json.loads(json.dumps(meta))
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -264,36 +281,33 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     _write_json(meta_path, meta)
 
     timings: dict[str, float] = {}
-    reporter = reporter_for(quiet)
-    try:
-        t0 = time.perf_counter()
-        with reporter.stage("split into tiles"):
-            index = split_to_tiles(paths, run_dir, options, cell=outlier_opts.cell)
-        timings["split"] = time.perf_counter() - t0
-        derived_path = run_dir / "derived.json"
-        t0 = time.perf_counter()
-        if options.resume and derived_path.exists():
-            derived = DerivedParams.from_dict(json.loads(derived_path.read_text()))
-        else:
-            with reporter.stage("parameters"):
-                sample = _load_cloud(run_dir / "sample", crs_obj)
-                sample.sources = [str(p) for p in paths]
-                derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
-                del sample
-            _write_json(derived_path, derived.to_dict())
-        timings["parameters"] = time.perf_counter() - t0
-        log.info("parameters of the whole run: s_avg %.3f m, d_avg %.2f pts/m², sigma_H %.3f m, entropy threshold %.3f",
-                 derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
-        keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
-        wkt = crs_obj.to_wkt() if crs_obj is not None else None
-        tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
-                  classified is not None, refine_context) for k in keys]
-        t0 = time.perf_counter()
-        with reporter.stage("tiles", total=len(tasks)):
-            result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
-        timings["tiles"] = time.perf_counter() - t0
-    finally:
-        reporter.close()
+    reporter = reporter or Reporter()
+    t0 = time.perf_counter()
+    with reporter.stage("split into tiles"):
+        index = split_to_tiles(paths, run_dir, options, cell=outlier_opts.cell)
+    timings["split"] = time.perf_counter() - t0
+    derived_path = run_dir / "derived.json"
+    t0 = time.perf_counter()
+    if options.resume and derived_path.exists():
+        derived = DerivedParams.from_dict(json.loads(derived_path.read_text()))
+    else:
+        with reporter.stage("parameters"):
+            sample = _load_cloud(run_dir / "sample", crs_obj)
+            sample.sources = [str(p) for p in paths]
+            derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
+            del sample
+        _write_json(derived_path, derived.to_dict())
+    timings["parameters"] = time.perf_counter() - t0
+    log.info("parameters of the whole run: s_avg %.3f m, d_avg %.2f pts/m², sigma_H %.3f m, entropy threshold %.3f",
+             derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
+    keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
+    wkt = crs_obj.to_wkt() if crs_obj is not None else None
+    tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
+              classified is not None, refine_context) for k in keys]
+    t0 = time.perf_counter()
+    with reporter.stage("tiles", total=len(tasks)):
+        result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
+    timings["tiles"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     results = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
     layers = merge_tiles(results)
@@ -308,15 +322,16 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
                             "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
         t0 = time.perf_counter()
-        refined, layers = _refine_merged(layers, results, Path(image), Path(camera), cam, cfg, seed, quiet)
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, reporter)
         timings["refine"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    write_layers(output, layers, crs_obj, overwrite=overwrite)
-    timings["merge"] = merge_seconds + time.perf_counter() - t0
-    if classified is not None:
+    with commit_together():  # the layers and the classified points new, or both as they were
         t0 = time.perf_counter()
-        _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
-        timings["classified"] = time.perf_counter() - t0
+        write_layers(output, layers, crs_obj, overwrite=overwrite)
+        timings["merge"] = merge_seconds + time.perf_counter() - t0
+        if classified is not None:
+            t0 = time.perf_counter()
+            _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+            timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:
         for k, v in res["timings"].items():

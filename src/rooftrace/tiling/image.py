@@ -29,10 +29,13 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
+
+from rooftrace.tiling.split import near_open_side
 
 __all__ = ["check_image_inputs", "image_fingerprint", "neighbourhood_points", "cut_neighbourhoods",
            "join_neighbourhoods", "merged_planes"]
@@ -60,13 +63,15 @@ def _header_grid(boxes: Sequence[Sequence[float]], counts: Sequence[int], n: int
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
-def check_image_inputs(image: Path, camera: Path, crs, head: dict[str, Any], where: str):
+def check_image_inputs(image: Path, camera: Path | None, crs, head: dict[str, Any], where: str):
     """The untiled run's checks of the image and its camera, on the inputs' headers.
 
     Parameters
     ----------
-    image, camera : Path
-        The image and its ``camera.json``.
+    image : Path
+        The image.
+    camera : Path or None
+        Its ``camera.json``; None for a georeferenced orthophoto.
     crs : pyproj.CRS or None
         CRS of the point clouds.
     head : dict
@@ -87,18 +92,18 @@ def check_image_inputs(image: Path, camera: Path, crs, head: dict[str, Any], whe
         not the camera's.  The image's pixels are read after the tiles; its
         header is read here.
     """
-    from rooftrace.io.camera import read_camera
+    from rooftrace.io.camera import image_camera
     from rooftrace.io.checks import check_image_covers, check_image_size, check_same_crs
     from rooftrace.io.raster import read_raster_meta
 
-    cam = read_camera(camera, image)
-    check_same_crs(crs, cam.crs, where, str(camera))
+    cam = image_camera(image, camera)
+    check_same_crs(crs, cam.crs, where, str(camera or image))
     check_image_covers(cam, _header_grid(head["boxes"], head["counts"]), str(image))
-    check_image_size(read_raster_meta(image).size, cam, str(image), str(camera))
+    check_image_size(read_raster_meta(image).size, cam, str(image), str(camera or image))
     return cam
 
 
-def image_fingerprint(image: Path, camera: Path) -> dict[str, Any]:
+def image_fingerprint(image: Path, camera: Path | None) -> dict[str, Any]:
     """What ``--resume`` compares of the image and camera: paths, the image's size and mtime, the camera's hash.
 
     The image can be large, so its bytes and modification time stand for
@@ -106,8 +111,8 @@ def image_fingerprint(image: Path, camera: Path) -> dict[str, Any]:
     """
     st = Path(image).stat()
     return {"image": {"path": str(Path(image).resolve()), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns},
-            "camera": {"path": str(Path(camera).resolve()),
-                       "sha256": hashlib.sha256(Path(camera).read_bytes()).hexdigest()}}
+            "camera": None if camera is None else {
+                "path": str(Path(camera).resolve()), "sha256": hashlib.sha256(Path(camera).read_bytes()).hexdigest()}}
 
 
 def neighbourhood_points(xyz: np.ndarray, gidx: np.ndarray, polygons: Sequence, context: float
@@ -174,8 +179,6 @@ def cut_neighbourhoods(discs: np.ndarray, extent: Sequence[float], bounds: Seque
         True where the tile may lack points the refinement of the whole
         cloud would use (a larger ``--buffer`` helps).
     """
-    from rooftrace.tiling.tile import near_open_side
-
     x, y, r = np.asarray(discs, float).reshape(-1, 3).T
     return near_open_side(np.column_stack([x - r, y - r, x + r, y + r]), extent, bounds)
 

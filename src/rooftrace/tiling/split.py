@@ -6,9 +6,10 @@ import json
 import logging
 import os
 import shutil
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -377,7 +378,7 @@ def _write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def _load_cloud(folder: Path, crs) -> "Any":
+def _load_cloud(folder: Path, crs) -> Any:
     from rooftrace.cloud import PointCloud
 
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []
@@ -386,3 +387,33 @@ def _load_cloud(folder: Path, crs) -> "Any":
     fields = {"return_number": rec["return_number"].copy(), "number_of_returns": rec["number_of_returns"].copy(),
               "gidx": rec["gidx"].copy()}
     return PointCloud(xyz, fields, crs=crs)
+
+
+def near_open_side(boxes: np.ndarray, extent: Sequence[float], bounds: Sequence[float],
+                   margin: float = 0.0) -> np.ndarray:
+    """Which boxes come within ``margin`` of a side of the tile past which the data goes on.
+
+    Parameters
+    ----------
+    boxes : ndarray of shape (B, 4)
+        xmin, ymin, xmax, ymax of each box (m).
+    extent : (xmin, ymin, xmax, ymax)
+        The buffered tile clipped to the inputs' bounds (m).
+    bounds : (xmin, ymin, xmax, ymax)
+        The inputs' bounds (m): a side of ``extent`` on them has no data beyond it.
+    margin : float
+        Metres.
+
+    Returns
+    -------
+    ndarray of shape (B,), bool
+
+    Examples
+    --------
+    >>> near_open_side(np.array([[1.0, 5, 3, 6], [97, 5, 99, 6]]), [0, 0, 100, 10], [0, 0, 200, 10], 2.0).tolist()
+    [False, True]
+    """
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    e, lim = extent, bounds
+    return (((b[:, 0] - e[0] < margin) & (e[0] > lim[0])) | ((b[:, 1] - e[1] < margin) & (e[1] > lim[1]))
+            | ((e[2] - b[:, 2] < margin) & (e[2] < lim[2])) | ((e[3] - b[:, 3] < margin) & (e[3] < lim[3])))

@@ -7,12 +7,13 @@ import logging
 import os
 import pickle
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from rooftrace.tiling.split import _load_cloud, tile_grid
+from rooftrace.tiling.split import _load_cloud, near_open_side, tile_grid
 
 log = logging.getLogger(__name__)
 
@@ -130,7 +131,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         filter lays its border (see :class:`DerivedParams`).
     classified : bool, default False
         Also keep the labels of the core points (``results/<key>.labels.npz``,
-        :func:`rooftrace.tile_points.core_labels`) for the classified LAZ.
+        :func:`rooftrace.tiling.classified.core_labels`) for the classified LAZ.
     refine_context : float, optional
         ``[refine] context`` (m) of a run with an image: also keep the roof
         planes of the owned buildings and the points around them that the
@@ -223,7 +224,7 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
     """Store what the parent's image refinement needs of the buildings this tile owns."""
     from rooftrace.tiling.image import neighbourhood_points
 
-    keep = set(int(b) for b in keep_ids)
+    keep = {int(b) for b in keep_ids}
     result["planes"] = {int(s.building_id): np.asarray(s.planes, float) for s in run_out.structures
                         if int(s.building_id) in keep}
     polygons = [o.polygon for o in run_out.outlines if int(o.building_id) in keep]
@@ -232,7 +233,8 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
 
 
 def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
-    from rooftrace.tile_points import merge_labels, write_classified
+    from rooftrace.io.las import write_las_labels
+    from rooftrace.tiling.classified import merge_labels
 
     new_id = {key: n for key, _, _, n in building_numbers(results)}
     parts = []
@@ -240,11 +242,11 @@ def _write_classified(paths, out, results, result_paths, n_points, crs, overwrit
         with np.load(Path(r).with_suffix(".labels.npz")) as z:
             parts.append({name: z[name] for name in z.files})
     classes, building_id = merge_labels(parts, new_id, n_points)
-    write_classified(paths, out, classes, building_id, crs=crs, overwrite=overwrite)
+    write_las_labels(paths, out, classes, building_id, crs=crs, overwrite=overwrite)
 
 
 def _save_labels(path: Path, cloud, core: Sequence[float], labelled) -> None:
-    from rooftrace.tile_points import core_labels
+    from rooftrace.tiling.classified import core_labels
 
     if labelled is None:  # too few points to detect anything: unclassified
         n = len(cloud)
@@ -262,36 +264,6 @@ def _core(index: dict, key: str) -> tuple[float, float, float, float]:
     x0, y0 = xs[i], ys[j]
     return (-np.inf if i == 0 else float(x0), np.inf if i == len(xs) - 1 else float(x0 + size),
             -np.inf if j == 0 else float(y0), np.inf if j == len(ys) - 1 else float(y0 + size))
-
-
-def near_open_side(boxes: np.ndarray, extent: Sequence[float], bounds: Sequence[float],
-                   margin: float = 0.0) -> np.ndarray:
-    """Which boxes come within ``margin`` of a side of the tile past which the data goes on.
-
-    Parameters
-    ----------
-    boxes : ndarray of shape (B, 4)
-        xmin, ymin, xmax, ymax of each box (m).
-    extent : (xmin, ymin, xmax, ymax)
-        The buffered tile clipped to the inputs' bounds (m).
-    bounds : (xmin, ymin, xmax, ymax)
-        The inputs' bounds (m): a side of ``extent`` on them has no data beyond it.
-    margin : float
-        Metres.
-
-    Returns
-    -------
-    ndarray of shape (B,), bool
-
-    Examples
-    --------
-    >>> near_open_side(np.array([[1.0, 5, 3, 6], [97, 5, 99, 6]]), [0, 0, 100, 10], [0, 0, 200, 10], 2.0).tolist()
-    [False, True]
-    """
-    b = np.asarray(boxes, float).reshape(-1, 4)
-    e, lim = extent, bounds
-    return (((b[:, 0] - e[0] < margin) & (e[0] > lim[0])) | ((b[:, 1] - e[1] < margin) & (e[1] > lim[1]))
-            | ((e[2] - b[:, 2] < margin) & (e[2] < lim[2])) | ((e[3] - b[:, 3] < margin) & (e[3] < lim[3])))
 
 
 def _extent(index: dict, key: str) -> list[float]:

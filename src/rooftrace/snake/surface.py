@@ -28,8 +28,8 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 from numba import njit
+from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError

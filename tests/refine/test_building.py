@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rooftrace.grouping.building import RefineOptions, fuse_positions
+from rooftrace.refine.building import RefineOptions, fuse_positions
 
 
 def test_fusion_removes_the_common_shift_then_weights_by_precision():

@@ -3,7 +3,8 @@
 import laspy
 import numpy as np
 
-from rooftrace.tile_points import core_labels, merge_labels, write_classified
+from rooftrace.io.las import write_las_labels
+from rooftrace.tiling.classified import core_labels, merge_labels
 
 
 def test_core_labels_keep_the_core_and_index_the_keys():
@@ -44,7 +45,7 @@ def test_writer_keeps_every_dimension_across_files(tmp_path):
     b = _las(tmp_path / "b.laz", rng.uniform(100, 110, (30, 3)), 0.01)
     classes = np.tile(np.array([2, 6], np.uint8), 40)
     ids = np.arange(80, dtype=np.int32)
-    out = write_classified([tmp_path / "a.laz", tmp_path / "b.laz"], tmp_path / "out.laz", classes, ids,
+    out = write_las_labels([tmp_path / "a.laz", tmp_path / "b.laz"], tmp_path / "out.laz", classes, ids,
                            chunk_size=16)
     got = laspy.read(out)
     assert len(got.points) == 80

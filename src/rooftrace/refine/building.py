@@ -6,7 +6,7 @@ windows around its projected lines; the MRF energy minimised by the genetic
 algorithm (and, when small enough, exactly, to report the gap); the
 selected lines put back together along the projected topology; the refined
 pixels brought back onto the LiDAR roof planes.  The options and the result
-type are in :mod:`rooftrace.grouping.options`.
+type are in :mod:`rooftrace.refine.options`.
 """
 
 from __future__ import annotations
@@ -22,11 +22,11 @@ from rooftrace.errors import GeometryError
 from rooftrace.grouping.exact import exact_minimise
 from rooftrace.grouping.ga import genetic_minimise
 from rooftrace.grouping.mrf import build_problem
-from rooftrace.grouping.options import BuildingRefinement, RefineOptions, keep_input
-from rooftrace.grouping.registration import GROWTH_RANGE, RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.reconstruct import junction_planes, reconstruct_image, ridge_lines, to_object_space
+from rooftrace.grouping.registration import GROWTH_RANGE, RoofShift, beyond_wall, estimate_shift, shift_references
 from rooftrace.grouping.topology import roof_topology
 from rooftrace.image.walls import wall_strips
+from rooftrace.refine.options import BuildingRefinement, RefineOptions, keep_input
 
 __all__ = ["RefineOptions", "BuildingRefinement", "refine_building", "fuse_positions", "keep_input"]
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from rooftrace.image.camera import FrameCamera, OrthoCamera
-from rooftrace.image.tin import TinSurface, intersect_tin
+from rooftrace.image.ray_surface import TinSurface, intersect_tin
 
 
 def _house(rng):

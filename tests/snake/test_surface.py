@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rooftrace.errors import GeometryError
-from rooftrace.snake.tin import Tin, roof_surface, vertex_heights
+from rooftrace.snake.surface import Tin, roof_surface, vertex_heights
 
 
 def _box_roof(rng, slope=0.0, n=6000):

@@ -3,7 +3,7 @@ import pytest
 from scipy.spatial import Delaunay
 
 from rooftrace.errors import GeometryError
-from rooftrace.lidar.tin import locate, serpentine_order, triangulate
+from rooftrace.lidar.ground_tin import locate, serpentine_order, triangulate
 
 
 def _contains(pts, tri, q, eps=1e-9):

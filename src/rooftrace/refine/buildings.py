@@ -26,16 +26,17 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.grouping.building import BuildingRefinement, RefineOptions, keep_input, refine_building
 from rooftrace.grouping.orientation import EO_NAMES, OrientationCorrection, correct_orientation
+from rooftrace.refine.building import refine_building
+from rooftrace.refine.options import BuildingRefinement, RefineOptions, keep_input
 
 __all__ = ["RefineOptions", "RefineResult", "BuildingRefinement", "refine_building", "refine_buildings",
            "assign_ridges", "correct_from_matches", "orientation_summary"]
@@ -170,7 +171,7 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     pts = None if points_xyz is None or not len(points_xyz) else np.asarray(points_xyz, float).reshape(-1, 3)
     tree = cKDTree(pts[:, :2]) if pts is not None else None
     jobs = []
-    for i, (poly, bid) in enumerate(zip(outlines, ids)):
+    for i, poly in enumerate(outlines):
         local = sigma = ground = None
         if poly is not None and not poly.is_empty and tree is not None:
             x0, y0, x1, y1 = poly.bounds

@@ -2,7 +2,7 @@
 
 :class:`RefineOptions` holds every option of the refinement (``[mrf]``,
 ``[ga]``, ``[candidates]`` and ``[harris]`` nest in it);
-:class:`BuildingRefinement` is what :func:`rooftrace.grouping.building.refine_building`
+:class:`BuildingRefinement` is what :func:`rooftrace.refine.building.refine_building`
 returns for one building.
 """
 
@@ -195,7 +195,7 @@ class RefineOptions:
             raise ValueError("refine.max_shift_k, max_shift_margin_px and exact_max_table must be >= 0")
 
     @classmethod
-    def from_config(cls, config: dict | None = None, **overrides) -> "RefineOptions":
+    def from_config(cls, config: dict | None = None, **overrides) -> RefineOptions:
         """Options from a parsed TOML config: ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[harris]``."""
         from rooftrace.image.candidates import CandidateOptions
         from rooftrace.image.corners import HarrisOptions

@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from scipy import ndimage as ndi
 import shapely
+from scipy import ndimage as ndi
 from shapely import LineString, Polygon
 
 from rooftrace.evaluate.metrics import polis

@@ -1,0 +1,69 @@
+"""SIGINT and SIGTERM: one ``error: interrupted`` line, no temporary files, exit 130 or 143.
+
+Python's own SIGINT handling raises KeyboardInterrupt wherever the
+interpreter happens to be, which may be inside numba's dispatcher (a
+``SystemError: ... returned a result with an exception set``) or while
+numba's worker threads still run a parallel kernel (a segmentation fault
+as the interpreter shuts down around them).  So the handler raises nothing:
+it runs, as every Python signal handler does, in the main thread between
+two bytecodes, removes the temporary files of the writes under way
+(:func:`rooftrace.io.atomic.remove_temporary`), writes the message and ends
+the process with ``os._exit``.  No output is ever half written: outputs are
+only renamed into place, inside an :func:`~rooftrace.io.atomic.uninterrupted`
+section that a signal waits for; worker processes of a local Dask cluster
+exit with their parent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import sys
+from collections.abc import Iterator
+
+__all__ = ["EXIT_CODES", "install_handlers", "interrupt_handlers"]
+
+#: the shell's convention, 128 + the signal number
+EXIT_CODES = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+def _on_signal(signum: int, frame) -> None:
+    # installed before anything else is imported (rooftrace.cli.entry): until
+    # rooftrace.io.atomic is loaded there is no temporary file and no section to wait for
+    atomic = sys.modules.get("rooftrace.io.atomic")
+    if atomic is not None:
+        if atomic.hold_signal(signum):
+            return
+        atomic.remove_temporary()
+    # nothing here may raise or wait for a lock another frame of this thread holds
+    # (a logging handler, sys.stderr's buffer): write to the file descriptor
+    message = b"error: interrupted\n"
+    try:
+        if os.isatty(2):
+            message = b"\x1b[?25h\n" + message  # a progress bar hid the cursor and holds the line
+        os.write(2, message)
+    except OSError:
+        pass
+    os._exit(EXIT_CODES.get(signum, 128 + signum))
+
+
+def install_handlers() -> dict:
+    """Install the handlers for SIGINT and SIGTERM (main thread); returns the previous ones."""
+    return {s: signal.signal(s, _on_signal) for s in EXIT_CODES}
+
+
+@contextlib.contextmanager
+def interrupt_handlers() -> Iterator[None]:
+    """Install the handlers for SIGINT and SIGTERM while the block runs (main thread only)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = install_handlers()
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
