@@ -1,8 +1,10 @@
 """From one building's points to its regularised 3D roof outline (DESIGN.md stages 6-7).
 
 alpha shape (rings) -> corners (Douglas-Peucker 3D + angle filter) ->
-iterative CD-spline (degree per segment) -> optional snapping -> outward
-correction -> shapely Polygon with Z.
+iterative CD-spline (degree per segment) -> the building's shape: lines and
+curves chosen by model selection, the edge between the last roof point and
+the first other point ('lines', default), or snapping and a fixed outward
+correction ('cdspline') -> shapely Polygon with Z.
 """
 
 from __future__ import annotations

@@ -1,6 +1,9 @@
-"""Regularisation beyond the thesis: outward correction and snapping to dominant directions.
+"""Regularisation options, and the 'cdspline' method's outward correction and snapping.
 
-The alpha-shape boundary runs through the outermost roof points, which lie
+The default method, 'lines', is :mod:`rooftrace.contour.lines` (the shape by
+model selection) and :mod:`rooftrace.contour.edge` (the edge between roof and
+non-roof points).  The 'cdspline' method keeps the thesis' CD-spline and
+corrects it as follows.  The alpha-shape boundary runs through the outermost roof points, which lie
 on average about half a point spacing inside the true roof edge; the
 outward correction moves every ring that far away from the roof.  Snapping
 turns near-orthogonal straight segments to the building's dominant
