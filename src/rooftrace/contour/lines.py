@@ -38,8 +38,8 @@ from scipy.spatial import cKDTree
 from rooftrace.contour.corners import douglas_peucker
 from rooftrace.contour.edge import EdgeContext, edge_shift
 
-__all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets", "dominant_direction", "simplify_lines",
-           "constrain_directions", "line_corners"]
+__all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets",
+           "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners"]
 
 log = logging.getLogger(__name__)
 
@@ -351,7 +351,7 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_ru
     return segments
 
 
-def dominant_direction(lines: list) -> float | None:
+def dominant_wall_direction(lines: list) -> float | None:
     """Dominant direction (radians in [0, π/2)) of straight segments, each weighted by n·L².
 
     The variance of a fitted direction falls with the number of points n and
@@ -396,7 +396,7 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> 
     made again.
     """
     sigma0 = _noise(sigma0, len(xy))
-    theta = dominant_direction(lines)
+    theta = dominant_wall_direction(lines)
     if theta is None:
         return lines, None
     out = lines
@@ -424,7 +424,7 @@ def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> 
                 taken.append(free)
             else:
                 out.append(free)
-        new_theta = dominant_direction(taken) if taken else None
+        new_theta = dominant_wall_direction(taken) if taken else None
         if new_theta is None or abs(new_theta - theta) < 1e-9:
             break
         theta = new_theta
