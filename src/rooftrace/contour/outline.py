@@ -240,7 +240,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
-    context = EdgeContext(None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2])
+    context = None
+    if context_xy is not None and options.regularize.method == "lines":
+        context = EdgeContext(np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2])
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
