@@ -43,13 +43,13 @@ LAYERS = {"roof_outlines", "ridges", "roof_faces"}
 
 
 def command(src: Path, folder: Path, tiled: bool) -> list[str]:
-    args = [sys.executable, "-m", "rooftrace", "run", str(src), "--crs", "EPSG:28992", "-o", str(folder / "roofs.gpkg"),
+    args = [sys.executable, "-m", "rooftrace.cli", "run", str(src), "--crs", "EPSG:28992", "-o", str(folder / "roofs.gpkg"),
             "--classified", str(folder / "points.laz"), "-q", "--overwrite"]
     return args + (["--workers", "2", "--tile-size", "120"] if tiled else [])
 
 
 def start(args: list[str]) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONWARNINGS": "ignore"}
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}  # warnings shown: one on stderr is a failure
     return subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
 
 

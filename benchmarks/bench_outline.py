@@ -76,7 +76,8 @@ def _score(polys, truths):
     return float(np.nanmean(pol)), float(np.mean(np.nan_to_num(f))), int(np.isnan(pol).sum())
 
 
-def _city3d_buildings():
+def city3d_instances() -> tuple[list[np.ndarray], list]:
+    """The City3D single-building clouds (x, y, z) and their footprints, in the footprint file's order."""
     import json
 
     from plyfile import PlyData
@@ -91,7 +92,7 @@ def _city3d_buildings():
 
 
 def city3d() -> None:
-    clouds, truths = _city3d_buildings()
+    clouds, truths = city3d_instances()
     xyz = np.concatenate(clouds)
     ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
     spacing = float(np.median([cloud_spacing(c[:, :2]) for c in clouds]))
@@ -257,7 +258,7 @@ def shapes() -> None:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from _results import record
 
-    clouds, truths = _city3d_buildings()
+    clouds, truths = city3d_instances()
     xyz = np.concatenate(clouds)
     ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
     spacing = float(np.median([cloud_spacing(c[:, :2]) for c in clouds]))

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from rooftrace.config import load_config, make_options
+from rooftrace.config import load_config
 from rooftrace.errors import InputError
+from rooftrace.options import make_options
 
 
 def _cfg(tmp_path, text):
@@ -37,7 +38,6 @@ def test_a_table_read_by_another_command_is_checked_too(tmp_path):
 
 def test_contour_corners_and_harris_have_their_own_tables(tmp_path):
     """[corners] is the outline's Douglas-Peucker/angle filter, [harris] the image corner detector."""
-    from rooftrace.config import _section_classes
     from rooftrace.contour.corners import CornerOptions
     from rooftrace.image.corners import HarrisOptions
 
@@ -48,8 +48,40 @@ def test_contour_corners_and_harris_have_their_own_tables(tmp_path):
         load_config(_cfg(tmp_path, "[corners]\nk = 0.05\n"))
     with pytest.raises(InputError, match=r"\[harris\] (harris\.)?k must be in"):
         load_config(_cfg(tmp_path, "[harris]\nk = 0.5\n"))
-    # no two stages read one table: a key could otherwise set both or hide a typo
-    assert all(len(owners) == 1 for owners in _section_classes().values())
+
+
+def test_one_table_per_options_dataclass_and_every_section_named_by_its_dataclass():
+    """The table is explicit: each dataclass's ``section`` is its key, and no two tables share a dataclass."""
+    import dataclasses
+
+    from rooftrace.config import SECTIONS
+
+    assert all(cls.section == name and dataclasses.is_dataclass(cls) for name, cls in SECTIONS.items())
+    assert len(set(SECTIONS.values())) == len(SECTIONS)
+
+
+def test_unknown_keys_are_refused_in_every_table_and_tiling_is_a_table(tmp_path):
+    from rooftrace.config import SECTIONS
+    from rooftrace.tiling import TileOptions
+
+    for section in SECTIONS:
+        with pytest.raises(InputError, match=rf"\[{section}\] has unknown key\(s\) typo_key"):
+            load_config(_cfg(tmp_path, f"[{section}]\ntypo_key = 1\n"))
+    cfg = load_config(_cfg(tmp_path, "[tiling]\ntile_size = 250\n[run]\nplanes = false\n"))
+    assert make_options(TileOptions, cfg).tile_size == 250
+
+
+def test_run_options_from_the_config_and_the_flags(tmp_path):
+    from rooftrace.config import RunOptions
+
+    cfg = load_config(_cfg(tmp_path, "[run]\nalpha = 'global'\nplanes = false\n[segment]\nmin_height = 2.5\n"))
+    options = RunOptions.from_config(cfg)
+    assert (options.alpha, options.planes, options.outline.alpha.strategy) == ("global", False, "global")
+    assert options.detect.segment.min_height == 2.5
+    flagged = RunOptions.from_config(cfg, alpha="point", planes=True)  # a flag wins over the file
+    assert (flagged.alpha, flagged.planes, flagged.outline.alpha.strategy) == ("point", True, "point")
+    with pytest.raises(InputError, match="alpha must be"):
+        load_config(_cfg(tmp_path, "[run]\nalpha = 'sideways'\n"))
 
 
 def test_good_config_and_overrides(tmp_path):

@@ -348,7 +348,7 @@ def test_delft_tiles_detect_every_building_with_the_points_of_one_piece(tmp_path
 
     from rooftrace.io.points import read_points
     from rooftrace.lidar.detect import detect_buildings
-    from rooftrace.tiling import _core, _extent, _load_cloud
+    from rooftrace.tiling import load_tile_points, tile_core, tile_extent
 
     files = [need(DELFT / "ahn3_cropped_1.laz"), need(DELFT / "ahn3_cropped_2.laz")]
     whole_cloud = read_points(files, "EPSG:28992")
@@ -363,9 +363,9 @@ def test_delft_tiles_detect_every_building_with_the_points_of_one_piece(tmp_path
     w_points = {tuple(k): rows(whole_cloud.xyz[whole.building_id == b]) for b, k in zip(w_ids, w_keys)}
     seen = []
     for key in index["tiles"]:
-        cloud = _load_cloud(tmp_path / "tiles" / key, whole_cloud.crs)
-        det = detect_buildings(cloud, derived=dataclasses.replace(whole.derived, extent=tuple(_extent(index, key))))
-        ids, owned, keys, _ = owned_buildings(cloud.xyz, det.building_id, _core(index, key), whole.derived.origin)
+        cloud = load_tile_points(tmp_path / "tiles" / key, whole_cloud.crs)
+        det = detect_buildings(cloud, derived=dataclasses.replace(whole.derived, extent=tuple(tile_extent(index, key))))
+        ids, owned, keys, _ = owned_buildings(cloud.xyz, det.building_id, tile_core(index, key), whole.derived.origin)
         for b, k in zip(ids[owned], keys[owned]):
             np.testing.assert_array_equal(rows(cloud.xyz[det.building_id == b]), w_points[tuple(k)])
             seen.append(tuple(k))

@@ -1,4 +1,4 @@
-"""``python -m rooftrace``: the command line."""
+"""``python -m rooftrace``: the command line, as the ``rooftrace`` console script runs it."""
 
 from rooftrace.cli.entry import main
 

@@ -1,8 +1,8 @@
-"""Stage options from dataclass defaults, a TOML config file and command-line flags.
+"""The config file: which TOML table holds which options, reading it and checking it.
 
 Each stage declares its options once, as a frozen dataclass (field = option,
-``None`` = derived from the data).  A TOML file has one table per stage,
-named by the dataclass's ``section`` class attribute::
+``None`` = derived from the data; see :mod:`rooftrace.options`).  A TOML
+file has one table per stage, named by the dataclass's ``section``::
 
     [ground]
     iteration_distance = 1.2
@@ -13,77 +13,134 @@ named by the dataclass's ``section`` class attribute::
     [classify]
     max_penetration = false     # an optional test switched off
 
-Unknown tables or keys are an error, so a typo never silently does nothing.
-TOML has no null, so an option whose ``None`` is meaningful and which
-defaults to a value is declared with :func:`optional`: ``false`` in the file
+:data:`SECTIONS` lists every table and its dataclass.  Unknown tables or
+keys are an error, so a typo never silently does nothing.  TOML has no null,
+so an option whose ``None`` is meaningful and which defaults to a value is
+declared with :func:`rooftrace.options.optional`: ``false`` in the file
 switches off a test, ``"auto"`` asks for the value derived from the data.
+:class:`RunOptions` holds the options of a whole run.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import importlib
-import json
 import os
-import sys
 import tomllib
-import types
-import typing
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar
 
+from rooftrace.contour.alpha_shape import STRATEGIES, AlphaOptions
+from rooftrace.contour.cdspline import CDSplineOptions
+from rooftrace.contour.corners import CornerOptions
+from rooftrace.contour.outline import OutlineOptions
+from rooftrace.contour.regularize import RegularizeOptions
+from rooftrace.contour.surface import SurfaceOptions
 from rooftrace.errors import InputError
+from rooftrace.grouping.ga import GAOptions
+from rooftrace.grouping.mrf import MRFOptions
+from rooftrace.image.candidates import CandidateOptions
+from rooftrace.image.corners import HarrisOptions
+from rooftrace.image.resection import ResectionOptions
+from rooftrace.lidar.classify import ClassifyOptions
+from rooftrace.lidar.detect import DetectOptions
+from rooftrace.lidar.ground import GroundOptions
+from rooftrace.lidar.outliers import OutlierOptions
+from rooftrace.lidar.segment import SegmentOptions
+from rooftrace.options import check_table, make_options
+from rooftrace.refine.options import RefineOptions
+from rooftrace.roof.structure import RoofOptions
+from rooftrace.snake.snake import SnakeOptions
+from rooftrace.synth.scene import SceneOptions
+from rooftrace.tiling.split import TileOptions
 
-__all__ = ["load_config", "make_options", "optional", "options_dict", "validate_config"]
-
-T = TypeVar("T")
-
-#: sections accepted in a config file; stages register themselves here
-KNOWN_SECTIONS: set[str] = {"run"}
+__all__ = ["SECTIONS", "RunOptions", "load_config", "validate_config", "check_sections"]
 
 
-#: modules whose import registers every section and its options dataclass(es)
-_STAGE_MODULES = (
-    "rooftrace.lidar.detect", "rooftrace.contour.outline", "rooftrace.roof", "rooftrace.refine",
-    "rooftrace.refine.building", "rooftrace.image.candidates", "rooftrace.image.corners",
-    "rooftrace.image.resection", "rooftrace.snake", "rooftrace.synth",
-)
+@dataclass(frozen=True)
+class RunOptions:
+    """Options of a whole run (``rooftrace run``, :func:`rooftrace.run_pipeline`).
 
+    Its own table ``[run]`` holds what the command line also sets; the
+    options of every stage the run goes through come from their tables.
 
-#: how a config file writes ``None`` for an :func:`optional` field, by meaning
-_NONE_SPELLING = {"off": False, "auto": "auto"}
-
-
-def optional(default: Any, *, none: str = "off") -> Any:
-    """A dataclass field with a default whose ``None`` a config file can still ask for.
-
-    Parameters
+    Attributes
     ----------
-    default
-        The default value (not None).
-    none : {'off', 'auto'}
-        What ``None`` means: the test is switched off (written ``false``
-        in TOML) or the value is derived from the data (written ``"auto"``).
+    alpha : {'global', 'building', 'point'} or None
+        Alpha-shape strategy (thesis S1, S2, S3), replacing ``[alpha]
+        strategy``; ``--alpha``.  None: the ``[alpha]`` table's.
+    planes : bool
+        Segment roof planes and derive ridges and faces; ``--no-planes``
+        sets it false.
+    detect : DetectOptions
+        ``[outliers]``, ``[ground]``, ``[segment]``, ``[classify]``.
+    outline : OutlineOptions
+        ``[surface]``, ``[alpha]``, ``[corners]``, ``[cdspline]``, ``[regularize]``.
+    roof : RoofOptions
+        ``[planes]``.
+    refine : RefineOptions
+        ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[harris]``.
     """
-    if none not in _NONE_SPELLING:
-        raise ValueError(f"none must be one of {sorted(_NONE_SPELLING)}, not {none!r}")
-    return dataclasses.field(default=default, metadata={"none": none})
+
+    section: ClassVar[str] = "run"
+
+    alpha: str | None = None
+    planes: bool = True
+    detect: DetectOptions = field(default_factory=DetectOptions)
+    outline: OutlineOptions = field(default_factory=OutlineOptions)
+    roof: RoofOptions = field(default_factory=RoofOptions)
+    refine: RefineOptions = field(default_factory=RefineOptions)
+
+    def __post_init__(self) -> None:
+        if self.alpha is not None and self.alpha not in STRATEGIES:
+            raise ValueError(f"alpha must be {', '.join(STRATEGIES[:-1])} or {STRATEGIES[-1]}, got {self.alpha!r}")
+
+    @classmethod
+    def from_config(cls, config: dict | None = None, *, alpha: str | None = None,
+                    planes: bool | None = None) -> RunOptions:
+        """Options of a run from a parsed config (checked whole first) and the command line's flags.
+
+        Parameters
+        ----------
+        config : dict, optional
+            Parsed TOML config (:func:`load_config`), one table per stage.
+        alpha, planes : optional
+            The flags ``--alpha`` and ``--no-planes``; None leaves the config's value.
+
+        Returns
+        -------
+        RunOptions
+
+        Examples
+        --------
+        >>> options = RunOptions.from_config({"alpha": {"strategy": "building"}, "run": {"planes": False}})
+        >>> options.outline.alpha.strategy, options.planes
+        ('building', False)
+        """
+        config = config or {}
+        validate_config(config)
+        own = make_options(cls, config, alpha=alpha, planes=planes)
+        strategy = own.alpha
+        return cls(alpha=own.alpha, planes=own.planes, detect=DetectOptions.from_config(config),
+                   outline=OutlineOptions.from_config(config, strategy=strategy),
+                   roof=make_options(RoofOptions, config), refine=RefineOptions.from_config(config))
 
 
-def _none_spellings(cls: type) -> dict[str, Any]:
-    """``{field: its TOML spelling of None}`` for the :func:`optional` fields of an options dataclass."""
-    return {f.name: _NONE_SPELLING[f.metadata["none"]] for f in dataclasses.fields(cls) if "none" in f.metadata}
-
-
-def _spells_none(value: Any, spelling: Any) -> bool:
-    # `False == 0` in Python: compare types too, so that 0 stays a number
-    return type(value) is type(spelling) and value == spelling
-
-
-def _resolve_none(cls: type, table: dict[str, Any]) -> dict[str, Any]:
-    """The table with ``false`` / ``"auto"`` of optional fields turned into ``None``."""
-    spellings = _none_spellings(cls)
-    return {k: None if k in spellings and _spells_none(v, spellings[k]) else v for k, v in table.items()}
+#: every table of a config file and the options dataclass that reads it
+SECTIONS: dict[str, type] = {
+    "run": RunOptions,
+    # detection
+    "outliers": OutlierOptions, "ground": GroundOptions, "segment": SegmentOptions, "classify": ClassifyOptions,
+    # outlines
+    "surface": SurfaceOptions, "alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions,
+    "regularize": RegularizeOptions,
+    # roof planes and ridges
+    "planes": RoofOptions,
+    # image refinement
+    "refine": RefineOptions, "mrf": MRFOptions, "ga": GAOptions, "candidates": CandidateOptions,
+    "harris": HarrisOptions,
+    # the other commands
+    "resection": ResectionOptions, "snake": SnakeOptions, "simulate": SceneOptions, "tiling": TileOptions,
+}
 
 
 def load_config(path: str | os.PathLike | None, *, validate: bool = True) -> dict[str, dict[str, Any]]:
@@ -123,102 +180,27 @@ def load_config(path: str | os.PathLike | None, *, validate: bool = True) -> dic
     return data
 
 
-def _section_classes() -> dict[str, list[type]]:
-    """Options dataclasses by config section, found in the imported stage modules.
-
-    One dataclass per section; a list, so that two stages claiming one table
-    are reported by :func:`validate_config`'s checks instead of one hiding
-    the other.
-    """
-    for name in _STAGE_MODULES:
-        importlib.import_module(name)
-    found: dict[str, list[type]] = {}
-    for mod_name, mod in list(sys.modules.items()):
-        if not mod_name.startswith("rooftrace.") or mod is None:
-            continue
-        for obj in list(vars(mod).values()):
-            section = getattr(obj, "section", None) if isinstance(obj, type) else None
-            if (isinstance(section, str) and dataclasses.is_dataclass(obj) and obj.__module__ == mod_name
-                    and obj not in found.get(section, [])):
-                found.setdefault(section, []).append(obj)
-    return found
-
-
-def _type_ok(value: Any, hint: Any) -> bool:
-    """Loose check of a TOML value against a field annotation (ints pass for floats)."""
-    if hint is Any or hint is object:
-        return True
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        return any(_type_ok(value, h) for h in typing.get_args(hint) if h is not type(None))
-    if origin is typing.Literal:
-        return value in typing.get_args(hint)
-    if hint is bool:
-        return isinstance(value, bool)
-    if hint is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    if hint is float:
-        return isinstance(value, (int, float)) and not isinstance(value, bool)
-    if hint is str:
-        return isinstance(value, str)
-    if origin in (tuple, list) or hint in (tuple, list):
-        return isinstance(value, list)
-    return True  # nested options, arrays ...: left to the dataclass
-
-
-def _type_name(hint: Any) -> str:
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        return " or ".join(_type_name(h) for h in typing.get_args(hint) if h is not type(None))
-    if origin is typing.Literal:
-        return "one of " + ", ".join(map(repr, typing.get_args(hint)))
-    if origin in (tuple, list) or hint in (tuple, list):
-        return "an array"
-    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(hint, str(hint))
-
-
 def validate_config(config: dict[str, Any]) -> None:
     """Refuse unknown tables, unknown keys and values of the wrong type or range, naming the file.
 
-    Every table a stage reads is checked, not only those of the running
-    command, so one config file can serve every command and a typo in any
-    table fails at once.  Each options dataclass is also built from its
-    table, so its own range checks (``__post_init__``) run before any data
-    is read.
+    Every table of :data:`SECTIONS` is checked, not only those of the
+    running command, so one config file can serve every command and a typo
+    in any table fails at once.  Each options dataclass is also built from
+    its table, so its own range checks (``__post_init__``) run before any
+    data is read.
+
+    Examples
+    --------
+    >>> validate_config({"run": {"typo_key": 1}})
+    Traceback (most recent call last):
+    ...
+    rooftrace.errors.InputError: config: [run] has unknown key(s) typo_key; known: alpha, planes
     """
     where = config.get("__path__", "config")
-    classes = _section_classes()
-    check_sections(config, KNOWN_SECTIONS)
+    check_sections(config, set(SECTIONS))
     for section, table in config.items():
-        if section == "__path__" or section not in classes:
-            continue
-        owners = classes[section]
-        fields = {f.name: f for c in owners for f in dataclasses.fields(c) if f.init}
-        unknown = sorted(set(table) - set(fields))
-        if unknown:
-            raise InputError(f"{where}: [{section}] has unknown key(s) {', '.join(unknown)}; "
-                             f"known: {', '.join(sorted(fields))}")
-        for cls in owners:
-            try:
-                hints = typing.get_type_hints(cls)
-            except Exception:  # an annotation that does not resolve: leave the checks to the dataclass
-                hints = {}
-            own = {f.name for f in dataclasses.fields(cls) if f.init}
-            spellings = _none_spellings(cls)
-            for key in sorted(set(table) & own):
-                if key in spellings and _spells_none(table[key], spellings[key]):
-                    continue
-                if key in hints and not _type_ok(table[key], hints[key]):
-                    spelled = f" or {json.dumps(spellings[key])}" if key in spellings else ""
-                    raise InputError(f"{where}: [{section}] {key} must be {_type_name(hints[key])}{spelled}, "
-                                     f"got {table[key]!r}")
-            try:
-                cls(**_resolve_none(cls, {k: v for k, v in table.items() if k in own}))
-            except (TypeError, ValueError) as exc:
-                message = str(exc)
-                if "required" in message and "argument" in message:
-                    continue  # a dataclass that cannot be built from its table alone
-                raise InputError(f"{where}: [{section}] {message.removeprefix(f'{where}: ')}") from None
+        if section != "__path__":
+            check_table(SECTIONS[section], section, table, where)
 
 
 def check_sections(config: dict[str, Any], known: set[str]) -> None:
@@ -229,28 +211,3 @@ def check_sections(config: dict[str, Any], known: set[str]) -> None:
         raise InputError(f"{where}: unknown section(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
 
 
-def make_options(cls: type[T], config: dict[str, Any] | None = None, **overrides: Any) -> T:
-    """Build a stage's options: dataclass defaults < config table < explicit overrides.
-
-    Overrides equal to ``None`` are ignored (an unset CLI flag).  Types are
-    checked against the defaults' types loosely: ints are accepted for floats.
-    """
-    section = getattr(cls, "section", cls.__name__.lower())
-    where = (config or {}).get("__path__", "config")
-    table = _resolve_none(cls, dict((config or {}).get(section, {})))
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(table) - set(names))
-    if unknown:
-        raise InputError(f"{where}: [{section}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
-    table.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        return cls(**table)
-    except (TypeError, ValueError) as exc:
-        # the message names the file only when a config value (not a CLI flag) is involved
-        prefix = f"{where}: " if (config or {}).get(section) and where not in str(exc) else ""
-        raise InputError(f"{prefix}[{section}] {exc}") from None
-
-
-def options_dict(options: Any) -> dict[str, Any]:
-    """Options as a plain dict, for run metadata and ``--json`` output."""
-    return dataclasses.asdict(options)

@@ -10,16 +10,25 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import PointCloud
+from rooftrace.config import RunOptions
 from rooftrace.errors import GeometryError
 from rooftrace.io.vector import Layer
 from rooftrace.progress import Reporter
+
+if TYPE_CHECKING:
+    from rooftrace.contour.outline import RoofOutline
+    from rooftrace.image.camera import FrameCamera, OrthoCamera
+    from rooftrace.lidar.detect import DerivedParams, Detection
+    from rooftrace.refine import RefineOptions, RefineResult
+    from rooftrace.roof import RoofOptions, RoofStructure
 
 __all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "refine_layers"]
 
@@ -28,7 +37,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class RunResult:
-    """Everything a run produced.
+    """Everything a run produced (:func:`run_pipeline`).
 
     Attributes
     ----------
@@ -46,10 +55,10 @@ class RunResult:
         Seconds per step.
     """
 
-    detection: Any
-    outlines: list
-    structures: list
-    refined: Any
+    detection: Detection
+    outlines: list[RoofOutline]
+    structures: list[RoofStructure]
+    refined: RefineResult | None
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -87,12 +96,10 @@ def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
     return {int(i): part for i, part in zip(ids, np.split(order, starts[1:]))}
 
 
-def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, config: dict | None,
+def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, options: RoofOptions,
                      mean_spacing: float, reporter: Reporter) -> list:
-    from rooftrace.config import make_options
-    from rooftrace.roof import RoofOptions, roof_structure
+    from rooftrace.roof import roof_structure
 
-    options = make_options(RoofOptions, config)
     structures = []
     # one BLAS thread, as in the Dask workers (small calls: threads only
     # rendezvous; measured equal or faster on Delft)
@@ -114,7 +121,8 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
-                  image: np.ndarray, camera: Any, *, config: dict | None = None, seed: int = 0):
+                  image: np.ndarray, camera: FrameCamera | OrthoCamera, *, options: RefineOptions | None = None,
+                  config: dict | None = None, seed: int = 0) -> tuple[RefineResult, dict[str, Layer]]:
     """Image refinement of the LiDAR layers of a run, every building in one pass.
 
     The untiled run and the merge of a tiled run both call this on their
@@ -140,8 +148,11 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
         Grey image in [0, 1].
     camera : FrameCamera or OrthoCamera
         Orientation of ``image``, same CRS as the layers.
+    options : RefineOptions, optional
+        The refinement's options; by default from ``config``.
     config : dict, optional
-        Parsed TOML config (``[refine]`` and its nested tables).
+        Parsed TOML config (``[refine]`` and its nested tables), when
+        ``options`` is not given.
     seed : int, default 0
         Seed of the genetic algorithm.
 
@@ -164,19 +175,20 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
         building_ids=ids,
         ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
         ridge_kinds=list(ridges.attributes["kind"]),
-        options=RefineOptions.from_config(config), seed=seed,
+        options=options if options is not None else RefineOptions.from_config(config), seed=seed,
     )
     return refined, _with_refinement(layers, refined)
 
 
-def _with_refinement(layers: dict[str, Layer], refined: Any) -> dict[str, Layer]:
+def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
     return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
             "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
             "roof_faces": layers["roof_faces"]}
 
 
-def building_layers(outlines: list, structures: list, refined: Any = None) -> dict[str, Layer]:
+def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure],
+                    refined: RefineResult | None = None) -> dict[str, Layer]:
     """The three output layers of DESIGN.md from the stage results."""
     from rooftrace.contour.outline import outlines_layer
     from rooftrace.roof import faces_layer, ridges_layer
@@ -188,16 +200,17 @@ def building_layers(outlines: list, structures: list, refined: Any = None) -> di
 
 def run_pipeline(
     cloud: PointCloud,
+    options: RunOptions | None = None,
     *,
     config: dict | None = None,
     alpha: str | None = None,
-    planes: bool = True,
+    planes: bool | None = None,
     image: np.ndarray | None = None,
-    camera: Any = None,
+    camera: FrameCamera | OrthoCamera | None = None,
     seed: int = 0,
     reporter: Reporter | None = None,
-    derived: Any = None,
-    buildings: Any = None,
+    derived: DerivedParams | None = None,
+    buildings: Callable[[np.ndarray, Detection], np.ndarray] | None = None,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -205,12 +218,18 @@ def run_pipeline(
     ----------
     cloud : PointCloud
         Raw points in a projected CRS (metres); the input classification is ignored.
+    options : RunOptions, optional
+        Every option of the run (:class:`rooftrace.config.RunOptions`); by
+        default built from ``config``, ``alpha`` and ``planes``.
     config : dict, optional
-        Parsed TOML config, one table per stage.
+        Parsed TOML config, one table per stage, when ``options`` is not given
+        (checked whole).
     alpha : {'global', 'building', 'point'}, optional
-        Alpha-shape strategy (thesis S1, S2, S3); default from the config.
-    planes : bool, default True
-        Segment roof planes and derive ridges and faces.
+        Alpha-shape strategy (thesis S1, S2, S3), when ``options`` is not
+        given; default from the config.
+    planes : bool, optional
+        Segment roof planes and derive ridges and faces, when ``options`` is
+        not given; default from the config (True).
     image : ndarray of shape (H, W), optional
         Grey image in [0, 1] for the refinement.
     camera : FrameCamera or OrthoCamera, optional
@@ -232,34 +251,42 @@ def run_pipeline(
     Returns
     -------
     RunResult
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> result = run_pipeline(scene.cloud)
+    >>> len(result.outlines), sorted(result.layers)
+    (1, ['ridges', 'roof_faces', 'roof_outlines'])
     """
-    from rooftrace.config import validate_config
-    from rooftrace.contour.outline import OutlineOptions, outline_buildings
+    from rooftrace.contour.outline import outline_buildings
     from rooftrace.lidar.detect import detect_buildings
 
+    if options is None:
+        options = RunOptions.from_config(config, alpha=alpha, planes=planes)
+    elif config or alpha is not None or planes is not None:
+        raise TypeError("run_pipeline: give options, or config, alpha and planes, not both")
     reporter = reporter or Reporter()
     timings: dict[str, float] = {}
-    if config:
-        validate_config(config)  # a config not read by load_config (library use) gets the same checks
 
-    detection = detect_buildings(cloud, config=config, reporter=reporter, derived=derived)
+    detection = detect_buildings(cloud, options.detect, reporter=reporter, derived=derived)
     building_id = detection.building_id
     if buildings is not None:
         building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
     members = points_by_building(building_id)
 
     t0 = time.perf_counter()
-    outline_options = OutlineOptions.from_config(config or {}, strategy=alpha)
     # the roof edge lies between the last roof point and the first that is not roof (noise aside)
     around = (building_id <= 0) & (detection.classification != 7)
-    outlines = outline_buildings(cloud.xyz, building_id, outline_options, mean_spacing=detection.mean_spacing,
+    outlines = outline_buildings(cloud.xyz, building_id, options.outline, mean_spacing=detection.mean_spacing,
                                  reporter=reporter, context_xy=cloud.xyz[around, :2])
     timings["outline"] = time.perf_counter() - t0
 
     structures: list = []
-    if planes and outlines:
+    if options.planes and outlines:
         t0 = time.perf_counter()
-        structures = _roof_structures(cloud, members, outlines, config, detection.mean_spacing, reporter)
+        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
     refined = None
@@ -268,7 +295,7 @@ def run_pipeline(
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
             refined, layers = refine_layers(layers, {s.building_id: s.planes for s in structures}, cloud.xyz,
-                                            image, camera, config=config, seed=seed)
+                                            image, camera, options=options.refine, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
     return RunResult(detection, outlines, structures, refined, layers, timings)

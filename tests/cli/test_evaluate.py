@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pyproj
 import pytest
 import shapely
@@ -13,6 +14,7 @@ from shapely.affinity import translate
 
 from rooftrace.cli.app import rounded
 from rooftrace.cli.main import main
+from rooftrace.io.raster import write_geotiff
 from rooftrace.io.vector import Layer, write_layers
 from tests.conftest import DELFT, need
 
@@ -101,7 +103,11 @@ def test_user_errors(tmp_path, files, capsys):
         ([str(e), str(r), "--min-overlap", "0"], "--min-overlap"),
         ([str(e), str(r), "--corner-tolerance", "0"], "--corner-tolerance"),
         ([str(e), str(r), "--aoi", str(lines)], "must be polygons"),
+        ([str(e), str(r), "--camera", str(r)], "--camera needs --image"),
+        ([str(e), str(r), "--compare", str(lines)], "must be polygons"),
+        ([str(e), str(r), "--image", str(tmp_path / "plain.tif")], "no georeference"),
     ]
+    write_geotiff(tmp_path / "plain.tif", np.zeros((8, 8), np.uint8))
     for k, (args, text) in enumerate(cases):
         code = main(["evaluate", *args, "-o", str(tmp_path / f"o{k}")])
         err = capsys.readouterr().err
@@ -111,6 +117,33 @@ def test_user_errors(tmp_path, files, capsys):
     # --crs overrides both files' CRS: the mismatch is then the user's explicit choice
     assert main(["evaluate", str(e), str(other), "-o", str(tmp_path / "ov"), "--crs", RD]) == 0
     assert "overridden by --crs" in capsys.readouterr().err
+
+
+def test_compare_and_orthophoto(tmp_path, files, capsys):
+    """A second extracted set side by side, and an orthophoto under the outlines (no camera file needed)."""
+    e, r, ext, ref = files
+    other = _write(tmp_path / "lidar_only.gpkg", [translate(p, 0.0, 0.8) for p in ref])
+    ortho = write_geotiff(tmp_path / "ortho.tif", np.full((3, 60, 260), 120, np.uint8),
+                          transform=(0.2, 0.0, -1.0, 0.0, -0.2, 11.0), crs=pyproj.CRS.from_user_input(RD))
+    out = tmp_path / "o"
+    assert main(["evaluate", str(e), str(r), "-o", str(out), "--compare", str(other), "--compare-label",
+                 "LiDAR only", "--label", "refined", "--image", str(ortho)]) == 0
+    text = capsys.readouterr().out
+    assert "refined" in text and "LiDAR only: 3 reference and 3 extracted buildings" in text
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["compare"]["label"] == "LiDAR only" and m["inputs"]["label"] == "refined"
+    # the compared set is evaluated as the first: a 0.8 m shift in y against 0.4 m in x
+    assert m["compare"]["rmse_y"] > 0.4 and m["compare"]["rmse_x"] == 0.0 and m["polis_mean"] < m["compare"]["polis_mean"]
+    html = (out / "report.html").read_text()
+    assert "<th>refined</th><th>LiDAR only</th>" in html and (out / "image.png").is_file()
+    assert main(["evaluate", str(e), str(r), "-o", str(out), "--overwrite", "--compare", str(other),
+                 "--json", "-q"]) == 0
+    assert json.loads(capsys.readouterr().out)["compare"]["label"] == "lidar_only.gpkg"
+    # an orthophoto in another CRS than the outlines is refused
+    web = write_geotiff(tmp_path / "web.tif", np.zeros((10, 10), np.uint8), transform=(1.0, 0, 0, 0, -1.0, 10.0),
+                        crs=pyproj.CRS.from_user_input("EPSG:3857"))
+    assert main(["evaluate", str(e), str(r), "-o", str(tmp_path / "w"), "--image", str(web)]) == 2
+    assert "different CRS" in capsys.readouterr().err
 
 
 def test_missing_crs_is_a_warning(tmp_path, files, capsys):

@@ -1,6 +1,7 @@
 """`rooftrace run` and `rooftrace demo` end to end on small simulated scenes."""
 
 import json
+import re
 
 import laspy
 import numpy as np
@@ -75,6 +76,10 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     assert "polis_mean_lidar_only" in summary
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html
+    # the report shows the image with both outline sets, and both sets' scores side by side
+    assert (out / "image.png").is_file() and "<th>LiDAR only</th>" in html
+    assert metrics["compare"]["label"] == "LiDAR only"
+    assert metrics["compare"]["polis_mean"] == pytest.approx(summary["polis_mean_lidar_only"], abs=1e-4)  # rounded
     # a second demo into the same folder needs --overwrite
     assert main(["demo", "-o", str(out), "--size", "50", "--density", "6"]) == 2
     assert "--overwrite" in capsys.readouterr().err
@@ -83,6 +88,8 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     assert main(["demo", "-o", str(out), "--size", "50", "--density", "6", "--seed", "2", "--no-image",
                  "--overwrite", "-q"]) == 0
     after = {p.name for p in out.iterdir()}
+    text = capsys.readouterr().out  # rounded, with units
+    assert re.search(r"polis_mean: \d+\.\d{3} m\n", text) and not re.search(r"\d\.\d{4,}", text), text
     assert {"image.tif", "camera.json"} <= before and not after & {"image.tif", "camera.json"}
     assert {"report.html", "metrics.json", "result.gpkg", "truth.gpkg", "points.laz", ".rooftrace-demo"} <= after
     assert [p.name for p in tmp_path.iterdir()] == ["demo"]  # no temporary folder beside it

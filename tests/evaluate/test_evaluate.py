@@ -75,7 +75,11 @@ def test_terraced_block_rule_is_recorded():
     (b,) = m["buildings"]
     assert b["reference_ids"] == [0, 1, 2] and b["polis"] == 0.0 and b["hausdorff"] == 0.0
     assert m["n_reference_found"] == 3 and m["object_completeness"] == 1.0
+    # how the buildings formed units, not only in the table
+    assert (m["n_matched_merged"], m["n_reference_in_merged"], m["n_extracted_in_merged"]) == (1, 3, 1)
+    assert (m["n_matched_one_to_one"], m["n_missed"], m["n_false_positive"]) == (0, 0, 0)
     m1 = evaluate(ext, ref, merge_blocks=False)
+    assert (m1["n_matched_one_to_one"], m1["n_matched_merged"], m1["n_missed"]) == (1, 0, 2)
     assert m1["matching_rule"] == "one-to-one" and m1["n_matched"] == 1
     assert [b["status"] for b in m1["buildings"]] == ["matched", "missed", "missed"]
     assert m1["completeness"] == 1.0  # area scores do not depend on matching

@@ -3,10 +3,10 @@ import pyproj
 import pytest
 
 from rooftrace.cloud import ASPRS, PointCloud
-from rooftrace.config import make_options
 from rooftrace.errors import InputError
 from rooftrace.lidar.detect import Detection, DetectOptions, detect_buildings
 from rooftrace.lidar.segment import SegmentOptions
+from rooftrace.options import make_options
 from tests.lidar.scenes import BUILDING, GROUND, TREE, f1, scene
 
 RD = pyproj.CRS("EPSG:28992")
@@ -133,7 +133,7 @@ def test_real_ign_tile_against_its_classes():
     truth = cloud.fields["classification"].copy()
     cloud.fields["classification"][:] = 0  # nothing may lean on the reference
     det = detect_buildings(cloud)
-    # measured 0.958 and 0.984 (benchmarks/RESULTS.md has the six tiles together)
+    # measured 0.958 and 0.984 (docs/design-notes.md has the six tiles together)
     assert f1(det.classification == 6, truth == 6) > 0.93
     assert f1(det.classification == 2, truth == 2) > 0.97
     assert det.n_buildings >= 1 and det.sigma_h < 0.05

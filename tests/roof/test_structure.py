@@ -6,9 +6,9 @@ import pytest
 import shapely
 import shapely.affinity
 
-from rooftrace.config import make_options
 from rooftrace.errors import InputError
 from rooftrace.io.vector import read_layer, write_layers
+from rooftrace.options import make_options
 from rooftrace.roof import RoofOptions, RoofStructure, faces_layer, models, ridges_layer, roof_structure
 from rooftrace.roof.structure import point_hull
 

@@ -44,7 +44,7 @@ def demo(
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.atomic import atomic_path, replace_folder, temporary_path
     from rooftrace.io.vector import read_layer, write_layers
-    from rooftrace.pipeline import run_pipeline
+    from rooftrace.pipeline import building_layers, run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
 
     setup_logging(quiet)
@@ -89,12 +89,24 @@ def demo(
     outlines = list(result.layers["roof_outlines"].geometries)
     ridges = list(result.layers["ridges"].geometries)
     metrics = evaluate(outlines, list(truth.geometries), extracted_ridges=ridges, reference_ridges=reference_ridges)
+    lidar_outlines = lidar_only = None
+    if result.refined is not None:
+        # what the image adds: the same scores for the LiDAR-only outlines of this run
+        lidar_layers = building_layers(result.outlines, result.structures)
+        lidar_outlines = list(lidar_layers["roof_outlines"].geometries)
+        lidar_only = evaluate(lidar_outlines, list(truth.geometries),
+                              extracted_ridges=list(lidar_layers["ridges"].geometries),
+                              reference_ridges=reference_ridges)
+        metrics["compare"] = {"label": "LiDAR only", **lidar_only}
     with atomic_path(output / "metrics.json", overwrite=True) as tmp:
         tmp.write_text(json.dumps(metrics, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     building = cloud.fields["truth_class"] == 6 if "truth_class" in cloud.fields else None
     report = write_report(output, metrics, outlines, list(truth.geometries),
                           points_xy=cloud.xyz[building, :2] if building is not None else None,
                           extracted_ridges=ridges, reference_ridges=reference_ridges,
+                          compare=lidar_outlines, compare_metrics=lidar_only,
+                          image=None if no_image else scene.image, camera=None if no_image else scene.camera,
+                          labels=("refined (LiDAR + image)" if lidar_only is not None else "extracted", "LiDAR only"),
                           title=f"rooftrace demo — synthetic scene, seed {seed}")
     replace_folder(output, final)
     report = final / report.relative_to(output)
@@ -102,9 +114,7 @@ def demo(
         "completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean",
         "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched",
         "ridge_completeness", "ridge_correctness", "ridge_position_error")}}
-    if result.refined is not None:
-        # what the image adds: the same scores for the LiDAR-only outlines of this run
-        lidar_only = evaluate([o.polygon for o in result.outlines], list(truth.geometries))
+    if lidar_only is not None:
         summary["polis_mean_lidar_only"] = lidar_only["polis_mean"]
         summary["f_score_lidar_only"] = lidar_only["f_score"]
     summary["run"] = result.summary()
@@ -112,7 +122,11 @@ def demo(
         emit_json(summary)
     else:
         typer.echo(f"report: {report}")
+        # lengths to the millimetre, scores to 0.001
+        units = {"polis_mean": " m", "polis_mean_lidar_only": " m", "rmse_z": " m", "ridge_position_error": " m"}
         for key in ("f_score", "polis_mean", "polis_mean_lidar_only", "rmse_z", "ridge_position_error",
                     "n_reference", "n_matched"):
             if key in summary:
-                typer.echo(f"{key:>22}: {summary[key]}")
+                value = summary[key]
+                text = f"{value:.3f}{units.get(key, '')}" if isinstance(value, float) else str(value)
+                typer.echo(f"{key:>22}: {text}")

@@ -87,35 +87,59 @@ def _points_xy(path: Path, crs):
     return cloud.xyz[:, :2], cloud.crs
 
 
-def _table(metrics: dict, out_dir: Path) -> None:
+def _cell(key: str, v) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "–"
+    if key.startswith("n_"):
+        return str(v)
+    if key == "corner_ratio_median":
+        return f"{v:.2f}×"
+    if key.startswith(("polis", "hausdorff", "rmse", "ridge_position", "corner_offset")):
+        return f"{v:.3f} m"
+    if "_area" in key:
+        return f"{v:,.1f} m²"
+    return f"{100 * v:.1f} %"
+
+
+def _table(sets: list[tuple[str, dict]], out_dir: Path) -> None:
+    """The scene scores of one extracted set, or of several side by side."""
     from rich.console import Console
     from rich.table import Table
 
     from rooftrace.evaluate import SUMMARY_KEYS
+    from rooftrace.evaluate.report import unit_sentence
 
     table = Table(title=f"rooftrace evaluate -> {out_dir}", title_justify="left")
     table.add_column("metric")
-    table.add_column("value", justify="right")
+    for label, _ in sets:
+        table.add_column("value" if len(sets) == 1 else label, justify="right")
     for key in SUMMARY_KEYS:
-        if key not in metrics:
-            continue
-        v = metrics[key]
-        if v is None or (isinstance(v, float) and math.isnan(v)):
-            text = "–"
-        elif key.startswith("n_"):
-            text = str(v)
-        elif key == "corner_ratio_median":
-            text = f"{v:.2f}×"
-        elif key.startswith(("polis", "hausdorff", "rmse", "ridge_position", "corner_offset")):
-            text = f"{v:.3f} m"
-        elif "_area" in key:
-            text = f"{v:,.1f} m²"
-        else:
-            text = f"{100 * v:.1f} %"
-        table.add_row(key, text)
+        if any(key in m for _, m in sets):
+            table.add_row(key, *(_cell(key, m.get(key)) for _, m in sets))
     console = Console(soft_wrap=True)
     console.print(table)
-    console.print(f"matching: {metrics['matching_rule_description']}")
+    console.print(f"matching: {sets[0][1]['matching_rule_description']}")
+    for label, m in sets:
+        console.print(("" if len(sets) == 1 else f"{label}: ") + unit_sentence(m))
+
+
+def _image_and_camera(image: Path, camera: Path | None):
+    """The image as read (bands, H, W), for the report, and the camera that projects outlines into it."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    from rooftrace.io.camera import image_camera
+    from rooftrace.io.checks import check_image_size
+
+    with warnings.catch_warnings():  # a frame image has no georeferencing, and needs none
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        cam = image_camera(image, camera)  # refuses an unreadable image with one error line
+        with rasterio.open(image) as ds:
+            bands = ds.read()
+    check_image_size(bands.shape[:0:-1], cam, str(image), str(camera or image))
+    return bands, cam
 
 
 @app.command("evaluate")
@@ -151,6 +175,22 @@ def evaluate_cmd(
                                                     help="Largest distance (m) at which an extracted corner "
                                                          "matches a reference corner (corner completeness, "
                                                          "correctness and offset).", show_default=True)] = 0.5,
+    compare: Annotated[Path | None, typer.Option("--compare", help="A second extracted set (e.g. the "
+                                                    "LiDAR-only outlines of a run with an image), evaluated "
+                                                    "against the same reference; its scores stand beside "
+                                                    "EXTRACTED's in the table and the report, and in "
+                                                    "metrics.json under 'compare'.")] = None,
+    compare_layer: Annotated[str | None, typer.Option("--compare-layer", help="Layer of --compare (default: "
+                                                         "roof_outlines if present, else the first).")] = None,
+    label: Annotated[str | None, typer.Option("--label", help="Name of EXTRACTED in the table and the "
+                                                 "report (default: its file name).")] = None,
+    compare_label: Annotated[str | None, typer.Option("--compare-label", help="Name of --compare (default: "
+                                                         "its file name).")] = None,
+    image: Annotated[Path | None, typer.Option("--image", help="An image shown in the report with the "
+                                                  "outlines over it: a georeferenced orthophoto (GeoTIFF) as "
+                                                  "it is, an aerial frame image with --camera.")] = None,
+    camera: Annotated[Path | None, typer.Option("--camera", help="camera.json of --image (needed for a frame "
+                                                   "image; the outlines must then be 3D).")] = None,
     crs: opt.Crs = None,
     json_: opt.Json = False,
     overwrite: opt.Overwrite = False,
@@ -175,7 +215,9 @@ def evaluate_cmd(
         raise InputError(f"--boundary-band must be a positive distance in metres, got {boundary_band}")
     if not corner_tolerance > 0.0:
         raise InputError(f"--corner-tolerance must be a positive distance in metres, got {corner_tolerance}")
-    for path in (extracted, reference, aoi, points):
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
+    for path in (extracted, reference, aoi, points, compare, image, camera):
         if path is not None and not path.exists():
             raise InputError(f"{path}: no such file")
     if output.exists() and not output.is_dir():
@@ -187,10 +229,16 @@ def evaluate_cmd(
     ext, ext_ids, ext_crs, ext_layer = _read_polygons(extracted, layer, "extracted outlines", crs)
     ref, ref_ids, ref_crs, ref_layer = _read_polygons(reference, reference_layer, "reference outlines", crs)
     _check_crs(ext_crs, ref_crs, str(extracted), str(reference))
+    other = None
+    if compare is not None:
+        other, other_ids, other_crs, other_layer = _read_polygons(compare, compare_layer, "compared outlines", crs)
+        _check_crs(other_crs, ref_crs, str(compare), str(reference))
     from rooftrace.io.checks import require_metric_crs
 
     # areas, PoLiS, Hausdorff and RMSE are reported in metres
-    for path, geoms, file_crs in ((extracted, ext, ext_crs), (reference, ref, ref_crs)):
+    checked = [(extracted, ext, ext_crs), (reference, ref, ref_crs)]
+    checked += [(compare, other, other_crs)] if other is not None else []
+    for path, geoms, file_crs in checked:
         if file_crs is not None:  # a file without CRS was warned about by _check_crs
             require_metric_crs(file_crs, str(path))
         if not any(g is not None and not g.is_empty for g in geoms):
@@ -209,18 +257,37 @@ def evaluate_cmd(
         xy, pts_crs = _points_xy(points, crs)
         _check_crs(pts_crs, ext_crs or ref_crs, str(points), str(extracted))
 
-    metrics = evaluate(ext, ref, aoi=area, extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
-                       ridge_buffer=ridge_buffer, min_overlap=min_overlap, merge_blocks=not no_merge_blocks,
-                       extracted_ids=ext_ids, reference_ids=ref_ids, boundary_band=boundary_band,
-                       corner_tolerance=corner_tolerance)
+    picture = cam = None
+    if image is not None:
+        picture, cam = _image_and_camera(image, camera)
+        from rooftrace.io.checks import check_same_crs
+
+        check_same_crs(getattr(cam, "crs", None), ext_crs or ref_crs, str(camera or image), str(extracted))
+
+    options = {"aoi": area, "ridge_buffer": ridge_buffer, "min_overlap": min_overlap,
+               "merge_blocks": not no_merge_blocks, "reference_ids": ref_ids, "boundary_band": boundary_band,
+               "corner_tolerance": corner_tolerance}
+    metrics = evaluate(ext, ref, extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
+                       extracted_ids=ext_ids, **options)
+    labels = (label or extracted.name, compare_label or (compare.name if compare is not None else "compared"))
+    compared = None
+    if other is not None:
+        other_ridges = _read_lines(compare) if other_layer != "ridges" else None
+        compared = evaluate(other, ref, extracted_ridges=other_ridges, reference_ridges=ref_ridges,
+                            extracted_ids=other_ids, **options)
     metrics["inputs"] = {"extracted": str(extracted), "extracted_layer": ext_layer,
                          "reference": str(reference), "reference_layer": ref_layer,
                          "aoi": str(aoi) if aoi is not None else None,
-                         "crs": (ext_crs or ref_crs).to_string() if (ext_crs or ref_crs) is not None else None}
+                         "crs": (ext_crs or ref_crs).to_string() if (ext_crs or ref_crs) is not None else None,
+                         "label": labels[0]}
+    if compared is not None:
+        compared["inputs"] = {"extracted": str(compare), "extracted_layer": other_layer}
+        metrics["compare"] = {"label": labels[1], **compared}
 
     output.mkdir(parents=True, exist_ok=True)
     report = write_report(output, metrics, ext, ref, points_xy=xy,
                           extracted_ridges=ext_ridges, reference_ridges=ref_ridges,
+                          compare=other, compare_metrics=compared, image=picture, camera=cam, labels=labels,
                           title=f"rooftrace evaluation: {extracted.name} vs {reference.name}")
     # metrics.json last: its presence marks a finished evaluation
     with atomic_path(metrics_path, overwrite) as tmp:
@@ -229,6 +296,8 @@ def evaluate_cmd(
     if json_:
         emit_json({"metrics": str(metrics_path), "report": str(report),
                    **{k: metrics[k] for k in SUMMARY_KEYS if k in metrics},
-                   "matching_rule": metrics["matching_rule"]})
+                   "matching_rule": metrics["matching_rule"],
+                   **({"compare": {"label": labels[1], **{k: compared[k] for k in SUMMARY_KEYS if k in compared}}}
+                      if compared is not None else {})})
     else:
-        _table(metrics, output)
+        _table([(labels[0], metrics)] + ([(labels[1], compared)] if compared is not None else []), output)

@@ -30,8 +30,8 @@ def _roof_planes(outlines, xyz: np.ndarray, cfg: dict) -> list:
     import shapely
     from scipy.spatial import cKDTree
 
-    from rooftrace.config import make_options
     from rooftrace.errors import GeometryError
+    from rooftrace.options import make_options
     from rooftrace.roof import RoofOptions, roof_structure
 
     options = make_options(RoofOptions, cfg)

@@ -18,11 +18,12 @@ import typer
 
 from rooftrace.cli import options as opt
 from rooftrace.cli.app import app, emit_json, setup_logging
-from rooftrace.config import load_config, make_options
+from rooftrace.config import load_config
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.image.resection import ResectionOptions, space_resection
 from rooftrace.io.atomic import check_output
 from rooftrace.io.camera import read_camera, write_camera
+from rooftrace.options import make_options
 
 __all__ = ["resect", "read_gcps"]
 

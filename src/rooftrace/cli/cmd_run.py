@@ -44,7 +44,7 @@ def run(
     An aerial frame image needs its orientation:
       rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
     """
-    from rooftrace.config import load_config
+    from rooftrace.config import RunOptions, load_config
     from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output, commit_together
@@ -57,7 +57,9 @@ def run(
     )
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
+    from rooftrace.options import make_options
     from rooftrace.pipeline import run_pipeline
+    from rooftrace.tiling import TileOptions
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
@@ -71,8 +73,13 @@ def run(
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
         check_output(classified, overwrite)
     cfg = load_config(config)
+    # the flags given win over the config's [run] and [tiling] tables
+    run_options = RunOptions.from_config(cfg, alpha=alpha, planes=False if no_planes else None)
+    tile_options = make_options(TileOptions, cfg, tile_size=tile_size, buffer=buffer,
+                                workers=workers if workers > 1 else None, scheduler=scheduler, resume=resume or None)
 
-    tiled = tile_size is not None or workers > 1 or scheduler is not None or resume
+    tiled = (tile_options.tile_size is not None or tile_options.workers > 1 or tile_options.scheduler is not None
+             or tile_options.resume)
     announced = header_points(inputs)  # None: not all readable LAS/LAZ (the readers say why)
     if not tiled and announced and not fits_in_memory(announced):
         log.warning("%s: %d points need about %.1f GiB in one piece and %.1f GiB are available; running in tiles "
@@ -82,14 +89,13 @@ def run(
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
     if tiled and announced != 0:
-        from rooftrace.tiling import TileOptions, run_tiled
+        from rooftrace.tiling import run_tiled
 
         reporter = reporter_for(quiet)
         try:
-            summary = run_tiled(inputs, output, TileOptions(tile_size=tile_size, buffer=buffer, workers=workers,
-                                                            scheduler=scheduler, resume=resume),
-                                crs=crs, config=cfg, alpha=alpha, planes=not no_planes, image=image, camera=camera,
-                                seed=seed, overwrite=overwrite, reporter=reporter, classified=classified)
+            summary = run_tiled(inputs, output, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
+                                planes=run_options.planes, image=image, camera=camera, seed=seed,
+                                overwrite=overwrite, reporter=reporter, classified=classified)
         finally:
             reporter.close()
         if not summary.get("buildings"):
@@ -118,8 +124,7 @@ def run(
         return
     reporter = reporter_for(quiet)
     try:
-        result = run_pipeline(cloud, config=cfg, alpha=alpha, planes=not no_planes, image=grey, camera=cam,
-                              seed=seed, reporter=reporter)
+        result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter)
     finally:
         reporter.close()
     with commit_together():  # both outputs new, or both as they were

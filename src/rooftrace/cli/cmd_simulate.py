@@ -10,8 +10,9 @@ import typer
 
 from rooftrace.cli import options as opt
 from rooftrace.cli.app import STATE, app, emit_json, reporter_for, setup_logging
-from rooftrace.config import load_config, make_options
+from rooftrace.config import load_config
 from rooftrace.errors import InputError, OutputExistsError
+from rooftrace.options import make_options
 
 Density = Annotated[float | None, typer.Option("--density", help="Mean ALS pulse density (pts/m²). [default: 12]")]
 Size = Annotated[float | None, typer.Option("--size", help="Side of the square scene (m). [default: 160]")]

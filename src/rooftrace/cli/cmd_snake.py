@@ -76,7 +76,7 @@ def snake(
     vertices follow the image edges (collinearity), keep right angles, and take Z from a LiDAR TIN."""
     import shapely
 
-    from rooftrace.config import load_config, make_options
+    from rooftrace.config import load_config
     from rooftrace.errors import GeometryError, InputError
     from rooftrace.io.atomic import check_output
     from rooftrace.io.camera import image_camera
@@ -84,6 +84,7 @@ def snake(
     from rooftrace.io.points import read_points
     from rooftrace.io.raster import read_image
     from rooftrace.io.vector import Layer, read_layer, vector_driver, write_layers
+    from rooftrace.options import make_options
     from rooftrace.snake import SnakeOptions, pixel_seeds_to_object, snake_outline
 
     setup_logging(quiet)

@@ -1,4 +1,4 @@
-"""The console script ``rooftrace`` (and ``python -m rooftrace``).
+"""The console script ``rooftrace`` (and ``python -m rooftrace.cli``).
 
 The interrupt handlers go in before anything heavy is imported: importing
 the commands (numpy, typer, ...) takes about a second, and a Ctrl-C then
@@ -13,9 +13,11 @@ __all__ = ["main"]
 
 
 def main() -> None:
-    from rooftrace.cli.interrupt import install_handlers
+    from rooftrace.cli.interrupt import ignore_from_now, install_handlers
 
     install_handlers()
     from rooftrace.cli.main import main as run
 
-    sys.exit(run())
+    code = run(sys.argv[1:])
+    ignore_from_now()
+    sys.exit(code)

@@ -32,7 +32,7 @@ from rooftrace.cli import (
     cmd_snake,  # noqa: F401
 )
 from rooftrace.cli.app import STATE, app
-from rooftrace.cli.interrupt import interrupt_handlers
+from rooftrace.cli.interrupt import ignore_from_now, interrupt_handlers
 from rooftrace.errors import InputError
 
 __all__ = ["main"]
@@ -106,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _exit(code: int, argv: list[str] | None) -> int:
     if argv is None:  # console script
+        ignore_from_now()
         sys.exit(code)
     return code
 

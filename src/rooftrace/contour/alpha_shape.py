@@ -47,7 +47,7 @@ class AlphaOptions:
         S3: per edge, the mean of its end points' spacings ps_avg, each the
         mean length of the Delaunay edges wholly inside a circle of
         ``radius`` around the point (thesis §4.3.1, eq. 4.5-4.6).
-        Default chosen by measurement (benchmarks/RESULTS.md, "Roof outlines").
+        Default chosen by measurement (docs/design-notes.md, "Roof outlines").
     alpha : float or None
         Alpha radius in metres for S1; None = the mean spacing passed by the
         caller (the cloud's s_avg), else the building's mean Delaunay edge length.
@@ -61,7 +61,7 @@ class AlphaOptions:
     scale : float
         Multiplies every alpha of the chosen strategy (1 = the thesis).
         Scan patterns leave wider gaps along roof edges than inside; 1.25
-        bridges them and measured best on City3D/AHN3 (benchmarks/RESULTS.md).
+        bridges them and measured best on City3D/AHN3 (docs/design-notes.md).
     """
 
     section = "alpha"

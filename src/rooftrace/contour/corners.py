@@ -25,7 +25,7 @@ class CornerOptions:
     t_dist : float
         Douglas-Peucker distance threshold T_dist in metres (3D).  The thesis
         (§5.5, DESIGN.md stage 7) used 0.6 m; 0.3 m measured better on
-        City3D/AHN3 at ~9 pts/m² (benchmarks/RESULTS.md).
+        City3D/AHN3 at ~9 pts/m² (docs/design-notes.md).
     t_ang : float
         Turning-angle threshold T_ang in degrees (0 = straight on): corners
         turning less are redundant (thesis eq. 5.10; DESIGN.md: 50°).

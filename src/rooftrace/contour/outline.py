@@ -19,7 +19,6 @@ import shapely
 from scipy.spatial import QhullError
 from threadpoolctl import threadpool_limits
 
-from rooftrace.config import KNOWN_SECTIONS, make_options
 from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
 from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
@@ -31,6 +30,7 @@ from rooftrace.contour.repair import make_valid_outline
 from rooftrace.contour.surface import SurfaceOptions, outline_points
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
+from rooftrace.options import make_options
 from rooftrace.progress import Reporter
 
 __all__ = ["OutlineOptions", "RoofOutline", "trace_outline", "outline_buildings", "outlines_layer", "connected_buildings"]
@@ -39,7 +39,6 @@ log = logging.getLogger(__name__)
 
 _STAGES = {"surface": SurfaceOptions, "alpha": AlphaOptions, "corners": CornerOptions, "cdspline": CDSplineOptions,
            "regularize": RegularizeOptions}
-KNOWN_SECTIONS.update(_STAGES)
 
 #: alpha is enlarged by these factors when the shape does not close, falls apart or does not bridge
 #: the sampling (status "alpha_enlarged")
@@ -329,6 +328,13 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     Returns
     -------
     list of RoofOutline
+
+    Examples
+    --------
+    >>> from rooftrace.roof.models import gable, sample_roof
+    >>> xyz, _ = sample_roof(gable(), density=12, noise=0.03, seed=1)
+    >>> [(o.building_id, o.status) for o in outline_buildings(xyz, np.ones(len(xyz), int))]
+    [(1, 'ok')]
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)

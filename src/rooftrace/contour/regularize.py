@@ -9,7 +9,7 @@ outward correction moves every ring that far away from the roof.  Snapping
 turns near-orthogonal straight segments to the building's dominant
 direction (the usual footprint regularisation).  Both keep vertex count and
 corner indices, and are kept as defaults only when they measure better
-(benchmarks/RESULTS.md, "Roof outlines").
+(docs/design-notes.md, "Roof outlines").
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ class RegularizeOptions:
         about half a grid spacing inside the edge); against wall footprints
         (Delft/BGT, where eaves already overhang) any correction costs
         correctness.  The default 0.1 meets both benchmarks' targets
-        (benchmarks/RESULTS.md, "Roof outlines"); use 0.3 when the reference
+        (docs/design-notes.md, "Roof outlines"); use 0.3 when the reference
         is the roof edge, 0 for wall lines.
     snap : bool
         Snap straight segments within ``snap_tolerance`` of the dominant

@@ -38,7 +38,8 @@ SUMMARY_KEYS = (
     "polis_mean", "polis_3d_mean", "hausdorff_mean", "rmse_x", "rmse_y", "rmse_z",
     "corner_ratio_median", "corner_ratio_within_1_5", "corner_completeness", "corner_correctness",
     "corner_offset_mean",
-    "n_reference", "n_extracted", "n_matched",
+    "n_reference", "n_extracted", "n_matched", "n_matched_merged", "n_reference_in_merged",
+    "n_extracted_in_merged", "n_missed", "n_false_positive",
     "ridge_completeness", "ridge_correctness", "ridge_position_error",
 )
 
@@ -119,6 +120,20 @@ def _corner_summary(matched: list[dict], tolerance: float) -> dict:
         "corner_offset_mean": offset / n_m if n_m else math.nan,
         "n_corners": n_e, "n_corners_reference": n_r, "n_corners_matched": n_m,
         "corner_tolerance": float(tolerance),
+    }
+
+
+def _unit_counts(buildings: list[dict]) -> dict:
+    """How the buildings form units: one to one, merged blocks, missed, false detections."""
+    matched = [b for b in buildings if b["status"] == "matched"]
+    merged = [b for b in matched if len(b["reference_ids"]) > 1 or len(b["extracted_ids"]) > 1]
+    return {
+        "n_matched_one_to_one": len(matched) - len(merged),
+        "n_matched_merged": len(merged),
+        "n_reference_in_merged": sum(len(b["reference_ids"]) for b in merged),
+        "n_extracted_in_merged": sum(len(b["extracted_ids"]) for b in merged),
+        "n_missed": sum(b["status"] == "missed" for b in buildings),
+        "n_false_positive": sum(b["status"] == "false_positive" for b in buildings),
     }
 
 
@@ -210,7 +225,12 @@ def evaluate(
         ``fn_area_boundary`` and ``fp_area_boundary``
         (:func:`~rooftrace.evaluate.metrics.boundary_errors`); object-level counts
         ``n_reference``, ``n_extracted``, ``n_matched`` (matched units),
-        ``n_reference_found`` and ``n_extracted_correct`` (buildings covered
+        ``n_matched_one_to_one`` and ``n_matched_merged`` (matched units of
+        one reference and one extracted building, and the others: blocks),
+        ``n_reference_in_merged`` and ``n_extracted_in_merged`` (the
+        buildings in those blocks), ``n_missed`` (reference buildings
+        without match), ``n_false_positive`` (extracted buildings without
+        match), ``n_reference_found`` and ``n_extracted_correct`` (buildings covered
         at least ``min_overlap`` by the other side), ``object_completeness``,
         ``object_correctness``; means over matched units ``polis_mean``,
         ``polis_median``, ``polis_3d_mean``, ``hausdorff_mean``,
@@ -304,6 +324,7 @@ def evaluate(
         "n_reference": int(len(ref)),
         "n_extracted": int(len(ext)),
         "n_matched": len(matched),
+        **_unit_counts(buildings),
         "n_reference_found": n_found,
         "n_extracted_correct": n_correct,
         "object_completeness": n_found / len(ref) if len(ref) else math.nan,

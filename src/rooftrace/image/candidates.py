@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.edges import canny_edges, link_chains, noise_sigma
 from rooftrace.image.linework import filter_candidates, fit_segments, merge_collinear, select_canny_steger
 from rooftrace.image.projection import (
@@ -50,7 +49,6 @@ from rooftrace.image.walls import mark_wall_lines
 __all__ = ["CandidateOptions", "LineCandidates", "extract_candidates", "KINDS"]
 
 log = logging.getLogger(__name__)
-KNOWN_SECTIONS.add("candidates")  # the [candidates] table of a config file
 
 #: the kinds of 3D lines
 KINDS = ("outline", "ridge")
@@ -95,7 +93,7 @@ class CandidateOptions:
         Canny/Steger choice (see :func:`~rooftrace.image.linework.select_canny_steger`):
         the rule's Steger lines added to all Canny lines, the seed's rule
         (flanking Canny pairs replaced), or Canny only.  ``'both'`` is the
-        default because it measured better (benchmarks/RESULTS.md, "Image
+        default because it measured better (docs/design-notes.md, "Image
         line candidates"): more true sides and ridges among the candidates,
         and refined outlines with PoLiS 0.116 m against 0.130 m for the
         seed's rule in ``bench_refine.py``.

@@ -30,13 +30,11 @@ import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
-from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.image.projection import window_slices
 
 __all__ = ["HarrisOptions", "harris_response", "harris_corners"]
 
 log = logging.getLogger(__name__)
-KNOWN_SECTIONS.add("harris")  # the [harris] table of a config file
 
 
 @dataclass(frozen=True)

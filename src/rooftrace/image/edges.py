@@ -82,7 +82,8 @@ def _colour_gradient(img: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndar
     return mag * np.cos(theta), mag * np.sin(theta), mag
 
 
-def _hysteresis(candidates: np.ndarray, strength: np.ndarray, low: float, high: float) -> np.ndarray:
+def hysteresis(candidates: np.ndarray, strength: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Canny's hysteresis: the candidate pixels above ``low`` connected (8-neighbours) to one above ``high``."""
     weak = candidates & (strength >= low)
     labels, n = ndi.label(weak, structure=np.ones((3, 3), bool))
     if n == 0:
@@ -178,7 +179,7 @@ def canny_edges(
         is_max = (m0 >= mp) & (m0 > mm)
         nms = np.zeros(shape, bool)
         nms[rows[is_max], cols[is_max]] = True
-        edges = _hysteresis(nms, mag, low, high)
+        edges = hysteresis(nms, mag, low, high)
         if mask is not None:
             edges &= np.asarray(mask, bool)
         sel = edges[rows, cols]

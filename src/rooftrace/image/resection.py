@@ -29,13 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 
 __all__ = ["ResectionOptions", "Resection", "space_resection", "initial_exterior", "wrap_angles"]
 
 log = logging.getLogger(__name__)
-KNOWN_SECTIONS.add("resection")  # the [resection] table of a config file
 
 
 @dataclass(frozen=True)

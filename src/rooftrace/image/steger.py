@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage as ndi
 
-from rooftrace.image.edges import _hysteresis, noise_sigma
+from rooftrace.image.edges import hysteresis, noise_sigma
 
 __all__ = ["hessian_line_points", "steger_lines", "steger_sigma", "line_position_bias", "line_response"]
 
@@ -344,7 +344,7 @@ def steger_lines(
     # only pixels above ``low`` can survive hysteresis
     strength, points, normals = hessian_line_points(image, s, polarity, min_strength=low)
     strength = _two_sided(np.asarray(image, float), s, strength, points, normals, line_width, min_contrast)
-    lines = _hysteresis(strength > 0, strength, low, high)
+    lines = hysteresis(strength > 0, strength, low, high)
     if mask is not None:
         lines &= np.asarray(mask, bool)
     if correct_bias:

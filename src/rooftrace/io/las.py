@@ -40,7 +40,8 @@ _CHUNK = 2_000_000
 _COORDS = {"X", "Y", "Z", "x", "y", "z"}
 
 
-def _backend():
+def laz_backend():
+    """The laspy LAZ backend to use (lazrs, in parallel when it can), or None without one."""
     for b in (laspy.LazBackend.LazrsParallel, laspy.LazBackend.Lazrs):
         if b.is_available():
             return b
@@ -74,7 +75,7 @@ def las_chunks(path: str | os.PathLike, chunk_size: int = _CHUNK) -> Iterator[tu
         raise InputError(f"{path}: no such file")
     n = start = 0
     try:
-        with laspy.open(path, laz_backend=_backend()) as reader:
+        with laspy.open(path, laz_backend=laz_backend()) as reader:
             header = reader.header
             n = int(header.point_count)
             check_point_count(path, header)
@@ -261,6 +262,21 @@ def write_las(
         Further extra dimensions (float64 or int32 ...) to add.
     overwrite : bool, default False
         Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written file (replaced atomically).
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from rooftrace.io.points import read_points
+    >>> xyz = np.array([[0.0, 0.0, 10.0], [4.0, 0.0, 10.0], [0.0, 3.0, 11.0]])
+    >>> path = write_las(pathlib.Path(tempfile.mkdtemp()) / "roof.laz", PointCloud(xyz),
+    ...                  classification=np.array([6, 6, 2]), building_id=np.array([1, 1, 0]))
+    >>> read_points(path).fields["building_id"].tolist()
+    [1, 1, 0]
     """
     path = Path(path)
     if path.suffix.lower() not in LAS_SUFFIXES:
@@ -291,7 +307,7 @@ def write_las(
     for name, values in added.items():
         las[name] = values
     with atomic_path(path, overwrite) as tmp:
-        las.write(tmp, laz_backend=_backend() if path.suffix.lower() == ".laz" else None)
+        las.write(tmp, laz_backend=laz_backend() if path.suffix.lower() == ".laz" else None)
     return path
 
 
@@ -332,9 +348,9 @@ def write_las_labels(paths: Sequence[Path], output: str | os.PathLike, classific
     with atomic_path(output, overwrite) as tmp:
         compress = output.suffix.lower() == ".laz"
         with laspy.open(tmp, mode="w", header=header, do_compress=compress,
-                        laz_backend=_backend() if compress else None) as writer:
+                        laz_backend=laz_backend() if compress else None) as writer:
             for p in paths:
-                with laspy.open(p, laz_backend=_backend()) as reader:
+                with laspy.open(p, laz_backend=laz_backend()) as reader:
                     for chunk in reader.chunk_iterator(chunk_size):
                         n = len(chunk)
                         out = laspy.ScaleAwarePointRecord.zeros(n, header=header)

@@ -142,6 +142,15 @@ def read_points(
     PointCloud
         All points, with a ``source_index`` field telling which file each
         point came from.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "roof.txt"
+    >>> np.savetxt(path, [[0, 0, 10], [4, 0, 10], [0, 3, 11], [4, 3, 11]])
+    >>> cloud = read_points(path, "EPSG:28992")
+    >>> len(cloud), cloud.crs.to_epsg()
+    (4, 28992)
     """
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]

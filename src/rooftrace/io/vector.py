@@ -104,6 +104,17 @@ def write_layers(
     InputError
         Unknown or multi-file format (Shapefile), several layers for a
         one-layer format, or an existing output without ``overwrite``.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> from shapely import box
+    >>> roofs = Layer([box(0, 0, 10, 8)], {"building_id": [1]}, "Polygon")
+    >>> path = write_layers(pathlib.Path(tempfile.mkdtemp()) / "roofs.gpkg", {"roof_outlines": roofs},
+    ...                     pyproj.CRS("EPSG:28992"))
+    >>> layer = read_layer(path, "roof_outlines")
+    >>> len(layer), layer.geometries[0].area
+    (1, 80.0)
     """
     path = Path(path)
     driver = vector_driver(path)

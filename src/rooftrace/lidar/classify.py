@@ -28,8 +28,8 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.config import optional
 from rooftrace.lidar._kernels import pair_pull
+from rooftrace.options import optional
 
 __all__ = ["ClassifyOptions", "cluster_means", "interior_points", "kmeans_1d", "local_penetration", "penetration",
            "separate_buildings"]
@@ -57,7 +57,7 @@ class ClassifyOptions:
         roofs next to walls and crowns keep their planar look.  The k-means
         on the clusters' mean entropy is the same either way.  Delft (AHN3)
         building F1 0.933 -> 0.950, IGN 0.897 -> 0.917 (with
-        ``max_penetration`` 0.3); see benchmarks/RESULTS.md.
+        ``max_penetration`` 0.3); see docs/design-notes.md.
     min_neighbours : int, default 10
         Smallest adaptive neighbourhood.
     neighbour_step : int, default 5
@@ -97,7 +97,7 @@ class ClassifyOptions:
         adaptive neighbourhood, which lets the flat tops of some crowns and
         hedges look planar (a 60 m² Delft hedge at 0.46); with it, 0.3 gave
         IGN building F1 0.898 -> 0.911 and Delft area F 0.915 -> 0.918, the
-        rest unchanged (benchmarks/RESULTS.md, measured with the linear
+        rest unchanged (docs/design-notes.md, measured with the linear
         guard on the adaptive size).
     building_penetration : float, default 0.6
         A whole building (its roof levels merged) is dropped when its

@@ -53,7 +53,6 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
-from rooftrace.config import KNOWN_SECTIONS, make_options, options_dict
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar.buildings import assemble_buildings
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, separate_buildings
@@ -63,13 +62,13 @@ from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
 from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
 from rooftrace.lidar.spacing import height_precision, mean_spacing, point_density
+from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
 
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
 
 log = logging.getLogger(__name__)
 
-KNOWN_SECTIONS.update({"outliers", "ground", "segment", "classify"})
 
 
 @dataclass(frozen=True)
@@ -206,6 +205,14 @@ def detect_buildings(
     InputError
         Fewer than 3 points, non-finite coordinates, geographic CRS, or all
         points on one line.
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> detection = detect_buildings(scene.cloud)
+    >>> np.unique(detection.building_id).tolist()
+    [0, 1]
     """
     _check_cloud(cloud)
     opt = options or DetectOptions.from_config(config)

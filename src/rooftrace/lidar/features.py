@@ -16,7 +16,7 @@ Two neighbourhoods:
   extension) into the wall above it and the crown beside it, so its points
   look volumetric; at a smaller k they are planar.  A crown is scattered at
   every scale and stays volumetric.  On Delft (AHN3) this moved the per-point
-  building F1 from 0.933 to 0.950 (benchmarks/RESULTS.md).
+  building F1 from 0.933 to 0.950 (docs/design-notes.md).
 
 The neighbours are those of ``cKDTree.query``, in its order: an exact search
 on a plan grid finds them (:class:`rooftrace.lidar._kernels.GridKnn`, about

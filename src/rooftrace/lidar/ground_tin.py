@@ -13,7 +13,7 @@ over Triangle's neighbour table, from the previous query's triangle (the
 queries come in a serpentine strip order, so the walks are short).
 ``startinpy`` (incremental insertion, 0.23 s for the same points, but one
 Python call per located point) and scipy's incremental Qhull were measured
-too and lose (see benchmarks/RESULTS.md, "City scale").
+too and lose (see docs/design-notes.md, "City scale").
 
 Tiles must equal the whole cloud, so nothing here may depend on vertex or
 triangle numbering, which differs between a tile and the whole:

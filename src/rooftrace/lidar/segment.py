@@ -41,9 +41,9 @@ from typing import ClassVar
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.config import optional
 from rooftrace.graph import components
 from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group, unique_pairs
+from rooftrace.options import optional
 
 __all__ = ["SegmentOptions", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels"]
 
@@ -65,7 +65,7 @@ class SegmentOptions:
         L_Dxy in units of s_avg.  The thesis uses 2 (Table 6.1); with s_avg
         measured over every return (crowns pull it down) 2.25 keeps roofs
         whole on AHN3 (building F1 0.907 at 2, 0.933 at 2.25 on Delft; see
-        benchmarks/RESULTS.md).
+        docs/design-notes.md).
     link_height : float or None
         L_Dh (m); ``None``: ``2·sigma_H`` (thesis Table 6.1) with the
         ``'slope'`` test, ``max(2·sigma_H, 0.3·L_Dxy)`` with the ``'normal'``
@@ -96,7 +96,7 @@ class SegmentOptions:
         crowns then fall apart into clusters too small for the k-means, which
         on a scene with few trees splits flat roofs from gables instead
         (tests/lidar/test_detect.py town: building F1 1.0 -> 0.93).  See
-        benchmarks/RESULTS.md.
+        docs/design-notes.md.
     absorb_rounds : int, default 3
         Rounds in which a building takes in unassigned points within L_Dxy
         (3D) whose own entropy is on the building side (roof edges, dormers
@@ -120,7 +120,7 @@ class SegmentOptions:
         no limit.  Not on by default: 1.0 gives Delft (AHN3) area F
         0.915 -> 0.921 (a 130 m² yard no longer filled) but the synthetic
         demo's PoLiS 0.080 -> 0.097 m (one building's outline flips to a
-        jagged one, median 0.073 -> 0.077 m); see benchmarks/RESULTS.md.
+        jagged one, median 0.073 -> 0.077 m); see docs/design-notes.md.
     absorb_touching : bool, default True
         After that, a building also takes in any unassigned point closer
         than s_avg (3D) to it, whatever its entropy (points interleaved with

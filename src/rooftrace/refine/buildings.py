@@ -144,6 +144,17 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
     Returns
     -------
     RefineResult
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, trees=False))
+    >>> grey = scene.image.mean(axis=0) / 255.0
+    >>> truth = scene.truth
+    >>> refined = refine_buildings(truth["roof_outlines"].geometries, truth["ridges"].geometries, grey, scene.camera,
+    ...                            points_xyz=scene.cloud.xyz)
+    >>> len(refined.outlines), len(refined.attributes["refine_status"])
+    (1, 1)
     """
     opt = options or RefineOptions()
     img = np.asarray(image, float)

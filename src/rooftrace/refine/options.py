@@ -13,13 +13,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from shapely.geometry import Polygon
 
-from rooftrace import config as _config
 from rooftrace.grouping.ga import GAOptions
 from rooftrace.grouping.mrf import MRFOptions
+from rooftrace.options import make_options, optional
 
 __all__ = ["RefineOptions", "BuildingRefinement", "keep_input"]
 
-_config.KNOWN_SECTIONS.update({"refine", "mrf", "ga"})
 
 
 @dataclass(frozen=True)
@@ -139,7 +138,7 @@ class RefineOptions:
     section = "refine"
 
     junction_tolerance: float = 1.0
-    simplify_tolerance: float | None = _config.optional(0.0, none="auto")
+    simplify_tolerance: float | None = optional(0.0, none="auto")
     min_side_px: float = 6.0
     ridges_on_planes: bool = True
     fuse: bool = True
@@ -201,10 +200,10 @@ class RefineOptions:
         from rooftrace.image.corners import HarrisOptions
 
         config = config or {}
-        nested = {"mrf": _config.make_options(MRFOptions, config), "ga": _config.make_options(GAOptions, config),
-                  "candidates": _config.make_options(CandidateOptions, config),
-                  "corners": _config.make_options(HarrisOptions, config)}
-        return _config.make_options(cls, config, **{**nested, **overrides})
+        nested = {"mrf": make_options(MRFOptions, config), "ga": make_options(GAOptions, config),
+                  "candidates": make_options(CandidateOptions, config),
+                  "corners": make_options(HarrisOptions, config)}
+        return make_options(cls, config, **{**nested, **overrides})
 
 
 @dataclass

@@ -27,7 +27,6 @@ import numpy as np
 import shapely
 from scipy.spatial import Delaunay, QhullError
 
-from rooftrace import config
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
@@ -136,7 +135,6 @@ class RoofOptions:
                     raise ValueError(f"{f.name} must be > 0 or None (derived), got {v}")
 
 
-config.KNOWN_SECTIONS.add(RoofOptions.section)
 
 
 @dataclass

@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.snake.dp import cycle_dp
 from rooftrace.snake.energy import EdgeField, angle_energy, edge_field, height_energy, side_energy, spacing_energy
@@ -37,7 +36,6 @@ __all__ = ["SnakeOptions", "SnakeResult", "snake_outline"]
 
 log = logging.getLogger(__name__)
 
-KNOWN_SECTIONS.add("snake")  # the [snake] table of a config file
 
 
 @dataclass(frozen=True)

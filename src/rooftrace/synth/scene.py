@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from rooftrace.config import KNOWN_SECTIONS
 from rooftrace.errors import InputError
 from rooftrace.synth.buildings import Building
 from rooftrace.synth.mix import ROOF_PALETTE, WALL_PALETTE, default_buildings
@@ -21,7 +20,6 @@ from rooftrace.synth.mix import ROOF_PALETTE, WALL_PALETTE, default_buildings
 __all__ = ["SceneOptions", "Terrain", "Trees", "PowerLine", "default_buildings", "make_terrain", "place_trees",
            "make_power_line", "ROOF_PALETTE", "WALL_PALETTE"]
 
-KNOWN_SECTIONS.add("simulate")  # the [simulate] table of a config file
 
 
 @dataclass(frozen=True)

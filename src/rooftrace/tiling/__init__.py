@@ -74,34 +74,35 @@ from rooftrace.tiling.image import (
 from rooftrace.tiling.split import (  # noqa: F401
     POINT_DTYPE,
     TileOptions,
-    _load_cloud,
-    _scan_headers,
-    _write_json,
+    load_tile_points,
     sample_windows,
+    scan_headers,
     split_to_tiles,
     tile_cell_ranges,
     tile_grid,
+    write_json,
 )
 from rooftrace.tiling.tile import (
-    _core,
-    _extent,
-    _write_classified,
+    TileTask,
     building_numbers,
     estimate_parameters,
     merge_tiles,
     owned_buildings,
     process_tile,
+    tile_core,
+    tile_extent,
+    write_classified_points,
 )
 
 __all__ = [
     "TileOptions", "tile_grid", "tile_cell_ranges", "sample_windows", "split_to_tiles", "estimate_parameters",
-    "owned_buildings", "process_tile", "merge_tiles", "run_tiled",
+    "owned_buildings", "TileTask", "process_tile", "merge_tiles", "run_tiled",
 ]
 
 log = logging.getLogger(__name__)
 
 
-def _process_and_release(*args) -> str:
+def _process_and_release(task: TileTask) -> str:
     """:func:`process_tile`, then give the heap pages it freed back to the OS.
 
     Without Dask's MALLOC_TRIM_THRESHOLD_ (see :func:`_execute`) glibc keeps
@@ -109,7 +110,7 @@ def _process_and_release(*args) -> str:
     largest tile's size together: the 11 M-point block peaked at 3.96 GiB.
     ``malloc_trim`` once per tile costs nothing next to a tile.
     """
-    out = process_tile(*args)
+    out = task.run()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc
@@ -117,11 +118,11 @@ def _process_and_release(*args) -> str:
     return out
 
 
-def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporter) -> list[str]:
+def _execute(tasks: list[TileTask], sizes: list[int], options: TileOptions, reporter: Reporter) -> list[str]:
     if options.scheduler is None and options.workers <= 1:
         out = []
         for t in tasks:
-            out.append(_process_and_release(*t))
+            out.append(_process_and_release(t))
             reporter.advance()
         return out
     import dask
@@ -151,7 +152,7 @@ def _execute(tasks: list[tuple], sizes: list[int], options: TileOptions, reporte
         # the biggest tiles first, so that the last task to finish is a short
         # one; the merge does not depend on the order results come back in
         order = sorted(range(len(tasks)), key=lambda i: -sizes[i])
-        futures = [client.submit(_process_and_release, *tasks[i], key=f"rooftrace-tile-{tasks[i][1]}-{os.getpid()}",
+        futures = [client.submit(_process_and_release, tasks[i], key=f"rooftrace-tile-{tasks[i].key}-{os.getpid()}",
                                  pure=False) for i in order]
         for _ in as_completed(futures):
             reporter.advance()
@@ -242,7 +243,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     paths = [Path(p) for p in inputs]
     if not paths:
         raise InputError("no input files given")
-    head = _scan_headers(paths)
+    head = scan_headers(paths)
     if classified is not None:
         from rooftrace.io.las import check_point_formats
 
@@ -278,7 +279,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     meta_path = run_dir / "run.json"
     if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
         raise InputError(f"{run_dir}: --resume with different inputs or options; rerun without --resume")
-    _write_json(meta_path, meta)
+    write_json(meta_path, meta)
 
     timings: dict[str, float] = {}
     reporter = reporter or Reporter()
@@ -292,18 +293,18 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         derived = DerivedParams.from_dict(json.loads(derived_path.read_text()))
     else:
         with reporter.stage("parameters"):
-            sample = _load_cloud(run_dir / "sample", crs_obj)
+            sample = load_tile_points(run_dir / "sample", crs_obj)
             sample.sources = [str(p) for p in paths]
             derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
             del sample
-        _write_json(derived_path, derived.to_dict())
+        write_json(derived_path, derived.to_dict())
     timings["parameters"] = time.perf_counter() - t0
     log.info("parameters of the whole run: s_avg %.3f m, d_avg %.2f pts/m², sigma_H %.3f m, entropy threshold %.3f",
              derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
     keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
     wkt = crs_obj.to_wkt() if crs_obj is not None else None
-    tasks = [(str(run_dir), k, _core(index, k), wkt, cfg, alpha, planes, seed, derived.to_dict(), _extent(index, k),
-              classified is not None, refine_context) for k in keys]
+    tasks = [TileTask(str(run_dir), k, tuple(tile_core(index, k)), wkt, cfg, alpha, planes, seed, derived.to_dict(),
+                      tuple(tile_extent(index, k)), classified is not None, refine_context) for k in keys]
     t0 = time.perf_counter()
     with reporter.stage("tiles", total=len(tasks)):
         result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
@@ -318,7 +319,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     if cam is not None and len(layers["roof_outlines"]):
         for k, res in zip(keys, results):
             for x, y, r in np.asarray(res.get("refine_discs", []), float).reshape(-1, 3)[
-                    cut_neighbourhoods(res.get("refine_discs", []), _extent(index, k), index["bounds"])]:
+                    cut_neighbourhoods(res.get("refine_discs", []), tile_extent(index, k), index["bounds"])]:
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
                             "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
         t0 = time.perf_counter()
@@ -330,7 +331,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         timings["merge"] = merge_seconds + time.perf_counter() - t0
         if classified is not None:
             t0 = time.perf_counter()
-            _write_classified(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
+            write_classified_points(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
             timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:

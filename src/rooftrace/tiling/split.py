@@ -220,7 +220,8 @@ def sample_windows(bounds: Sequence[float], n_points: int, sample_points: int, o
     return np.asarray(out, np.int64)
 
 
-def _scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
+def scan_headers(paths: Sequence[Path]) -> dict[str, Any]:
+    """Point counts, CRSs and the joint bounds of LAS/LAZ files from their headers (no point is read)."""
     import laspy
 
     from rooftrace.io.las import check_point_count, las_crs
@@ -287,7 +288,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     """
     import laspy
 
-    from rooftrace.io.las import _backend, check_header_bounds
+    from rooftrace.io.las import check_header_bounds, laz_backend
 
     index_path = run_dir / "tiles.json"
     if options.resume and index_path.exists():
@@ -295,7 +296,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     for sub in ("tiles", "sample"):
         if (run_dir / sub).exists():
             shutil.rmtree(run_dir / sub)
-    head = _scan_headers(paths)
+    head = scan_headers(paths)
     bounds = head["bounds"]
     origin = (bounds[0], bounds[1]) if origin is None else (float(origin[0]), float(origin[1]))
     size, buf = options.resolved_tile_size(head["counts"], head["boxes"]), options.resolved_buffer
@@ -309,7 +310,7 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
     (run_dir / "sample").mkdir(parents=True, exist_ok=True)
     for f_index, p in enumerate(paths):
         try:
-            reader_cm = laspy.open(p, laz_backend=_backend())
+            reader_cm = laspy.open(p, laz_backend=laz_backend())
         except (laspy.errors.LaspyException, OSError) as exc:
             raise InputError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
         with reader_cm as reader:
@@ -368,17 +369,19 @@ def split_to_tiles(paths: Sequence[Path], run_dir: Path, options: TileOptions, *
                                "points": int(counts[i, j])}
                   for i in range(len(xs)) for j in range(len(ys)) if counts[i, j] > 0},
     }
-    _write_json(index_path, index)
+    write_json(index_path, index)
     return index
 
 
-def _write_json(path: Path, data: Any) -> None:
+def write_json(path: Path, data: Any) -> None:
+    """Write a run folder's JSON file through a temporary file, so a killed run never leaves half of one."""
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(data, indent=1))
     os.replace(tmp, path)
 
 
-def _load_cloud(folder: Path, crs) -> Any:
+def load_tile_points(folder: Path, crs) -> Any:
+    """The points stored in a tile's folder (``*.npy`` records) as a PointCloud with their ``gidx`` and returns."""
     from rooftrace.cloud import PointCloud
 
     parts = sorted(folder.glob("*.npy")) if folder.exists() else []

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from rooftrace.tiling.split import _load_cloud, near_open_side, tile_grid
+from rooftrace.tiling.split import load_tile_points, near_open_side, tile_grid
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,28 @@ def owned_buildings(xyz: np.ndarray, building_id: np.ndarray, core: Sequence[flo
     return ids.astype(np.int64), owned, local[first], np.column_stack([lo, hi])
 
 
+@dataclasses.dataclass(frozen=True)
+class TileTask:
+    """One tile's work as it goes to a worker: the arguments of :func:`process_tile`, by name."""
+
+    run_dir: str
+    key: str
+    core: tuple[float, float, float, float]
+    crs_wkt: str | None
+    config: dict | None
+    alpha: str | None
+    planes: bool
+    seed: int
+    derived: dict[str, Any]
+    extent: tuple[float, float, float, float] | None = None
+    classified: bool = False
+    refine_context: float | None = None
+
+    def run(self) -> str:
+        """:func:`process_tile` with these arguments; the path of the tile's result."""
+        return process_tile(**{f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+
+
 def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | None,
                  config: dict | None, alpha: str | None, planes: bool, seed: int,
                  derived: dict[str, Any], extent: Sequence[float] | None = None, classified: bool = False,
@@ -155,7 +177,7 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
         return str(out)
     t0 = time.perf_counter()
     crs = pyproj.CRS.from_wkt(crs_wkt) if crs_wkt else None
-    cloud = _load_cloud(run / "tiles" / key, crs)
+    cloud = load_tile_points(run / "tiles" / key, crs)
     fixed = DerivedParams.from_dict(derived)
     bounds = fixed.extent  # of the whole input: past it there is no data to miss
     if extent is not None:
@@ -232,7 +254,8 @@ def _keep_for_refinement(result: dict, cloud, run_out, keep_ids: np.ndarray, con
     result["refine_discs"] = discs.tolist()  # the parent warns about those its tile may have cut
 
 
-def _write_classified(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
+def write_classified_points(paths, out, results, result_paths, n_points, crs, overwrite) -> None:
+    """Write the input points with the merged run's classes and building ids (the tiled ``--classified``)."""
     from rooftrace.io.las import write_las_labels
     from rooftrace.tiling.classified import merge_labels
 
@@ -257,7 +280,8 @@ def _save_labels(path: Path, cloud, core: Sequence[float], labelled) -> None:
     os.replace(tmp, path)
 
 
-def _core(index: dict, key: str) -> tuple[float, float, float, float]:
+def tile_core(index: dict, key: str) -> tuple[float, float, float, float]:
+    """The core of tile ``key`` (xmin, ymin, xmax, ymax; infinite on the outer sides of the grid)."""
     size = index["tile_size"]
     xs, ys = tile_grid(index["bounds"], size)
     i, j = (int(v) for v in key.split("_"))
@@ -266,7 +290,7 @@ def _core(index: dict, key: str) -> tuple[float, float, float, float]:
             -np.inf if j == 0 else float(y0), np.inf if j == len(ys) - 1 else float(y0 + size))
 
 
-def _extent(index: dict, key: str) -> list[float]:
+def tile_extent(index: dict, key: str) -> list[float]:
     """The buffered tile (whole cells) clipped to the input's bounds."""
     (ox, oy), cell, b = index["origin"], index["cell"], index["bounds"]
     cx0, cx1, cy0, cy1 = index["tiles"][key]["cells"]

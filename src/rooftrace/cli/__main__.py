@@ -1,0 +1,5 @@
+"""``python -m rooftrace.cli``: the command line, as the ``rooftrace`` console script runs it."""
+
+from rooftrace.cli.entry import main
+
+main()
