@@ -9,7 +9,7 @@
 
 Prints one line per method: mean PoLiS (m) and mean area F-score (per
 building for City3D; one overlay of all polygons for Delft) and run time;
-``shapes`` and ``simulator`` add the corner measures of ``_corners.py`` and
+``shapes`` and ``simulator`` add the corner measures of ``rooftrace evaluate`` and
 record their figures with ``_results.record``.
 """
 
@@ -202,23 +202,23 @@ def speed() -> None:
 
 def _shape_rows(name: str, polys, truths, seconds: float | None = None, curved=None) -> list[dict]:
     """Mean PoLiS, F, corner measures (and time) of one method's outlines as result rows; prints one line."""
-    from _corners import corner_scores
+    from rooftrace.evaluate.metrics import corner_metrics
 
     pol = np.array([polis(p, t) if p is not None and not p.is_empty else np.nan for p, t in zip(polys, truths)])
     f = np.array([area_scores(p if p is not None and not p.is_empty else None, t)["f_score"]
                   for p, t in zip(polys, truths)])
-    cs = [corner_scores(p, t) for p, t in zip(polys, truths)]
-    ratio = np.array([c["ratio"] for c in cs])
+    cs = [corner_metrics(p, t) for p, t in zip(polys, truths)]
+    ratio = np.array([c["corner_ratio"] for c in cs])
     within = np.maximum(ratio, 1 / ratio) <= 1.5
     rows = [("polis_mean", np.nanmean(pol), "m"), ("f_score", np.mean(np.nan_to_num(f)), ""),
             ("corner_ratio_median", np.nanmedian(ratio), ""), ("corner_ratio_within_1.5", np.mean(within), ""),
             ("corner_ratio_at_most_1.5", np.mean(ratio <= 1.5), ""),
-            ("corner_completeness", np.mean([c["completeness"] for c in cs]), ""),
-            ("corner_correctness", np.mean([c["correctness"] for c in cs]), ""),
-            ("corner_offset_mean", np.nanmean([c["offset"] for c in cs]), "m"), ("failed", np.isnan(pol).sum(), "")]
+            ("corner_completeness", np.nanmean([c["corner_completeness"] for c in cs]), ""),
+            ("corner_correctness", np.nanmean([c["corner_correctness"] for c in cs]), ""),
+            ("corner_offset_mean", np.nanmean([c["corner_offset"] for c in cs]), "m"), ("failed", np.isnan(pol).sum(), "")]
     if curved is not None:
         curved = np.asarray(curved)
-        right = np.array([c["n"] == c["n_ref"] for c in cs])
+        right = np.array([c["n_corners"] == c["n_corners_reference"] for c in cs])
         rows += [("polis_mean_straight", np.nanmean(pol[~curved]), "m"), ("right_corners_straight", right[~curved].mean(), ""),
                  ("polis_mean_curved", np.nanmean(pol[curved]), "m")]
     if seconds is not None:
