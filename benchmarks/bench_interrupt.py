@@ -43,7 +43,7 @@ LAYERS = {"roof_outlines", "ridges", "roof_faces"}
 
 
 def command(src: Path, folder: Path, tiled: bool) -> list[str]:
-    args = [sys.executable, "-m", "rooftrace.cli", "run", str(src), "--crs", "EPSG:28992", "-o", str(folder / "roofs.gpkg"),
+    args = [sys.executable, "-m", "rooftrace", "run", str(src), "--crs", "EPSG:28992", "-o", str(folder / "roofs.gpkg"),
             "--classified", str(folder / "points.laz"), "-q", "--overwrite"]
     return args + (["--workers", "2", "--tile-size", "120"] if tiled else [])
 

@@ -50,7 +50,7 @@ def test_the_commands_after_make_demo_run_as_written(tmp_path, capsys):
             assert words[1] == ".venv/bin/activate"
             continue
         assert words[0] in (".venv/bin/rooftrace", "rooftrace"), line
-        done = subprocess.run([sys.executable, "-m", "rooftrace.cli", *words[1:]], cwd=tmp_path, env=env,
+        done = subprocess.run([sys.executable, "-m", "rooftrace", *words[1:]], cwd=tmp_path, env=env,
                               capture_output=True, text=True, timeout=300)
         assert done.returncode == 0, (line, done.stderr)
         ran += 1

@@ -46,6 +46,7 @@ from rooftrace.lidar.detect import DetectOptions
 from rooftrace.lidar.ground import GroundOptions
 from rooftrace.lidar.outliers import OutlierOptions
 from rooftrace.lidar.segment import SegmentOptions
+from rooftrace.model.build import ModelOptions
 from rooftrace.options import check_table, make_options
 from rooftrace.refine.options import RefineOptions
 from rooftrace.roof.structure import RoofOptions
@@ -79,6 +80,8 @@ class RunOptions:
         ``[planes]``.
     refine : RefineOptions
         ``[refine]``, ``[mrf]``, ``[ga]``, ``[candidates]``, ``[harris]``.
+    model : ModelOptions
+        ``[model]``: the 3D models.
     """
 
     section: ClassVar[str] = "run"
@@ -89,6 +92,7 @@ class RunOptions:
     outline: OutlineOptions = field(default_factory=OutlineOptions)
     roof: RoofOptions = field(default_factory=RoofOptions)
     refine: RefineOptions = field(default_factory=RefineOptions)
+    model: ModelOptions = field(default_factory=ModelOptions)
 
     def __post_init__(self) -> None:
         if self.alpha is not None and self.alpha not in STRATEGIES:
@@ -122,7 +126,8 @@ class RunOptions:
         strategy = own.alpha
         return cls(alpha=own.alpha, planes=own.planes, detect=DetectOptions.from_config(config),
                    outline=OutlineOptions.from_config(config, strategy=strategy),
-                   roof=make_options(RoofOptions, config), refine=RefineOptions.from_config(config))
+                   roof=make_options(RoofOptions, config), refine=RefineOptions.from_config(config),
+                   model=make_options(ModelOptions, config))
 
 
 #: every table of a config file and the options dataclass that reads it
@@ -135,6 +140,8 @@ SECTIONS: dict[str, type] = {
     "regularize": RegularizeOptions,
     # roof planes and ridges
     "planes": RoofOptions,
+    # 3D models
+    "model": ModelOptions,
     # image refinement
     "refine": RefineOptions, "mrf": MRFOptions, "ga": GAOptions, "candidates": CandidateOptions,
     "harris": HarrisOptions,

@@ -1,4 +1,4 @@
-"""The method as a flowchart: detect → outline → roof planes and ridges → (image refinement).
+"""The method as a flowchart: detect → outline → roof planes and ridges → 3D models → (image refinement).
 
 Each step is one call into a stage package; this module only wires them,
 groups points per building and turns the results into the output layers of
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from rooftrace.contour.outline import RoofOutline
     from rooftrace.image.camera import FrameCamera, OrthoCamera
     from rooftrace.lidar.detect import DerivedParams, Detection
+    from rooftrace.model import BuildingModel, ModelOptions
     from rooftrace.refine import RefineOptions, RefineResult
     from rooftrace.roof import RoofOptions, RoofStructure
 
@@ -50,9 +51,13 @@ class RunResult:
     refined : RefineResult or None
         Image refinement, when an image and a camera were given.
     layers : dict of str to Layer
-        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write.
+        ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write, and
+        the models' 3D layers ``lod12``, ``lod13``, ``lod22`` when they were built.
     timings : dict of str to float
         Seconds per step.
+    models : list of BuildingModel
+        LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
+        building, in building-id order (empty when disabled).
     """
 
     detection: Detection
@@ -61,6 +66,7 @@ class RunResult:
     refined: RefineResult | None
     layers: dict[str, Layer]
     timings: dict[str, float] = field(default_factory=dict)
+    models: list[BuildingModel] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -76,6 +82,8 @@ class RunResult:
             "ridges": len(self.layers["ridges"]),
             "roof_faces": len(self.layers["roof_faces"]),
             "refined": self.refined is not None,
+            "models": {s: sum(m.attributes.get("status") == s for m in self.models)
+                       for s in sorted({m.attributes.get("status") for m in self.models})},
             "mean_spacing": float(det.mean_spacing),
             "density": float(det.density),
             "sigma_h": float(det.sigma_h),
@@ -118,6 +126,27 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                 # a bug in one building (Qhull raises RuntimeError) must not stop a city
                 log.warning("building %d: roof planes failed (%s: %s)", outline.building_id, type(exc).__name__, exc)
     return structures
+
+
+def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.ndarray], outlines: list,
+                     structures: list, options: ModelOptions, reporter: Reporter) -> list:
+    from rooftrace.model import build_model, building_attributes, ground_height
+
+    roofs = {s.building_id: s for s in structures}
+    models = []
+    with reporter.stage("3D models", total=len(outlines)):
+        for outline in outlines:
+            reporter.advance()
+            idx = members.get(outline.building_id)
+            if idx is None or outline.polygon is None or outline.polygon.is_empty:
+                continue  # no outline, no footprint: roof_outlines says why
+            xyz = cloud.xyz[idx]
+            ground = ground_height(xyz[:, 2] - hag[idx], options.ground_percentile)
+            roof = roofs.get(outline.building_id)
+            model = build_model(outline.polygon, roof, xyz, ground, building_id=outline.building_id, options=options)
+            model.attributes = building_attributes(model, roof, xyz, ground)
+            models.append(model)
+    return models
 
 
 def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
@@ -182,19 +211,21 @@ def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], point
 
 def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
     outlines = layers["roof_outlines"]
-    return {"roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
-            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ"),
-            "roof_faces": layers["roof_faces"]}
+    return {**layers,
+            "roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
+            "ridges": Layer(list(refined.ridges), dict(refined.ridge_attributes), "LineStringZ")}
 
 
 def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure],
-                    refined: RefineResult | None = None) -> dict[str, Layer]:
-    """The three output layers of DESIGN.md from the stage results."""
+                    refined: RefineResult | None = None, models: list[BuildingModel] | None = None
+                    ) -> dict[str, Layer]:
+    """The output layers of DESIGN.md from the stage results (the 3D ``lodXX`` layers when ``models`` is given)."""
     from rooftrace.contour.outline import outlines_layer
+    from rooftrace.model.layers import model_layers
     from rooftrace.roof import faces_layer, ridges_layer
 
     layers = {"roof_outlines": outlines_layer(outlines), "ridges": ridges_layer(structures),
-              "roof_faces": faces_layer(structures)}
+              "roof_faces": faces_layer(structures), **(model_layers(models) if models is not None else {})}
     return layers if refined is None else _with_refinement(layers, refined)
 
 
@@ -211,6 +242,7 @@ def run_pipeline(
     reporter: Reporter | None = None,
     derived: DerivedParams | None = None,
     buildings: Callable[[np.ndarray, Detection], np.ndarray] | None = None,
+    models: bool = True,
 ) -> RunResult:
     """Run the whole LiDAR method, and the image refinement when ``image`` and ``camera`` are given.
 
@@ -247,6 +279,9 @@ def run_pipeline(
         outline; the others keep their detection but get no outline, planes
         or features (a tile of a tiled run outlines only the buildings it
         owns).  Default: all.
+    models : bool, default True
+        Build the LoD 1.2 / 1.3 / 2.2 models of every outlined building
+        (LoD 2.2 needs roof planes; options ``options.model``) and their 3D layers.
 
     Returns
     -------
@@ -258,7 +293,7 @@ def run_pipeline(
     >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
     >>> result = run_pipeline(scene.cloud)
     >>> len(result.outlines), sorted(result.layers)
-    (1, ['ridges', 'roof_faces', 'roof_outlines'])
+    (1, ['lod12', 'lod13', 'lod22', 'ridges', 'roof_faces', 'roof_outlines'])
     """
     from rooftrace.contour.outline import outline_buildings
     from rooftrace.lidar.detect import detect_buildings
@@ -289,8 +324,15 @@ def run_pipeline(
         structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
         timings["roof_planes"] = time.perf_counter() - t0
 
+    building_models = None
+    if models:
+        t0 = time.perf_counter()
+        building_models = _building_models(cloud, detection.hag, members, outlines, structures, options.model,
+                                           reporter)
+        timings["models"] = time.perf_counter() - t0
+
     refined = None
-    layers = building_layers(outlines, structures)
+    layers = building_layers(outlines, structures, models=building_models)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
@@ -298,4 +340,4 @@ def run_pipeline(
                                             image, camera, options=options.refine, seed=seed)
         timings["refine"] = time.perf_counter() - t0
 
-    return RunResult(detection, outlines, structures, refined, layers, timings)
+    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [])

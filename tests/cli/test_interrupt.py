@@ -29,13 +29,13 @@ LAYERS = {"roof_outlines", "ridges", "roof_faces"}
 
 
 def start_run(src, folder, *, existing: bool, tiled: bool, classified: bool) -> tuple[subprocess.Popen, list]:
-    """``python -m rooftrace.cli run`` in its own session (so that a signal can go to its process group)."""
+    """``python -m rooftrace run`` in its own session (so that a signal can go to its process group)."""
     out = folder / "roofs.gpkg"
     outputs = [out] + ([folder / "points.laz"] if classified else [])
     if existing:
         for path in outputs:
             path.write_bytes(GOOD)
-    args = [sys.executable, "-m", "rooftrace.cli", "run", str(src), "-o", str(out), "-q", "--overwrite"]
+    args = [sys.executable, "-m", "rooftrace", "run", str(src), "-o", str(out), "-q", "--overwrite"]
     if classified:
         args += ["--classified", str(outputs[1])]
     if tiled:

@@ -69,7 +69,8 @@ def test_demo_writes_report_metrics_and_result(tmp_path, capsys):
     code = main(["demo", "-o", str(out), "--size", "50", "--density", "6", "--seed", "2", "--json", "-q"])
     assert code == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    for name in ("report.html", "metrics.json", "result.gpkg", "truth.gpkg", "points.laz", "image.tif"):
+    for name in ("report.html", "metrics.json", "result.gpkg", "result.city.jsonl", "truth.gpkg", "points.laz",
+                 "image.tif", "models_3d.png"):
         assert (out / name).is_file(), name
     metrics = json.loads((out / "metrics.json").read_text())
     assert rounded(metrics["f_score"]) == summary["f_score"] > 0.85  # the --json summary is rounded

@@ -48,7 +48,7 @@ def test_figures_deterministic_and_without_points(scene):
     m = evaluate(ext, ref)
     a = render_figures(m, ext, ref, points_xy=pts)
     assert a == render_figures(m, ext, ref, points_xy=pts)
-    assert set(render_figures(m, ext, ref)) == set(FIGURES) - {"image.png"}  # no image given
+    assert set(render_figures(m, ext, ref)) == set(FIGURES) - {"image.png", "models_3d.png"}  # no image, no models
     with pytest.raises(ValueError, match="points_xy"):
         render_figures(m, ext, ref, points_xy=np.zeros(5))
 

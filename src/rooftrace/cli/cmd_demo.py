@@ -43,6 +43,7 @@ def demo(
     from rooftrace.evaluate import evaluate
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.atomic import atomic_path, replace_folder, temporary_path
+    from rooftrace.io.models import write_models
     from rooftrace.io.vector import read_layer, write_layers
     from rooftrace.pipeline import building_layers, run_pipeline
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
@@ -82,6 +83,8 @@ def demo(
         reporter.close()
     result_path = output / "result.gpkg"
     write_layers(result_path, result.layers, cloud.crs, overwrite=True)
+    models_path = output / "result.city.jsonl"  # the 3D buildings beside the layers
+    write_models([models_path], result.models, cloud.crs, overwrite=True)
 
     truth = read_layer(files["truth"], "roof_outlines")
     truth_ridges = read_layer(files["truth"], "ridges", missing_ok=True)
@@ -107,10 +110,11 @@ def demo(
                           compare=lidar_outlines, compare_metrics=lidar_only,
                           image=None if no_image else scene.image, camera=None if no_image else scene.camera,
                           labels=("refined (LiDAR + image)" if lidar_only is not None else "extracted", "LiDAR only"),
-                          title=f"rooftrace demo — synthetic scene, seed {seed}")
+                          title=f"rooftrace demo — synthetic scene, seed {seed}", models=result.models)
     replace_folder(output, final)
     report = final / report.relative_to(output)
-    summary = {"output": str(final), "report": str(report), **{k: metrics.get(k) for k in (
+    models_path = final / models_path.relative_to(output)
+    summary = {"output": str(final), "report": str(report), "models": str(models_path), **{k: metrics.get(k) for k in (
         "completeness", "correctness", "f_score", "quality", "polis_mean", "hausdorff_mean",
         "rmse_x", "rmse_y", "rmse_z", "n_reference", "n_extracted", "n_matched",
         "ridge_completeness", "ridge_correctness", "ridge_position_error")}}
@@ -122,6 +126,7 @@ def demo(
         emit_json(summary)
     else:
         typer.echo(f"report: {report}")
+        typer.echo(f"3D buildings: {models_path}")
         # lengths to the millimetre, scores to 0.001
         units = {"polis_mean": " m", "polis_mean_lidar_only": " m", "rmse_z": " m", "ridge_position_error": " m"}
         for key in ("f_score", "polis_mean", "polis_mean_lidar_only", "rmse_z", "ridge_position_error",

@@ -1,4 +1,4 @@
-"""``rooftrace run``: the whole method, from LAS/LAZ (and an image) to a GeoPackage."""
+"""``rooftrace run``: the whole method, from LAS/LAZ (and an image) to a GeoPackage and 3D city models."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ log = logging.getLogger("rooftrace.cli")
 @app.command("run")
 def run(
     inputs: opt.Inputs,
-    output: opt.Output,
+    outputs: opt.Outputs,
     image: opt.Image = None,
     camera: opt.Camera = None,
     alpha: opt.Alpha = None,
@@ -35,14 +35,16 @@ def run(
     overwrite: opt.Overwrite = False,
     quiet: opt.Quiet = False,
 ) -> None:
-    """Detect buildings, trace and regularise roof outlines, find roof planes and ridges;
-    refine them with the image when --image is given.
+    """Detect buildings, trace and regularise roof outlines, find roof planes and ridges, build
+    LoD 1.2 / 1.3 / 2.2 models; refine the outlines with the image when --image is given.
 
     \b
     An orthophoto (a georeferenced GeoTIFF) needs no camera file:
       rooftrace run tile.laz --image ortho.tif -o roofs.gpkg
     An aerial frame image needs its orientation:
       rooftrace run tile.laz --image photo.tif --camera camera.json -o roofs.gpkg
+    Several outputs, the format by the name (.gpkg, .city.jsonl, .city.json, .obj):
+      rooftrace run tile.laz -o roofs.gpkg -o city.city.jsonl
     """
     from rooftrace.config import RunOptions, load_config
     from rooftrace.contour.buildings import warn_failed_outlines
@@ -55,6 +57,7 @@ def run(
         check_same_crs,
         require_metric_crs,
     )
+    from rooftrace.io.models import output_format, write_models
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import write_layers
     from rooftrace.options import make_options
@@ -65,9 +68,15 @@ def run(
     setup_logging(quiet)
     if camera is not None and image is None:
         raise InputError("--camera needs --image: give the image the camera file describes")
-    if output.suffix.lower() != ".gpkg":
-        raise InputError(f"{output}: the output of run is a GeoPackage; name it *.gpkg")
-    check_output(output, overwrite)
+    formats = [output_format(o) for o in outputs]
+    if len({o.resolve() for o in outputs}) != len(outputs):
+        raise InputError("the same -o file is given twice; give each output once")
+    if formats.count("gpkg") > 1:
+        raise InputError("more than one .gpkg output; give one GeoPackage (it holds every layer)")
+    for o in outputs:
+        check_output(o, overwrite)
+    gpkg = next((o for o, f in zip(outputs, formats) if f == "gpkg"), None)
+    model_files = [o for o, f in zip(outputs, formats) if f != "gpkg"]
     if classified is not None:
         if classified.suffix.lower() not in (".las", ".laz"):
             raise InputError(f"{classified}: --classified writes points; name it *.laz or *.las")
@@ -93,13 +102,15 @@ def run(
 
         reporter = reporter_for(quiet)
         try:
-            summary = run_tiled(inputs, output, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
+            summary = run_tiled(inputs, gpkg, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
                                 planes=run_options.planes, image=image, camera=camera, seed=seed,
-                                overwrite=overwrite, reporter=reporter, classified=classified)
+                                overwrite=overwrite, reporter=reporter, classified=classified,
+                                model_outputs=model_files)
         finally:
             reporter.close()
         if not summary.get("buildings"):
-            log.warning("%s: no buildings found; the layers of %s are empty", ", ".join(map(str, inputs)), output)
+            log.warning("%s: no buildings found; %s %s empty", ", ".join(map(str, inputs)),
+                        ", ".join(map(str, outputs)), "is" if len(outputs) == 1 else "are")
         if json_:
             emit_json(summary)
         return
@@ -120,49 +131,57 @@ def run(
         check_image_size(grey.shape[::-1], cam, str(image), str(camera or image))
 
     if len(cloud) == 0:
-        _write_empty(output, classified, cloud, overwrite, json_, where)
+        _write_empty(gpkg, model_files, classified, cloud, overwrite, json_, where)
         return
     reporter = reporter_for(quiet)
     try:
         result = run_pipeline(cloud, run_options, image=grey, camera=cam, seed=seed, reporter=reporter)
     finally:
         reporter.close()
-    with commit_together():  # both outputs new, or both as they were
-        write_layers(output, result.layers, cloud.crs, overwrite=overwrite)
+    with commit_together():  # every output new, or all as they were
+        if model_files:
+            write_models(model_files, result.models, cloud.crs, overwrite=overwrite)
+        if gpkg is not None:
+            write_layers(gpkg, result.layers, cloud.crs, overwrite=overwrite)
         if classified is not None:
             from rooftrace.io.las import write_las
 
             write_las(classified, cloud, classification=result.detection.classification,
                       building_id=result.detection.building_id, overwrite=overwrite)
-    summary = {"output": str(output), **result.summary()}
+    summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
     if not result.outlines:
-        log.warning("%s: no buildings found; the layers of %s are empty", where, output)
+        log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
+                    "is" if len(outputs) == 1 else "are")
     else:
         warn_failed_outlines(result.outlines)
     if json_:
         emit_json(summary)
     else:
-        log.info("%d buildings, %d ridges, %d roof faces -> %s", summary["buildings"], summary["ridges"],
-                 summary["roof_faces"], output)
+        log.info("%d buildings, %d ridges, %d roof faces, %d 3D models -> %s", summary["buildings"], summary["ridges"],
+                 summary["roof_faces"], len(result.models), ", ".join(map(str, outputs)))
 
 
-def _write_empty(output, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:
-    """An empty input is data, not a mistake: empty layers (with their schema) and a warning."""
+def _write_empty(gpkg, model_files, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:
+    """An empty input is data, not a mistake: empty layers (with their schema), empty model files and a warning."""
     import numpy as np
 
     from rooftrace.io.atomic import commit_together
+    from rooftrace.io.models import write_models
     from rooftrace.io.vector import write_layers
     from rooftrace.pipeline import building_layers
 
-    log.warning("%s: no points; writing empty layers to %s", where, output)
+    outputs = ([gpkg] if gpkg is not None else []) + list(model_files)
+    log.warning("%s: no points; writing empty outputs to %s", where, ", ".join(map(str, outputs)))
     with commit_together():
-        write_layers(output, building_layers([], []), cloud.crs, overwrite=overwrite)
+        if gpkg is not None:
+            write_layers(gpkg, building_layers([], [], models=[]), cloud.crs, overwrite=overwrite)
+        write_models(model_files, [], cloud.crs, overwrite=overwrite)
         if classified is not None:
             from rooftrace.io.las import write_las
 
             write_las(classified, cloud, classification=np.zeros(0, np.uint8), building_id=np.zeros(0, np.int32),
                       overwrite=overwrite)
     if json_:
-        emit_json({"output": str(output), "points": 0, "classes": {}, "buildings": 0, "outline_status": {},
-                   "ridges": 0, "roof_faces": 0, "refined": False})
+        emit_json({"output": str(outputs[0]), "outputs": [str(o) for o in outputs], "points": 0, "classes": {},
+                   "buildings": 0, "outline_status": {}, "ridges": 0, "roof_faces": 0, "refined": False})
 

@@ -1,4 +1,4 @@
-"""The console script ``rooftrace`` (and ``python -m rooftrace.cli``).
+"""The console script ``rooftrace`` (and ``python -m rooftrace``).
 
 The interrupt handlers go in before anything heavy is imported: importing
 the commands (numpy, typer, ...) takes about a second, and a Ctrl-C then

@@ -9,6 +9,10 @@ import typer
 
 Inputs = Annotated[list[Path], typer.Argument(help="Input point clouds (LAS/LAZ; PLY or text x y z where noted).", show_default=False)]
 Output = Annotated[Path, typer.Option("--output", "-o", help="Output file.", show_default=False)]
+Outputs = Annotated[list[Path], typer.Option(
+    "--output", "-o", show_default=False,
+    help="Output file, format by its name: .gpkg (layers), .city.jsonl (CityJSONSeq), .city.json (CityJSON 2.0) "
+         "or .obj; repeat -o to write several from one run.")]
 OutputDir = Annotated[Path, typer.Option("--output", "-o", help="Output folder.", show_default=False)]
 Crs = Annotated[str | None, typer.Option("--crs", help=(
     "Assign or override the input CRS, e.g. EPSG:28992; a compound CRS records the height system too, "

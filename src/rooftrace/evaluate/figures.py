@@ -39,6 +39,8 @@ FIGURES = {
     "overlays.png": "Per building: reference (black) and extracted (red, dashed) outlines over the points, "
                     "ridges dotted; with a second extracted set, its outlines in blue (dotted). "
                     "The worst buildings by PoLiS first, then the best, then missed ones and false detections.",
+    "models_3d.png": "3D models (LoD 2.2, else the best level built) of the largest buildings: roofs red, "
+                     "walls grey, seen from the south-west.",
     "image.png": "The image with the outlines projected into it by its camera: reference (yellow), "
                  "the second extracted set (cyan, dashed) and the extracted outlines (red). The whole scene, "
                  "then close-ups of the buildings whose PoLiS differs most between the two sets, then the worst.",
@@ -217,6 +219,43 @@ def _overlays(metrics, extracted, reference, points_xy, ridges=(None, None), com
     return fig
 
 
+_SURFACE_COLOURS = {"RoofSurface": "#c0392b", "WallSurface": "#d5d8dc", "GroundSurface": "#7f8c8d"}
+
+
+def _models_view(models: Sequence, n: int = 4) -> Figure | None:
+    """The ``n`` largest buildings' solids in 3D, one panel each (the scene would be too flat to read)."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from rooftrace.model.types import LODS
+
+    def best(m):
+        return [p.lods[next(k for k in LODS[::-1] if k in p.lods)] for p in m.parts if p.lods]
+
+    shown = sorted((m for m in models if best(m)), key=lambda m: -sum(p.footprint.area for p in m.parts))[:n]
+    if not shown:
+        return None
+    fig = Figure(figsize=(3.4 * len(shown), 3.6))
+    for i, m in enumerate(shown):
+        ax = fig.add_subplot(1, len(shown), i + 1, projection="3d")
+        faces, colours = [], []
+        for solid in best(m):
+            for s in solid.surfaces:
+                faces.append(s.rings[0])
+                colours.append(_SURFACE_COLOURS[s.kind])
+        xyz = np.vstack(faces)
+        low, high = xyz.min(axis=0), xyz.max(axis=0)
+        ax.add_collection3d(Poly3DCollection([f - low for f in faces], facecolors=colours, edgecolors="#333333",
+                                             linewidths=0.2))
+        span = float((high - low).max())
+        ax.set_xlim(0, span)
+        ax.set_ylim(0, span)
+        ax.set_zlim(0, span)
+        ax.view_init(elev=30, azim=-120)
+        ax.set_axis_off()
+        ax.set_title(f"building {m.building_id}", fontsize=9)
+    return fig
+
+
 def _raster(image) -> tuple[np.ndarray, float, dict]:
     """An image as an (H, W) grey or (H, W, 3) RGB view, the divisor mapping it to [0, 1], the imshow keywords.
 
@@ -360,7 +399,8 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
                    reference_ridges: Sequence | None = None,
                    compare: Sequence | None = None, compare_metrics: dict | None = None,
                    image=None, camera=None,
-                   labels: tuple[str, str] = ("extracted", "compared")) -> dict[str, bytes]:
+                   labels: tuple[str, str] = ("extracted", "compared"),
+                   models: Sequence | None = None) -> dict[str, bytes]:
     """PNG images of the report.
 
     Parameters
@@ -388,6 +428,8 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
         A frame camera places only 3D outlines.
     labels : (str, str)
         Names of the extracted and the compared set in legends.
+    models : sequence of BuildingModel, optional
+        3D models; the largest are drawn in ``models_3d.png``.
 
     Returns
     -------
@@ -418,4 +460,7 @@ def render_figures(metrics: dict, extracted: Sequence, reference: Sequence, *, p
     fig = _overlays(metrics, extracted, reference, points_xy, (extracted_ridges, reference_ridges), compare)
     if fig is not None:
         out["overlays.png"] = _png(fig)
+    fig = _models_view(models) if models else None
+    if fig is not None:
+        out["models_3d.png"] = _png(fig)
     return out

@@ -283,6 +283,7 @@ def write_report(
     camera=None,
     labels: tuple[str, str] = ("extracted", "compared"),
     overwrite: bool = True,
+    models: Sequence | None = None,
 ) -> Path:
     """Write the PNG figures and ``report.html`` into ``out_dir``.
 
@@ -314,6 +315,8 @@ def write_report(
     overwrite : bool, default True
         Replace existing report files; the caller decides whether the
         folder may be reused (the CLI refuses when ``metrics.json`` exists).
+    models : sequence of BuildingModel, optional
+        3D models of the run: a 3D view of the largest (``models_3d.png``).
 
     Returns
     -------
@@ -327,7 +330,7 @@ def write_report(
     images = render_figures(metrics, extracted, reference, points_xy=points_xy,
                             extracted_ridges=extracted_ridges, reference_ridges=reference_ridges,
                             compare=compare, compare_metrics=compare_metrics, image=image, camera=camera,
-                            labels=labels)
+                            labels=labels, models=models)
     for name, png in images.items():
         with atomic_path(out / name, overwrite) as tmp:
             tmp.write_bytes(png)

@@ -87,6 +87,7 @@ from rooftrace.tiling.tile import (
     building_numbers,
     estimate_parameters,
     merge_tiles,
+    merged_models,
     owned_buildings,
     process_tile,
     tile_core,
@@ -96,7 +97,7 @@ from rooftrace.tiling.tile import (
 
 __all__ = [
     "TileOptions", "tile_grid", "tile_cell_ranges", "sample_windows", "split_to_tiles", "estimate_parameters",
-    "owned_buildings", "TileTask", "process_tile", "merge_tiles", "run_tiled",
+    "owned_buildings", "TileTask", "process_tile", "merge_tiles", "merged_models", "run_tiled",
 ]
 
 log = logging.getLogger(__name__)
@@ -185,15 +186,15 @@ def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path,
 def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
               config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
               seed: int = 0, overwrite: bool = False, reporter: Reporter | None = None,
-              classified: os.PathLike | None = None) -> dict[str, Any]:
+              classified: os.PathLike | None = None, model_outputs: Sequence[os.PathLike] = ()) -> dict[str, Any]:
     """Tile, measure the parameters, process and merge.
 
     Parameters
     ----------
     inputs : sequence of path-like
         LAS/LAZ files, in any number and layout.
-    output : path-like
-        GeoPackage to write (atomically).
+    output : path-like or None
+        GeoPackage to write (atomically); None for model files only.
     options : TileOptions
     crs, config, alpha, planes, seed, overwrite
         As ``rooftrace run``.
@@ -207,6 +208,11 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     classified : path-like, optional
         Also write the input points with the run's classes and building ids
         (LAS/LAZ, every input dimension kept; inputs of one point format).
+    model_outputs : sequence of path-like
+        CityJSONSeq, CityJSON or OBJ files of the 3D models
+        (:func:`rooftrace.io.models.write_models`); each tile builds the
+        models of the buildings it owns and the merge writes them in
+        building-id order, so the files equal those of an untiled run.
 
     Returns
     -------
@@ -218,20 +224,25 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
 
     Notes
     -----
-    The run folder ``OUTPUT.parts`` is kept when the run fails or is
+    The run folder ``OUTPUT.parts`` (of the first output) is kept when the run fails or is
     killed, for ``--resume``; it is removed after a successful merge.
     """
     from rooftrace.config import validate_config
     from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import check_same_crs, require_metric_crs
+    from rooftrace.io.models import write_models
     from rooftrace.io.points import parse_crs
-    from rooftrace.io.vector import Layer, write_layers
+    from rooftrace.io.vector import write_layers
     from rooftrace.lidar.detect import DerivedParams, DetectOptions
+    from rooftrace.pipeline import building_layers
     from rooftrace.refine import RefineOptions
 
     if camera is not None and image is None:
         raise InputError("--camera needs --image: give the image the camera file describes")
-    output = check_output(output, overwrite)
+    model_outputs = [check_output(p, overwrite) for p in model_outputs]
+    if output is None and not model_outputs:
+        raise InputError("no output given")
+    output = check_output(output, overwrite) if output is not None else None
     if config:
         validate_config(config)
     cfg = {k: v for k, v in (config or {}).items() if k != "__path__"} or None
@@ -264,7 +275,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         # the untiled run's checks, on the headers, before minutes of tile work
         cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
                                  ", ".join(map(str, paths)))
-    run_dir = Path(str(output) + ".parts")
+    run_dir = Path(str(output if output is not None else model_outputs[0]) + ".parts")
     if run_dir.exists() and not options.resume:
         shutil.rmtree(run_dir)
     run_dir.mkdir(exist_ok=True)
@@ -312,8 +323,10 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     t0 = time.perf_counter()
     results = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
     layers = merge_tiles(results)
-    for name, gtype in (("roof_outlines", "PolygonZ"), ("ridges", "LineStringZ"), ("roof_faces", "PolygonZ")):
-        layers.setdefault(name, Layer([], {"building_id": []}, gtype))
+    empty = building_layers([], [], models=[])
+    for name, layer in empty.items():
+        layers.setdefault(name, layer)
+    layers = {name: layers[name] for name in empty}  # the untiled run's layer order
     merge_seconds = time.perf_counter() - t0
     refined = None
     if cam is not None and len(layers["roof_outlines"]):
@@ -325,9 +338,12 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         t0 = time.perf_counter()
         refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, reporter)
         timings["refine"] = time.perf_counter() - t0
-    with commit_together():  # the layers and the classified points new, or both as they were
+    with commit_together():  # every output new, or all as they were
         t0 = time.perf_counter()
-        write_layers(output, layers, crs_obj, overwrite=overwrite)
+        if model_outputs:
+            write_models(model_outputs, merged_models(results), crs_obj, overwrite=overwrite)
+        if output is not None:
+            write_layers(output, layers, crs_obj, overwrite=overwrite)
         timings["merge"] = merge_seconds + time.perf_counter() - t0
         if classified is not None:
             t0 = time.perf_counter()
@@ -339,7 +355,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
             stages[k] = stages.get(k, 0.0) + v
     shutil.rmtree(run_dir, ignore_errors=True)
     return {
-        "output": str(output), "points": index["points"], "tiles": len(keys),
+        "output": str(output if output is not None else model_outputs[0]), "points": index["points"], "tiles": len(keys),
         "buildings": len(layers["roof_outlines"]), "ridges": len(layers["ridges"]),
         "roof_faces": len(layers["roof_faces"]), "tile_size": index["tile_size"], "buffer": index["buffer"],
         "tile_points": int(sum(r["points"] for r in results)),

@@ -226,6 +226,8 @@ def process_tile(run_dir: str, key: str, core: Sequence[float], crs_wkt: str | N
                 "geometry_type": layer.geometry_type,
             }
         result["buildings"] = {"id": keep_ids.tolist(), "key": keys[owned].tolist()}
+        keep = set(keep_ids.tolist())
+        result["models"] = [m for m in run_out.models if m.building_id in keep]
         if refine_context is not None:
             _keep_for_refinement(result, cloud, run_out, keep_ids, refine_context)
         result["timings"] = {**det.timings, **run_out.timings}
@@ -308,6 +310,17 @@ def building_numbers(results: Sequence[dict]) -> list[tuple[tuple, int, int, int
     entries = sorted((tuple(k), t, old) for t, res in enumerate(results)
                      for old, k in zip(res["buildings"].get("id", []), res["buildings"].get("key", [])))
     return [(k, t, old, n + 1) for n, (k, t, old) in enumerate(entries)]
+
+
+def merged_models(results: Sequence[dict]) -> list:
+    """The tiles' 3D models, renumbered as :func:`merge_tiles` numbers the buildings and in that order."""
+    new_id = {(t, old): n for _, t, old, n in building_numbers(results)}
+    models = []
+    for t, res in enumerate(results):
+        for m in res.get("models", []):
+            m.building_id = new_id[(t, m.building_id)]
+            models.append(m)
+    return sorted(models, key=lambda m: m.building_id)
 
 
 def merge_tiles(results: Sequence[dict]) -> dict:

@@ -1,5 +1,0 @@
-"""``python -m rooftrace.cli``: the command line, as the ``rooftrace`` console script runs it."""
-
-from rooftrace.cli.entry import main
-
-main()

@@ -1,0 +1,286 @@
+"""LoD 1.2, 1.3 and 2.2 models of one building from its outline, roof faces, points and ground height.
+
+:func:`build_model` takes what the roof stage gives per building (the roof
+outline, the :class:`~rooftrace.roof.structure.RoofStructure` with its
+planes and faces, the roof points) and the ground height, and returns a
+:class:`~rooftrace.model.types.BuildingModel`:
+
+- **LoD 1.2**: the footprint extruded to one height, the ``roof_percentile``
+  (70th, as the 3DBAG) of the part's roof point heights;
+- **LoD 1.3**: one flat block per roof height level: roof faces joined
+  where their shared edges do not jump more than ``level_step``, each level
+  at the ``roof_percentile`` of its points;
+- **LoD 2.2**: the roof faces on their planes, walls under every step
+  between faces and around the footprint, down to the ground.
+
+Every solid comes from :func:`rooftrace.model.solid.prism_solid` and is
+checked by :func:`rooftrace.model.validity.solid_errors`; a level that
+cannot be built or is not valid is left out and the building's ``status``
+and ``status_reason`` say which and why (never an invalid solid).
+
+Building parts (``parts``: plan polygons, e.g. cadastral footprints of a
+terraced row, or the split of one LiDAR building) each get their own
+solids, cut from the same roof faces, so neighbouring parts share their
+party walls.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import shapely
+
+from rooftrace.errors import GeometryError
+from rooftrace.graph import components
+from rooftrace.model.solid import horizontal_plane, prism_solid
+from rooftrace.model.types import BuildingModel, PartModel, Solid
+from rooftrace.model.validity import solid_errors, solid_volume
+
+__all__ = ["ModelOptions", "build_model", "ground_height"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ModelOptions:
+    """Options of the 3D model builders (config section ``[model]``).
+
+    Attributes
+    ----------
+    roof_percentile : float
+        Percentile (0-100) of the roof point heights that gives the flat
+        roofs of LoD 1.2 and 1.3 (70, as the 3DBAG).
+    ground_percentile : float
+        Percentile of the terrain heights under the building's points that
+        gives its ground height (10: the walls reach the lower side of a
+        sloping street).
+    level_step : float
+        LoD 1.3: neighbouring roof faces whose shared edge jumps more than
+        this (m) are separate height levels.
+    grid : float
+        Vertex grid (m); the CityJSON writer's scale.
+    z_tolerance : float
+        Heights of one vertex closer than this (m) are one height.
+    planarity : float
+        Largest distance (m) of a vertex to its surface's plane in the
+        validity check (val3dity's default).
+    validate : bool
+        Check every solid and leave out the invalid ones (with a reason).
+    """
+
+    section = "model"
+
+    roof_percentile: float = 70.0
+    ground_percentile: float = 10.0
+    level_step: float = 0.5
+    grid: float = 0.001
+    z_tolerance: float = 0.01
+    planarity: float = 0.01
+    validate: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("roof_percentile", "ground_percentile"):
+            if not 0 <= getattr(self, name) <= 100:
+                raise ValueError(f"{name} must be in [0, 100], got {getattr(self, name)}")
+        for name in ("level_step", "grid", "z_tolerance", "planarity"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
+
+
+def ground_height(terrain_z: np.ndarray, percentile: float = 10.0) -> float:
+    """Ground height of a building (m): a low percentile of the terrain heights under its points.
+
+    Parameters
+    ----------
+    terrain_z : ndarray of shape (N,)
+        Height of the ground surface (the ground TIN) below each of the
+        building's points, e.g. ``z - hag``.
+    percentile : float, default 10
+
+    Returns
+    -------
+    float
+        NaN when there are no finite heights.
+    """
+    z = np.asarray(terrain_z, dtype=np.float64)
+    z = z[np.isfinite(z)]
+    return float(np.percentile(z, percentile)) if len(z) else float("nan")
+
+
+def _largest_polygon(geom):
+    geom = shapely.make_valid(shapely.force_2d(geom))
+    parts = [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and g.area > 0]
+    return max(parts, key=lambda g: g.area) if parts else None
+
+
+def _roof_cells(roof) -> list[tuple[Any, np.ndarray]]:
+    if roof is None or not len(getattr(roof, "faces", [])):
+        return []
+    return [(shapely.force_2d(f), np.asarray(roof.planes[k], dtype=np.float64))
+            for f, k in zip(roof.faces, roof.face_plane)]
+
+
+def _clip(cells: list, footprint) -> list:
+    """The cells cut to ``footprint`` (a polygon each, with its plane)."""
+    if not cells:
+        return []
+    cut = shapely.intersection(np.array([c for c, _ in cells], dtype=object), footprint)
+    return [(g, plane) for piece, (_, plane) in zip(cut, cells) for g in shapely.get_parts(piece)
+            if g.geom_type == "Polygon" and g.area > 0]
+
+
+def _levels(cells: list, step: float) -> list[list[int]]:
+    """Cells joined into height levels: neighbours whose shared boundary jumps at most ``step`` (m)."""
+    n = len(cells)
+    if n == 1:
+        return [[0]]
+    polys = np.array([c for c, _ in cells], dtype=object)
+    tree = shapely.STRtree(polys)
+    a, b = tree.query(polys, predicate="intersects")
+    keep = a < b
+    pairs = []
+    for i, j in zip(a[keep], b[keep]):
+        shared = shapely.intersection(polys[i].boundary, polys[j].boundary)
+        if shared.length <= 0:
+            continue
+        xy = shapely.get_coordinates(shapely.segmentize(shared, 0.5))
+        zi = -(cells[i][1][0] * xy[:, 0] + cells[i][1][1] * xy[:, 1] + cells[i][1][3]) / cells[i][1][2]
+        zj = -(cells[j][1][0] * xy[:, 0] + cells[j][1][1] * xy[:, 1] + cells[j][1][3]) / cells[j][1][2]
+        if np.abs(zi - zj).max() <= step:
+            pairs.append((i, j))
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    label = components(n, pairs)
+    return [list(np.flatnonzero(label == k)) for k in np.unique(label)]
+
+
+#: what one level of one building may fail with; the run goes on (a city must not stop at one
+#: odd roof) and the building's status says why
+_FAILURES = (GeometryError, shapely.errors.GEOSException, ValueError, np.linalg.LinAlgError)
+
+
+def _checked(solid: Solid, options: ModelOptions) -> Solid:
+    if options.validate:
+        errors = solid_errors(solid, planarity=options.planarity, grid=options.grid)
+        if errors:
+            raise GeometryError("invalid solid (" + "; ".join(errors[:2]) + ")")
+    return solid
+
+
+def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
+          options: ModelOptions) -> tuple[PartModel, dict[str, str]]:
+    """One part's three solids, and why any of them is missing."""
+    part = PartModel(part_id, footprint)
+    why: dict[str, str] = {}
+    shapely.prepare(footprint)
+    inside = shapely.contains_xy(footprint, xyz[:, 0], xyz[:, 1]) if len(xyz) else np.zeros(0, bool)
+    z = xyz[inside, 2]
+    part.attributes["n_points"] = int(len(z))
+    if not len(z):
+        return part, dict.fromkeys(("1.2", "1.3", "2.2"), "no roof points in the footprint")
+    h = float(np.percentile(z, options.roof_percentile))
+    part.attributes["h_roof_lod12"] = round(h, 3)
+    kw = dict(footprint=footprint, grid=options.grid, z_tolerance=options.z_tolerance)
+    try:
+        part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
+    except _FAILURES as exc:
+        why["1.2"] = str(exc)
+    try:
+        cells = _clip(cells, footprint)
+    except _FAILURES as exc:
+        log.warning("part %d: roof faces not cut to the part (%s)", part_id, exc)
+        cells = []
+    if not cells:
+        why["2.2"] = f"no roof faces ({roof_status})"
+        if "1.2" in part.lods:
+            part.lods["1.3"] = part.lods["1.2"]  # one height level is all there is
+        else:
+            why["1.3"] = why["1.2"]
+        return part, why
+    try:
+        levels = []
+        for members in _levels(cells, options.level_step):
+            poly = shapely.union_all([cells[i][0] for i in members])
+            shapely.prepare(poly)
+            zl = xyz[shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]), 2]
+            hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
+            levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
+        part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)
+    except _FAILURES as exc:
+        why["1.3"] = str(exc)
+    try:
+        part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
+    except _FAILURES as exc:
+        why["2.2"] = str(exc)
+    for lod, solid in part.lods.items():
+        part.attributes[f"volume_lod{lod.replace('.', '')}"] = round(solid_volume(solid), 3)
+    return part, why
+
+
+def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequence | None = None,
+                building_id: int = 0, options: ModelOptions | None = None) -> BuildingModel:
+    """LoD 1.2, 1.3 and 2.2 solids of one building (per part), with status.
+
+    Parameters
+    ----------
+    outline : shapely Polygon
+        Plan outline of the building (Z ignored, holes allowed): the roof
+        outline, or a footprint.
+    roof : RoofStructure or None
+        Roof planes and faces (:func:`rooftrace.roof.roof_structure`);
+        without faces there is no LoD 2.2 and LoD 1.3 is LoD 1.2.
+    xyz : ndarray of shape (N, 3), float64
+        The building's roof points (m), for the flat roof heights.
+    ground : float
+        Ground height (m), e.g. :func:`ground_height`.
+    parts : sequence of shapely Polygon, optional
+        Plan outlines of the building's parts; each is cut by ``outline``
+        and gets its own solids.  Default: one part, the outline.
+    building_id : int
+    options : ModelOptions, optional
+
+    Returns
+    -------
+    BuildingModel
+        ``attributes`` holds ``status`` (``ok``; ``partial`` when a level of
+        detail is missing in some part; ``no_model`` when no solid could be
+        built) and ``status_reason``.
+
+    Examples
+    --------
+    >>> import numpy as np, shapely
+    >>> rng = np.random.default_rng(0)
+    >>> xyz = np.column_stack([rng.uniform(0, 10, 500), rng.uniform(0, 8, 500), np.full(500, 7.0)])
+    >>> model = build_model(shapely.box(0, 0, 10, 8), None, xyz, 1.0, building_id=3)
+    >>> sorted(model.parts[0].lods), model.attributes["status"]
+    (['1.2', '1.3'], 'partial')
+    """
+    opt = options or ModelOptions()
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    model = BuildingModel(int(building_id))
+    poly = _largest_polygon(outline) if outline is not None else None
+    if poly is None or not np.isfinite(ground):
+        model.attributes.update(status="no_model",
+                                status_reason="no outline" if poly is None else "no ground height")
+        return model
+    footprints = [poly] if parts is None else [
+        g for p in parts for g in shapely.get_parts(shapely.intersection(shapely.force_2d(p), poly))
+        if g.geom_type == "Polygon" and g.area > 0]
+    cells = _roof_cells(roof)
+    roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
+    reasons: list[str] = []
+    for k, fp in enumerate(footprints, start=1):
+        part, why = _part(k, fp, cells, xyz, float(ground), roof_status, opt)
+        model.parts.append(part)
+        for lod, reason in sorted(why.items()):
+            reasons.append(f"lod{lod.replace('.', '')}" + (f" part {k}" if len(footprints) > 1 else "")
+                           + f": {reason}")
+    built = any(p.lods for p in model.parts)
+    status = "ok" if not reasons else ("partial" if built else "no_model")
+    model.attributes.update(status=status, status_reason="; ".join(reasons) or None)
+    if reasons:
+        log.debug("building %d: %s", building_id, "; ".join(reasons))
+    return model

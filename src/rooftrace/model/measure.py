@@ -1,0 +1,70 @@
+"""What a model says about heights: the roof height above a plan position, and the fit of points to it."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import shapely
+
+from rooftrace.model.validity import surface_normal
+
+__all__ = ["roof_height_at", "vertical_rmse"]
+
+
+def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
+    """Height (m) of the roof surfaces of ``solids`` above each plan position.
+
+    Parameters
+    ----------
+    solids : iterable of Solid
+        E.g. the LoD 2.2 solids of a building's parts.
+    xy : ndarray of shape (N, 2)
+        Plan positions (m).
+
+    Returns
+    -------
+    ndarray of shape (N,), float64
+        The highest roof surface over each position; NaN where there is none.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> from rooftrace.model.solid import prism_solid, horizontal_plane
+    >>> box = prism_solid([(shapely.box(0, 0, 4, 4), horizontal_plane(5.0))], 0.0)
+    >>> roof_height_at([box], np.array([[1.0, 1.0], [9.0, 9.0]])).tolist()
+    [5.0, nan]
+    """
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    out = np.full(len(xy), np.nan)
+    roofs = [s for solid in solids for s in solid.surfaces if s.kind == "RoofSurface"]
+    if not roofs or not len(xy):
+        return out
+    polys, planes = [], []
+    for s in roofs:
+        rings = [np.asarray(r, dtype=np.float64) for r in s.rings]
+        n = surface_normal(rings)
+        if abs(n[2]) < 1e-9 * max(np.linalg.norm(n), 1e-300):
+            continue  # a vertical roof surface covers no plan area
+        polys.append(shapely.Polygon(rings[0][:, :2], [r[:, :2] for r in rings[1:]]))
+        c = np.vstack(rings).mean(axis=0)
+        planes.append(np.r_[n, -n @ c])
+    if not polys:
+        return out
+    planes = np.asarray(planes)
+    pts = shapely.points(xy)
+    at, surf = shapely.STRtree(polys).query(pts, predicate="intersects")
+    z = -(planes[surf, 0] * xy[at, 0] + planes[surf, 1] * xy[at, 1] + planes[surf, 3]) / planes[surf, 2]
+    np.fmax.at(out, at, z)
+    return out
+
+
+def vertical_rmse(solids: Iterable, xyz: np.ndarray) -> float:
+    """Root mean square of the height differences (m) of points to the roof surfaces above/below them.
+
+    Points outside the solids' roofs in plan are ignored; NaN when none is inside.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    d = xyz[:, 2] - roof_height_at(list(solids), xyz[:, :2])
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean(d * d))) if len(d) else float("nan")

@@ -1,0 +1,411 @@
+"""Closed 2.5D solids from roof cells: roof surfaces on their planes, vertical walls, a ground surface.
+
+:func:`prism_solid` is the one construction behind every level of detail:
+LoD 1.2 is one cell (the footprint) with a horizontal plane, LoD 1.3 one
+horizontal cell per roof height level, LoD 2.2 one cell per roof face with
+the face's plane.
+
+Construction (all coordinates on a grid, 1 mm by default, so that equal
+vertices are equal numbers and the CityJSON writer's integer vertices are
+exact):
+
+1. The cells' and the footprint's boundaries are noded together and
+   polygonised; each piece goes to the cell holding it (pieces no cell
+   holds - gaps of the roof partition - to the neighbour sharing most
+   boundary), so the cells tile the footprint exactly, edge to edge.
+2. Every vertex lying on another cell's edge is inserted in that edge (no
+   T-junctions), and where two neighbouring planes cross along a shared
+   edge the crossing point is inserted too (the wall between them changes
+   side there).
+3. Each cell vertex takes the height of the cell's plane; heights of one
+   vertex closer than ``z_tolerance`` are made one (a ridge seen from its
+   two planes).
+4. Roof surfaces are the cells at those heights.  Along every shared edge
+   where the two cells' heights differ there is a vertical wall between
+   them; along the footprint's boundary a wall from the roof down to the
+   ground height.  A wall's vertical sides carry every height the vertex has
+   between its bottom and top, so that each vertical edge is shared by
+   exactly two walls.  The ground surface is the footprint at the ground
+   height, facing down.
+
+Walls are vertical and every plan position has one roof height, so the
+shell cannot fold over itself; curved outlines stay curved (every outline
+vertex is kept).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from rooftrace.errors import GeometryError
+from rooftrace.model.types import Solid, Surface
+
+__all__ = ["prism_solid", "horizontal_plane"]
+
+
+def horizontal_plane(height: float) -> np.ndarray:
+    """The plane ``Z = height`` as ``(a, b, c, d)`` with ``a X + b Y + c Z + d = 0``."""
+    return np.array([0.0, 0.0, 1.0, -float(height)])
+
+
+def _polygons(geom) -> list[Polygon]:
+    return [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty and g.area > 0]
+
+
+def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int], Polygon]:
+    """Pieces of the noded arrangement, dissolved per cell; and the footprint they tile."""
+    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), grid))
+    fp = shapely.set_precision(shapely.force_2d(footprint), grid)
+    if len(polys) == 1 and shapely.equals(polys[0], fp) and fp.geom_type == "Polygon":
+        pieces = np.array([fp], dtype=object)  # one cell that is the footprint (LoD 1.2): nothing to node
+    else:
+        lines = [shapely.boundary(fp)] + [shapely.boundary(p) for p in polys if not p.is_empty]
+        noded = shapely.union_all(lines, grid_size=grid)
+        pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
+    if not len(pieces):
+        raise GeometryError("the footprint has no area")
+    reps = shapely.point_on_surface(pieces)
+    pieces = pieces[shapely.contains(fp, reps)]
+    reps = reps[shapely.contains(fp, reps)]
+    if not len(pieces):
+        raise GeometryError("the footprint has no area")
+    owner = np.full(len(pieces), -1, dtype=np.int64)
+    tree = shapely.STRtree(np.array(polys, dtype=object))
+    at, cell = tree.query(reps, predicate="within")
+    # overlapping cells: the first one wins (a fixed rule, so the result is deterministic)
+    for i, c in zip(at[::-1], cell[::-1]):
+        owner[i] = c if owner[i] < 0 or c < owner[i] else owner[i]
+    # gaps of the partition go to the neighbour they share most boundary with
+    while (owner < 0).any():
+        changed = False
+        ptree = shapely.STRtree(pieces)
+        for i in np.flatnonzero(owner < 0):
+            near = ptree.query(pieces[i], predicate="touches")
+            near = near[owner[near] >= 0]
+            if not len(near):
+                continue
+            shared = shapely.length(shapely.intersection(pieces[i].boundary, shapely.boundary(pieces[near])))
+            if shared.max() > 0:
+                owner[i] = owner[near[np.argmax(shared)]]
+                changed = True
+        if not changed:
+            if (owner >= 0).any():
+                # an island no cell touches: the nearest cell's plane
+                done = np.flatnonzero(owner >= 0)
+                for i in np.flatnonzero(owner < 0):
+                    owner[i] = owner[done[np.argmin(shapely.distance(pieces[i], pieces[done]))]]
+            else:
+                owner[:] = 0
+    faces, face_cell = [], []
+    for c in np.unique(owner):
+        mine = pieces[owner == c]
+        merged = mine if len(mine) == 1 else _polygons(shapely.coverage_union_all(mine))
+        if not all(g.is_valid for g in merged):
+            merged = _polygons(shapely.union_all(mine, grid_size=grid))
+        for g in merged:
+            faces.append(shapely.orient_polygons(g, exterior_cw=False))
+            face_cell.append(int(c))
+    # the pieces are a coverage (edges shared exactly): their fast coverage union
+    whole = _polygons(shapely.coverage_union_all(pieces))
+    if len(whole) != 1 or not whole[0].is_valid:
+        whole = _polygons(shapely.union_all(pieces, grid_size=grid))
+    if len(whole) != 1:
+        raise GeometryError(f"the footprint falls into {len(whole)} pieces")
+    return faces, face_cell, shapely.orient_polygons(whole[0], exterior_cw=False)
+
+
+class _Rings:
+    """Rings as indices into one table of integer grid vertices."""
+
+    def __init__(self, grid: float):
+        self.grid = grid
+        self.index: dict[tuple[int, int], int] = {}
+        self.xy: list[tuple[int, int]] = []
+        self._tree = None
+
+    def vertex(self, key: tuple[int, int]) -> int:
+        v = self.index.get(key)
+        if v is None:
+            v = self.index[key] = len(self.xy)
+            self.xy.append(key)
+        return v
+
+    def ring(self, coords) -> list[int]:
+        keys = np.round(np.asarray(coords)[:-1, :2] / self.grid).astype(np.int64)
+        out = [self.vertex((int(x), int(y))) for x, y in keys]
+        return [v for k, v in enumerate(out) if v != out[k - 1]] if len(out) > 1 else out
+
+    def polygon(self, poly: Polygon) -> list[list[int]]:
+        return [self.ring(poly.exterior.coords)] + [self.ring(h.coords) for h in poly.interiors]
+
+    def split_edges(self, rings: list[list[int]]) -> list[list[int]]:
+        """Insert into every ring edge the table's vertices lying exactly on it (no T-junctions)."""
+        xy = np.asarray(self.xy, dtype=np.float64)
+        if self._tree is None or self._tree[0] != len(xy):
+            self._tree = (len(xy), shapely.STRtree(shapely.points(xy)))
+        r = np.concatenate([np.asarray(x, dtype=np.int64) for x in rings])
+        sizes = np.array([len(x) for x in rings])
+        start = np.r_[0, np.cumsum(sizes)[:-1]]
+        nxt = np.arange(len(r)) + 1
+        nxt[start + sizes - 1] = start
+        p, q = xy[r], xy[r[nxt]]
+        segs = shapely.linestrings(np.stack([p, q], axis=1))
+        seg, cand = self._tree[1].query(segs, predicate="dwithin", distance=0.5)
+        d = q[seg] - p[seg]
+        w = xy[cand] - p[seg]
+        L2 = np.maximum((d * d).sum(axis=1), 1e-12)
+        t = (w * d).sum(axis=1) / L2
+        # integer grid coordinates: on the segment means a zero cross product
+        on = (t > 0) & (t < 1) & (d[:, 0] * w[:, 1] - d[:, 1] * w[:, 0] == 0)
+        on &= (cand != r[seg]) & (cand != r[nxt][seg])
+        if not on.any():
+            return [list(x) for x in rings]
+        seg, cand, t = seg[on], cand[on], t[on]
+        order = np.lexsort((t, seg))
+        extra: dict[int, list[int]] = {}
+        for k, c in zip(seg[order].tolist(), cand[order].tolist()):
+            extra.setdefault(k, []).append(c)
+        out = []
+        for j, x in enumerate(rings):
+            new = []
+            for k, v in enumerate(x):
+                new.append(v)
+                new.extend(extra.get(int(start[j]) + k, ()))
+            out.append([v for k, v in enumerate(new) if v != new[k - 1]])
+        return out
+
+
+def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
+    """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
+    out = []
+    for k, p in enumerate(ring):
+        out.append(p)
+        w = between.get((p, ring[(k + 1) % len(ring)]))
+        if w is not None:
+            out.append(w)
+    return out
+
+
+def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e-3,
+                z_tolerance: float = 0.01) -> Solid:
+    """A closed solid from roof cells, walls down to ``ground_height`` and a ground surface.
+
+    Parameters
+    ----------
+    cells : sequence of (shapely Polygon, array_like of shape (4,))
+        Roof cells in plan (Z ignored, holes allowed) with the plane
+        ``(a, b, c, d)``, ``a X + b Y + c Z + d = 0`` (``c != 0``), that
+        gives their height.  They should tile ``footprint``; gaps are filled
+        by the neighbouring cell, overlaps go to the first cell.
+    ground_height : float
+        Height of the ground surface (m).
+    footprint : shapely Polygon, optional
+        The plan outline of the solid; default the union of the cells.
+    grid : float, default 0.001
+        Every vertex is rounded to this grid (m).
+    z_tolerance : float, default 0.01
+        Heights of one vertex closer than this (m) are made one.
+
+    Returns
+    -------
+    Solid
+        Surfaces in the order roofs, walls, ground.
+
+    Raises
+    ------
+    GeometryError
+        The footprint is empty or falls apart, a roof lies at or below the
+        ground, or two cells cross along a shared edge where no crossing
+        point can be inserted.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> solid = prism_solid([(shapely.box(0, 0, 10, 6), horizontal_plane(8.0))], 2.0)
+    >>> [s.kind for s in solid.surfaces].count("WallSurface")
+    4
+    """
+    cells = [(c, np.asarray(pl, dtype=np.float64)) for c, pl in cells]
+    if not cells:
+        raise GeometryError("no roof cells")
+    if footprint is None:
+        footprint = shapely.union_all([shapely.force_2d(c) for c, _ in cells])
+    for attempt in range(4):
+        try:
+            return _prism(cells, ground_height, footprint, grid, z_tolerance)
+        except _Saddle as saddle:
+            if attempt == 3:
+                raise GeometryError(f"roof faces meet at {len(saddle.points)} saddle or pinch vertices") from None
+            # 1 cm, then wider when a disk's own edge made a new one
+            cells = _open_saddles(cells, saddle.points, saddle.faces, 10 * grid * 4**attempt,
+                                  small=0.0 if attempt == 0 else 1.0)
+    raise AssertionError("unreachable")
+
+
+class _Saddle(Exception):
+    """A vertex where the shell would not be 2-manifold: four or more walls sharing a vertical
+    edge (faces high, low, high, low around it), or a face touching itself."""
+
+    def __init__(self, points: np.ndarray, faces: list[int]):
+        super().__init__(f"{len(points)} saddle vertices")
+        self.points, self.faces = points, faces
+
+
+def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: float, small: float = 0.0) -> list:
+    """Give a cell a small disk around each vertex: at a saddle the highest cell, so that its high
+    neighbours join it through an edge and the low ones stay apart (two walls per vertical edge); at
+    a pinch the cell touching itself, which then surrounds the vertex.  Cells under ``small`` m² at
+    such a vertex (slivers wedged between a face and the outline) are dropped first: their neighbours
+    fill the gap, and the next attempt opens what is left."""
+    cells = list(cells)
+    if small > 0:
+        near = shapely.multipoints(points).buffer(radius)
+        keep = [not (poly.area < small and poly.intersects(near)) for poly, _ in cells]
+        if not all(keep) and any(keep):
+            return [c for c, k in zip(cells, keep) if k]  # the next attempt finds what is left
+    for (x, y), c in zip(points, faces):
+        disk = shapely.Point(x, y).buffer(radius, quad_segs=2)
+        cells = [(shapely.difference(poly, disk) if i != c else shapely.union(poly, disk), plane)
+                 for i, (poly, plane) in enumerate(cells)]
+    return [(poly, plane) for poly, plane in cells if not poly.is_empty]
+
+
+def _prism(cells: list, ground_height: float, footprint, grid: float, z_tolerance: float) -> Solid:
+    faces, face_cell, whole = _tile(cells, footprint, grid)
+    table = _Rings(grid)
+    face_rings = [table.polygon(f) for f in faces]
+    ground_rings = table.polygon(whole)
+    g = int(round(ground_height / grid))
+    planes = np.array([cells[c][1] for c in face_cell], dtype=np.float64)
+    if not (np.abs(planes[:, 2]) > 1e-9).all():
+        raise GeometryError("a vertical roof plane")
+    tol = z_tolerance / grid
+
+    def edges(face_rings):
+        """Every directed ring edge: its face, start and end vertex, the next edge of its ring and the
+        opposite edge (-1: none)."""
+        f = np.concatenate([np.full(len(r), i) for i, rings in enumerate(face_rings) for r in rings])
+        p = np.concatenate([np.asarray(r, dtype=np.int64) for rings in face_rings for r in rings])
+        q = np.concatenate([np.roll(np.asarray(r, dtype=np.int64), -1) for rings in face_rings for r in rings])
+        m = len(table.xy)
+        key = p * m + q
+        order = np.argsort(key)
+        at = np.clip(np.searchsorted(key[order], q * m + p), 0, len(key) - 1)
+        opp = np.where(key[order][at] == q * m + p, order[at], -1)
+        nx = np.concatenate([np.roll(np.arange(len(r)), -1) for rings in face_rings for r in rings])
+        nx += np.repeat(np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])[:-1]],
+                        [len(r) for rings in face_rings for r in rings])
+        return f, p, q, nx, opp
+
+    def z_at(f, v):
+        xy = np.asarray(table.xy, dtype=np.float64)[v] * grid
+        pl = planes[f]
+        return np.round(-(pl[:, 0] * xy[:, 0] + pl[:, 1] * xy[:, 1] + pl[:, 3]) / pl[:, 2] / grid)
+
+    def snap(p, zz):
+        """One height per (vertex, near-equal heights): a ridge is one line for both of its planes."""
+        order = np.lexsort((zz, p))
+        sv, sz = p[order], zz[order]
+        new_group = np.r_[True, (sv[1:] != sv[:-1]) | (np.diff(sz) >= tol)]
+        gid = np.cumsum(new_group) - 1
+        mean = np.round(np.bincount(gid, weights=sz) / np.bincount(gid)).astype(np.int64)
+        out = np.empty_like(zz)
+        out[order] = mean[gid]
+        return out
+
+    # T-junctions out (every vertex lying exactly on another cell's edge)
+    counts = np.cumsum([0] + [len(rings) for rings in face_rings])
+    flat = table.split_edges([r for rings in face_rings for r in rings] + ground_rings)
+    face_rings = [flat[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
+    ground_rings = flat[counts[-1]:]
+    # a face whose rings pass twice through a vertex (a hole touching its
+    # outer ring) would pinch the shell there: open it like a saddle
+    pinch = [(v, i) for i, rings in enumerate(face_rings)
+             for v, n in zip(*np.unique(np.concatenate(rings), return_counts=True)) if n > 1]
+    if pinch:
+        xy = np.asarray(table.xy, dtype=np.float64)
+        raise _Saddle(xy[[v for v, _ in pinch]] * grid, [face_cell[i] for _, i in pinch])
+    # where two neighbouring planes cross along their shared edge the wall
+    # between them changes side: put the crossing point into both rings
+    for _ in range(4):
+        f, p, q, nx, opp = edges(face_rings)
+        zz = z_at(f, p).astype(np.int64)
+        snapped = snap(p, zz)
+        has = opp >= 0
+        o = np.maximum(opp, 0)
+        zl_q = snapped[nx]
+        zr_p = np.where(has, snapped[nx[o]], g)
+        zr_q = np.where(has, snapped[o], g)
+        cross = np.flatnonzero(has & (f < f[o]) & ((snapped - zr_p) * (zl_q - zr_q) < 0))
+        if not len(cross):
+            break
+        xyf = np.asarray(table.xy, dtype=np.float64)
+        d0 = (zz[cross] - zz[nx[o[cross]]]).astype(np.float64)
+        d1 = (zz[nx[cross]] - zz[o[cross]]).astype(np.float64)
+        t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
+        w = np.round(xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])).astype(np.int64)
+        crossing: dict[tuple[int, int], int] = {}
+        for pp, qq, (wx, wy) in zip(p[cross].tolist(), q[cross].tolist(), w.tolist()):
+            if (wx, wy) in table.index:
+                raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
+            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex((wx, wy))
+        face_rings = [[_insert(r, crossing) for r in rings] for rings in face_rings]
+    else:
+        raise GeometryError("two roof faces cross along their shared edge")
+    if snapped.min() <= g:
+        raise GeometryError(f"a roof lies at or below the ground height ({snapped.min() * grid:.2f} <= "
+                            f"{ground_height:.2f} m)")
+    levels: dict[int, set] = {}
+    for v, z in zip(p.tolist(), snapped.tolist()):
+        levels.setdefault(v, set()).add(z)
+    for r in ground_rings:
+        for v in r:
+            levels.setdefault(v, set()).add(g)
+    levels = {v: np.array(sorted(x), dtype=np.int64) for v, x in levels.items()}
+    xy = np.asarray(table.xy, dtype=np.int64)
+
+    def point(v, z):
+        return (int(xy[v, 0]), int(xy[v, 1]), int(z))
+
+    def between(v, z0, z1):
+        lv = levels[v]
+        inner = lv[(lv > min(z0, z1)) & (lv < max(z0, z1))]
+        return inner if z1 > z0 else inner[::-1]
+
+    bounds = np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])]
+    flat_rings = [[point(v, z) for v, z in zip(p[a:b].tolist(), snapped[a:b].tolist())]
+                  for a, b in zip(bounds[:-1], bounds[1:])]
+    counts = np.cumsum([0] + [len(rings) for rings in face_rings])
+    roofs = [flat_rings[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
+    walls = []
+    need = (~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q))
+    for k in np.flatnonzero(need).tolist():
+        pk, qk = int(p[k]), int(q[k])
+        zlp, zlq, zrp, zrq = int(snapped[k]), int(zl_q[k]), int(zr_p[k]), int(zr_q[k])
+        ring = [point(pk, zrp), point(qk, zrq)]
+        ring += [point(qk, z) for z in between(qk, zrq, zlq)]
+        ring += [point(qk, zlq), point(pk, zlp)]
+        ring += [point(pk, z) for z in between(pk, zlp, zrp)]
+        walls.append([[c for j, c in enumerate(ring) if c != ring[j - 1]]])
+    # each elementary vertical edge must be in exactly two walls; more means a
+    # saddle vertex (heights high, low, high, low around it)
+    vertical: dict[tuple, int] = {}
+    for (ring,) in walls:
+        for a, b in zip(ring, ring[1:] + ring[:1]):
+            if a[:2] == b[:2]:
+                key = (a[0], a[1], min(a[2], b[2]))
+                vertical[key] = vertical.get(key, 0) + 1
+    saddles = sorted({k[:2] for k, n in vertical.items() if n > 2})
+    if saddles:
+        at = [table.index[s] for s in saddles]
+        highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]
+        raise _Saddle(np.asarray(saddles, dtype=np.float64) * grid, [face_cell[i] for i in highest])
+    ground = [[point(v, g) for v in r[::-1]] for r in ground_rings]
+
+    def surface(rings, kind):
+        return Surface([np.asarray(r, dtype=np.float64) * grid for r in rings], kind)
+
+    return Solid([surface(r, "RoofSurface") for r in roofs] + [surface(r, "WallSurface") for r in walls]
+                 + [surface(ground, "GroundSurface")])

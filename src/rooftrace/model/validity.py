@@ -1,0 +1,245 @@
+"""Geometric validity of a solid, checked by our own code (the val3dity rules we rely on).
+
+A valid :class:`~rooftrace.model.types.Solid` here is one outer shell that is
+
+- **closed and 2-manifold**: every edge is used by exactly two surfaces, once
+  in each direction (so the orientations agree), the surfaces around every
+  vertex form one fan, and the shell is one connected piece;
+- **outward**: the enclosed (signed) volume is positive;
+- **planar**: every surface lies within ``planarity`` of its plane;
+- **simple in its plane**: every surface, projected on its plane, is a valid
+  polygon (no self-intersection, holes inside the outer ring, area > 0),
+  outer ring counter-clockwise seen from outside, holes clockwise.
+
+Vertices are compared on a grid (``grid``, 1 mm by default, the precision
+of the CityJSON writer), so two vertices closer than the grid are one.
+What is *not* checked: intersections between different surfaces of the
+shell (val3dity's ``SHELL_SELF_INTERSECTION``); the builders make 2.5D
+shells (walls vertical, one roof height per plan position) where those
+cannot occur unless a surface is invalid in its plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+
+from rooftrace.graph import components
+
+__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal"]
+
+
+def _ring_table(solid):
+    """All rings stacked: vertices (V, 3), ring of each vertex, next vertex, surface of each ring."""
+    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in solid.surfaces for r in s.rings]
+    sizes = np.array([len(r) for r in rings], dtype=np.int64)
+    owner = np.repeat(np.arange(len(solid.surfaces)), [len(s.rings) for s in solid.surfaces])
+    xyz = np.vstack(rings) if rings else np.zeros((0, 3))
+    ring = np.repeat(np.arange(len(rings)), sizes)
+    start = np.r_[0, np.cumsum(sizes)[:-1]]
+    nxt = np.arange(len(xyz)) + 1
+    nxt[start + sizes - 1] = start
+    return xyz, ring, nxt, owner, sizes, start
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
+def _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin):
+    """Newell area vector (twice the area, along the normal) of every surface; holes count negatively."""
+    p = xyz - origin
+    per_ring = np.add.reduceat(_cross(p, p[nxt]), np.r_[0, np.cumsum(sizes)[:-1]], axis=0) if len(p) else \
+        np.zeros((0, 3))
+    out = np.zeros((n_surfaces, 3))
+    np.add.at(out, owner, per_ring)
+    return out
+
+
+def surface_normal(rings: list[np.ndarray]) -> np.ndarray:
+    """Area vector of a planar surface (Newell's method): its direction is the normal.
+
+    The outer ring counts positively and holes (opposite orientation)
+    negatively, so the norm is twice the area of the surface (m²).
+    """
+    total = np.zeros(3)
+    for r in rings:
+        r = np.asarray(r, dtype=np.float64)
+        r = r - r.mean(axis=0)
+        n = np.roll(r, -1, axis=0)
+        total += _cross(r, n).sum(axis=0)
+    return total
+
+
+def solid_volume(solid, origin: np.ndarray | None = None) -> float:
+    """Signed volume (m³) enclosed by the solid's surfaces, positive when they face outward.
+
+    Divergence theorem: ``V = 1/3 sum_f (A_f . p_f)`` with ``A_f`` the area
+    vector of surface ``f`` and ``p_f`` a point of its plane (its outer
+    ring's first vertex).  Coordinates are taken relative to ``origin``
+    (default the first vertex) so that map coordinates keep their precision.
+    """
+    if not solid.surfaces:
+        return 0.0
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    if origin is None:
+        origin = xyz[0]
+    area = _area_vectors(xyz, ring, nxt, owner, sizes, len(solid.surfaces), origin) / 2.0
+    first = np.unique(owner, return_index=True)[1]
+    p = xyz[start[first]] - origin
+    return float((area * p).sum()) / 3.0
+
+
+def _bases(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``normal`` (S, 3), unit vectors u, v with (u, v, n) right-handed."""
+    n = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    a = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = _cross(a, n)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, _cross(n, u)
+
+
+def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planarity) -> list[str]:
+    """Rings with too few or repeated vertices, non-planar surfaces, surfaces not simple in their plane."""
+    errors = []
+    bad_ring = sizes < 3
+    dup = vid == vid[nxt]
+    o = np.lexsort((vid, ring))
+    twice = np.zeros(len(vid), bool)
+    twice[o[1:]] = (ring[o[1:]] == ring[o[:-1]]) & (vid[o[1:]] == vid[o[:-1]])
+    for k in np.unique(owner[bad_ring]):
+        errors.append(f"surface {k}: a ring has fewer than 3 vertices")
+    for k in np.unique(owner[ring[dup]]):
+        errors.append(f"surface {k}: consecutive duplicate vertices")
+    for k in np.unique(owner[ring[twice & ~dup]]):
+        errors.append(f"surface {k}: a ring passes twice through one vertex")
+    if errors:
+        return errors
+    origin = xyz.min(axis=0)
+    normal = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin)
+    norm = np.linalg.norm(normal, axis=1)
+    for k in np.flatnonzero(~(norm > 1e-12)):
+        errors.append(f"surface {k}: zero area")
+    if errors:
+        return errors
+    surf = owner[ring]
+    count = np.bincount(surf, minlength=n_surfaces)
+    centre = np.column_stack([np.bincount(surf, weights=xyz[:, i] - origin[i], minlength=n_surfaces)
+                              for i in range(3)]) / count[:, None]
+    unit = normal / norm[:, None]
+    dist = np.abs(((xyz - origin - centre[surf]) * unit[surf]).sum(axis=1))
+    worst = np.zeros(n_surfaces)
+    np.maximum.at(worst, surf, dist)
+    for k in np.flatnonzero(worst > planarity):
+        errors.append(f"surface {k}: not planar ({worst[k]:.4f} m from its plane)")
+    u, v = _bases(normal)
+    rel = xyz - origin - centre[surf]
+    flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
+    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
+    closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
+    lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
+    n_rings = np.bincount(owner, minlength=n_surfaces)
+    first = np.r_[0, np.cumsum(n_rings)[:-1]]
+    simple = np.flatnonzero(n_rings == 1)
+    polys = np.empty(n_surfaces, dtype=object)
+    polys[simple] = shapely.polygons(lr[first[simple]])
+    for k in np.flatnonzero(n_rings > 1):
+        polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
+    valid = shapely.is_valid(polys)
+    for k in np.flatnonzero(~valid):
+        errors.append(f"surface {k}: self-intersecting in its plane ({shapely.is_valid_reason(polys[k])})")
+    ccw = shapely.is_ccw(lr)
+    hole = np.ones(len(lr), bool)
+    hole[first] = False
+    for k in np.flatnonzero(valid & ~ccw[first]):
+        errors.append(f"surface {k}: outer ring not counter-clockwise seen from outside")
+    for k in np.unique(owner[hole & ccw]):
+        errors.append(f"surface {k}: a hole is not clockwise seen from outside")
+    return errors
+
+
+def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[str]:
+    """What makes a solid invalid; an empty list when it is valid.
+
+    Parameters
+    ----------
+    solid : Solid
+    planarity : float, default 0.01
+        Largest distance (m) of a vertex from its surface's plane (the
+        Newell normal through the vertices' mean; val3dity's default
+        ``planarity_d2p_tol``).
+    grid : float, default 0.001
+        Vertices closer than this (m) are one vertex.
+
+    Returns
+    -------
+    list of str
+        One line per problem found.
+
+    Examples
+    --------
+    >>> from rooftrace.model.build import prism_solid
+    >>> import shapely
+    >>> box = prism_solid([(shapely.box(0, 0, 10, 8), (0.0, 0.0, 1.0, -6.0))], 0.0)
+    >>> solid_errors(box), round(solid_volume(box), 6)
+    ([], 480.0)
+    """
+    surfaces = solid.surfaces
+    if len(surfaces) < 4:
+        return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
+    _, vid = np.unique(keys, axis=0, return_inverse=True)
+    vid = vid.ravel()
+    errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity)
+    if errors:
+        return errors
+    # closed and consistently oriented: each directed edge once, and its reverse once
+    a, b = vid, vid[nxt]
+    face = owner[ring]
+    n = int(vid.max()) + 1
+    key = a * n + b
+    uk, counts = np.unique(key, return_counts=True)
+    if (counts > 1).any():
+        errors.append(f"{int((counts > 1).sum())} edges used twice in the same direction (flipped or non-manifold)")
+    missing = ~np.isin(b * n + a, uk)
+    if missing.any():
+        errors.append(f"not closed: {int(missing.sum())} edges without an opposite edge")
+    if errors:
+        return errors
+    # one connected shell: surfaces joined through their shared edges
+    order = np.argsort(key)
+    opposite = order[np.searchsorted(key[order], b * n + a)]
+    if components(len(surfaces), np.column_stack([face, face[opposite]])).max() > 0:
+        errors.append("the shell is not connected")
+    # 2-manifold at vertices: around each vertex, the edges (next -> previous)
+    # of the surfaces using it chain into one cycle
+    prev = np.empty_like(vid)
+    prev[nxt] = vid
+    link: dict[int, dict[int, int]] = {}
+    for v, to, back in zip(a.tolist(), b.tolist(), prev.tolist()):
+        link.setdefault(v, {})[to] = back
+    uses = np.bincount(a)
+    bad = 0
+    for v, chain in link.items():
+        first = cur = next(iter(chain))
+        steps = 0
+        while True:
+            cur = chain.get(cur)
+            steps += 1
+            if cur is None or cur == first or steps > len(chain):
+                break
+        if cur != first or steps != uses[v]:
+            bad += 1
+    if bad:
+        errors.append(f"{bad} non-manifold vertices (the surfaces around them make several fans)")
+    volume = solid_volume(solid)
+    if not volume > 0:
+        errors.append(f"surfaces face inward (signed volume {volume:.3f} m³)")
+    return errors
+
+
+def is_valid_solid(solid, **kwargs) -> bool:
+    """``solid_errors(solid, **kwargs) == []``."""
+    return not solid_errors(solid, **kwargs)

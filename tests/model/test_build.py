@@ -1,0 +1,123 @@
+"""build_model: three valid levels of detail per part, fallbacks with a reason, attributes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from rooftrace.model import (
+    ModelOptions,
+    build_model,
+    building_attributes,
+    ground_height,
+    solid_errors,
+    solid_volume,
+    vertical_rmse,
+)
+from rooftrace.roof import RoofStructure, roof_structure
+from rooftrace.roof.models import gable, sample_roof
+
+
+@pytest.fixture(scope="module")
+def gable_roof():
+    xyz, _ = sample_roof(gable(), density=12, noise=0.03, seed=1)
+    return xyz, roof_structure(xyz)
+
+
+def test_a_sampled_gable_gives_three_valid_levels(gable_roof):
+    xyz, roof = gable_roof
+    ground = float(xyz[:, 2].min()) - 3.0
+    model = build_model(roof.outline, roof, xyz, ground, building_id=7)
+    assert model.attributes["status"] == "ok" and model.attributes["status_reason"] is None
+    (part,) = model.parts
+    assert set(part.lods) == {"1.2", "1.3", "2.2"}
+    for solid in part.lods.values():
+        assert solid_errors(solid) == []
+    # the planes fit the points far better than one flat roof
+    assert vertical_rmse([part.lods["2.2"]], xyz) < 0.1 < vertical_rmse([part.lods["1.2"]], xyz)
+    # a gable holds less than the block at its 70th percentile
+    assert solid_volume(part.lods["2.2"]) < solid_volume(part.lods["1.2"])
+
+
+def test_attributes(gable_roof):
+    xyz, roof = gable_roof
+    ground = float(xyz[:, 2].min()) - 3.0
+    model = build_model(roof.outline, roof, xyz, ground)
+    a = building_attributes(model, roof, xyz, ground)
+    assert a["roof_type"] == "slanted" and a["n_planes"] == 2 and a["n_ridges"] == 1
+    assert a["h_roof_min"] <= a["h_roof_50p"] <= a["h_roof_70p"] <= a["h_roof_max"]
+    assert a["h_ridge"] == pytest.approx(a["h_roof_max"], abs=0.3)
+    assert a["h_ground"] == pytest.approx(ground, abs=1e-3)
+    assert 0 < a["slope_deg"] < 60 and 0 <= a["azimuth_deg"] < 360
+    assert a["rmse_lod22"] < a["rmse_lod13"] <= a["rmse_lod12"] + 1e-9
+    assert a["volume_lod22"] < a["volume_lod12"]
+    assert a["point_density"] == pytest.approx(len(xyz) / a["area"], rel=1e-2)
+
+
+def test_without_roof_faces_lod22_is_missing_with_the_reason():
+    rng = np.random.default_rng(0)
+    xyz = np.column_stack([rng.uniform(0, 10, 500), rng.uniform(0, 8, 500), np.full(500, 7.0)])
+    model = build_model(shapely.box(0, 0, 10, 8), None, xyz, 1.0)
+    assert model.attributes["status"] == "partial"
+    assert "lod22: no roof faces" in model.attributes["status_reason"]
+    assert set(model.parts[0].lods) == {"1.2", "1.3"}
+    assert solid_volume(model.parts[0].lods["1.2"]) == pytest.approx(80 * 6.0)
+
+
+def test_no_outline_or_no_ground_is_no_model():
+    assert build_model(None, None, np.zeros((0, 3)), 0.0).attributes["status"] == "no_model"
+    m = build_model(shapely.box(0, 0, 1, 1), None, np.zeros((0, 3)), float("nan"))
+    assert m.attributes == {"status": "no_model", "status_reason": "no ground height"}
+
+
+def test_a_roof_under_the_ground_falls_back_and_says_so():
+    xyz = np.array([[1.0, 1.0, 2.0], [2.0, 2.0, 2.0], [3.0, 1.0, 2.0]])
+    model = build_model(shapely.box(0, 0, 4, 4), None, xyz, 5.0)
+    assert model.attributes["status"] == "no_model"
+    assert "below the ground" in model.attributes["status_reason"]
+    assert not any(p.lods for p in model.parts)
+
+
+def test_parts_share_their_party_wall(gable_roof):
+    xyz, roof = gable_roof
+    ground = float(xyz[:, 2].min()) - 3.0
+    minx, miny, maxx, maxy = roof.outline.bounds
+    mid = (minx + maxx) / 2
+    parts = [shapely.box(minx - 1, miny - 1, mid, maxy + 1), shapely.box(mid, miny - 1, maxx + 1, maxy + 1)]
+    whole = build_model(roof.outline, roof, xyz, ground)
+    split = build_model(roof.outline, roof, xyz, ground, parts=parts)
+    assert [p.part_id for p in split.parts] == [1, 2]
+    for p in split.parts:
+        assert set(p.lods) == {"1.2", "1.3", "2.2"} and all(solid_errors(s) == [] for s in p.lods.values())
+    v = sum(solid_volume(p.lods["2.2"]) for p in split.parts)
+    assert v == pytest.approx(solid_volume(whole.parts[0].lods["2.2"]), rel=1e-3)
+
+
+def test_lod13_has_one_height_per_level():
+    from tests.model.cases import stepped
+
+    cells, _ = stepped()
+
+    roof = RoofStructure(planes=np.array([p for _, p in cells]), faces=[c for c, _ in cells], face_plane=[0, 1, 2])
+
+    rng = np.random.default_rng(3)
+    outline = shapely.union_all(roof.faces)
+    xy = np.column_stack([rng.uniform(0, 10, 4000), rng.uniform(0, 12, 4000)])
+    xy = xy[shapely.contains_xy(outline, xy[:, 0], xy[:, 1])]
+    z = np.select([xy[:, 1] >= 8, xy[:, 0] < 5], [4.0, 6.0], 9.0)
+    model = build_model(outline, roof, np.column_stack([xy, z]), 0.0)
+    roofs = [s for s in model.parts[0].lods["1.3"].surfaces if s.kind == "RoofSurface"]
+    assert sorted({round(float(s.rings[0][0, 2]), 2) for s in roofs}) == [4.0, 6.0, 9.0]
+
+
+def test_ground_height_is_a_low_percentile():
+    assert ground_height(np.arange(101.0)) == pytest.approx(10.0)
+    assert np.isnan(ground_height(np.array([np.nan])))
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError, match="roof_percentile"):
+        ModelOptions(roof_percentile=120)
+    with pytest.raises(ValueError, match="grid"):
+        ModelOptions(grid=0)

@@ -1,0 +1,81 @@
+"""prism_solid on constructed roofs: closed, outward, planar, simple; the right volume, walls and ground."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from rooftrace.errors import GeometryError
+from rooftrace.model import horizontal_plane, prism_solid, solid_errors, solid_volume
+from tests.model.cases import CASES, GROUND
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_constructed_roofs_give_valid_solids(name):
+    cells, volume = CASES[name]()
+    ground = GROUND.get(name, 0.0)
+    solid = prism_solid(cells, ground)
+    assert solid_errors(solid) == []
+    if volume is not None:
+        assert solid_volume(solid) == pytest.approx(volume, rel=1e-3)
+    kinds = [s.kind for s in solid.surfaces]
+    assert kinds.count("GroundSurface") == 1
+    ground_surface = solid.surfaces[kinds.index("GroundSurface")]
+    assert all(np.allclose(r[:, 2], ground) for r in ground_surface.rings)
+    for s in solid.surfaces:
+        if s.kind == "WallSurface":  # vertical: the plan projection has no area
+            assert shapely.Polygon(s.rings[0][:, :2]).area < 1e-6
+
+
+def test_the_courtyard_is_a_hole_of_roof_and_ground():
+    cells, _ = CASES["courtyard"]()
+    solid = prism_solid(cells, 1.0)
+    roof = [s for s in solid.surfaces if s.kind == "RoofSurface"]
+    assert len(roof) == 1 and len(roof[0].rings) == 2
+    assert sum(s.kind == "WallSurface" for s in solid.surfaces) == 8
+
+
+def test_steps_get_walls_between_roof_faces_ridges_do_not():
+    cells, _ = CASES["stepped"]()
+    solid = prism_solid(cells, 0.0)
+    inner = [s for s in solid.surfaces if s.kind == "WallSurface" and s.rings[0][:, 2].min() > 0]
+    assert len(inner) >= 2  # the 6 | 9 step and the 9 | 4 step stand on roofs, not on the ground
+    gable, _ = CASES["gable"]()
+    walls = [s for s in prism_solid(gable, 0.0).surfaces if s.kind == "WallSurface"]
+    assert all(s.rings[0][:, 2].min() == 0 for s in walls)  # no wall along the ridge
+
+
+def test_a_curved_outline_keeps_every_vertex_within_2_cm():
+    cells, _ = CASES["curved"]()
+    solid = prism_solid(cells, 0.0)
+    walls = np.vstack([s.rings[0] for s in solid.surfaces if s.kind == "WallSurface"])
+    r = np.hypot(walls[:, 0], walls[:, 1])
+    assert np.abs(r - 5.0).max() < 1e-3  # vertices stay on the circle
+    n = sum(s.kind == "WallSurface" for s in solid.surfaces)
+    assert n >= 128 and 5.0 * (1 - np.cos(np.pi / n)) < 0.02  # facets within 2 cm of the arc
+
+
+def test_faces_with_gaps_and_overlaps_still_tile_the_footprint():
+    cells = [(shapely.box(0, 0, 5.2, 8), horizontal_plane(6.0)), (shapely.box(5, 0, 10, 7.9), horizontal_plane(7.0))]
+    solid = prism_solid(cells, 0.0, footprint=shapely.box(0, 0, 10, 8))
+    assert solid_errors(solid) == []
+    roof_area = sum(shapely.Polygon(s.rings[0][:, :2]).area for s in solid.surfaces if s.kind == "RoofSurface")
+    assert roof_area == pytest.approx(80.0)
+
+
+def test_vertices_are_on_the_grid():
+    cells, _ = CASES["hip"]()
+    solid = prism_solid([(shapely.affinity.translate(c, 0.00037, 0.00011), p) for c, p in cells], 0.0)
+    xyz = np.vstack([r for s in solid.surfaces for r in s.rings])
+    assert np.abs(xyz / 1e-3 - np.round(xyz / 1e-3)).max() < 1e-6
+
+
+def test_a_roof_below_the_ground_is_refused():
+    with pytest.raises(GeometryError, match="below the ground"):
+        prism_solid([(shapely.box(0, 0, 4, 4), horizontal_plane(2.0))], 3.0)
+
+
+def test_no_cells_is_refused():
+    with pytest.raises(GeometryError, match="no roof cells"):
+        prism_solid([], 0.0)
