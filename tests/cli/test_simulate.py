@@ -21,6 +21,14 @@ def test_simulate_writes_the_scene_and_refuses_to_overwrite(tmp_path, capsys):
     assert code == 0
 
 
+def test_simulate_blocks_scene(tmp_path, capsys):
+    code = main(["simulate", "-o", str(tmp_path / "b"), "--scene", "blocks", "--size", "80", "--density", "2",
+                 "--no-image", "--json", "-q"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["buildings"] > 20 and summary["truth_classes"]["6"] > 0
+
+
 def test_simulate_orthophoto_and_config(tmp_path, capsys):
     cfg = tmp_path / "sim.toml"
     cfg.write_text("[simulate]\nsize = 40\ndensity = 3\ntrees = false\n")
@@ -35,6 +43,7 @@ def test_simulate_orthophoto_and_config(tmp_path, capsys):
     (["--density", "-1"], "density"),
     (["--orthophoto", "--perturb-camera", "2"], "perturb-camera"),
     (["--size", "1"], "size"),
+    (["--scene", "downtown"], "scene"),
 ])
 def test_simulate_bad_input_is_one_error_line(tmp_path, capsys, args, match):
     code = main(["simulate", "-o", str(tmp_path / "x"), *args])

@@ -29,3 +29,27 @@ def sample(polygon, density: float = 10.0, seed: int = 0, jitter: float = 0.25, 
         parts.append(g[shapely.contains_xy(polygon, g[:, 0], g[:, 1])])
     xy = np.concatenate(parts)
     return np.column_stack([xy, z + 0.05 * rng.normal(size=len(xy))])
+
+
+def courtyard_blocks(n_side: int = 1, size: float = 80.0, wing: float = 12.0, street: float = 10.0) -> shapely.Polygon:
+    """``n_side`` × ``n_side`` square blocks around courtyards, joined across the streets by 3 m wide passages."""
+    parts = []
+    for i in range(n_side):
+        for j in range(n_side):
+            x, y = i * (size + street), j * (size + street)
+            parts.append(shapely.box(x, y, x + size, y + size).difference(
+                shapely.box(x + wing, y + wing, x + size - wing, y + size - wing)))
+            if i:
+                parts.append(shapely.box(x - street - 1, y + size / 2, x + 1, y + size / 2 + 3))
+            if j:
+                parts.append(shapely.box(x + size / 2, y - street - 1, x + size / 2 + 3, y + 1))
+    return shapely.union_all(parts)
+
+
+def sample_random(polygon, density: float = 3.0, seed: int = 0, z: float = 10.0) -> np.ndarray:
+    """Uniformly random (Poisson) points inside ``polygon``: irregular sampling, as where AHN strips overlap."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.array(polygon.bounds[:2]), np.array(polygon.bounds[2:])
+    xy = rng.uniform(lo, hi, (rng.poisson(density * np.prod(hi - lo)), 2))
+    xy = xy[shapely.contains_xy(polygon, xy[:, 0], xy[:, 1])]
+    return np.column_stack([xy, z + 0.05 * rng.normal(size=len(xy))])

@@ -180,8 +180,8 @@ def test_alpha_is_enlarged_until_it_bridges_the_scan_lines(seed):
     from rooftrace.contour.alpha_shape import alpha_shape
 
     xyz = _scan_lines(seed)
-    # at scale 1 the ring closes, but through bays between the scan lines
-    assert alpha_shape(xyz[:, :2]).gap_fill > 0.85
+    # at scale 1 the ring closes, but through bays between the scan lines (0.86-0.93 at alpha x 1.25)
+    assert alpha_shape(xyz[:, :2]).gap_fill > 0.75
     out = trace_outline(xyz)
     assert out.status == "alpha_enlarged"
     # before: closed at the first alpha with 11-19 corners, PoLiS 0.21-0.41 m

@@ -21,6 +21,8 @@ SeedOpt = Annotated[int | None, typer.Option("--seed", min=0, help="Seed of ever
 Ortho = Annotated[bool, typer.Option("--orthophoto", help="Render a true orthophoto GeoTIFF instead of a frame image.")]
 Perturb = Annotated[float | None, typer.Option(
     "--perturb-camera", min=0.01, help="Also write camera_perturbed.json, off by about this many pixels.")]
+SceneKind = Annotated[str | None, typer.Option(
+    "--scene", help="Buildings: 'default' (the house mix) or 'blocks' (city blocks around courtyards). [default: default]")]
 NoImage = Annotated[bool, typer.Option("--no-image", help="Skip the image (LiDAR and truth only).")]
 PowerLine = Annotated[bool, typer.Option("--power-line", help="Add a power line (ASPRS class 14 in the truth).")]
 
@@ -36,6 +38,7 @@ def simulate(
     perturb_camera: Perturb = None,
     no_image: NoImage = False,
     power_line: PowerLine = False,
+    scene_kind: SceneKind = None,
     config: opt.Config = None,
     json_: opt.Json = False,
     overwrite: opt.Overwrite = False,
@@ -54,7 +57,7 @@ def simulate(
     cfg = load_config(config)
     options = make_options(SceneOptions, cfg, seed=seed, density=density, size=size, gsd=gsd,
                            orthophoto=True if orthophoto else None, image=False if no_image else None,
-                           power_line=True if power_line else None)
+                           power_line=True if power_line else None, scene=scene_kind)
     if perturb_camera is not None and (options.orthophoto or not options.image):
         raise InputError("--perturb-camera needs a frame image (not with --orthophoto or --no-image)")
     out = Path(output)

@@ -1,11 +1,27 @@
 """Alpha shape with an adaptive alpha, gap repair and ring tracing (thesis ch. 4).
 
 Only Delaunay edges can be alpha edges, so the mesh's edges are the
-candidates; the emptiness of the two alpha circles through each edge
-(eq. 4.1-4.3) is checked with one KD-tree nearest-neighbour query per circle.
-The side whose circle is empty is the outside, which orients every boundary
-edge with the roof on its left: outer rings come out counter-clockwise,
-courtyards clockwise.
+candidates.  Two readings of the shape are built:
+
+- ``boundary = "triangle"`` (default): the shape is the union of the Delaunay
+  triangles whose circumradius is at most the triangle's alpha (the
+  regular part of the alpha complex); its boundary edges are the edges
+  between a triangle inside and one outside.  Each triangle is judged once,
+  so the boundary always closes into rings.  For S3 a triangle's alpha is
+  the mean of its corners' ps_avg (the thesis' per-edge mean of eq. 4.6,
+  taken over the triangle).
+- ``boundary = "edge"`` (the thesis, eq. 4.1-4.3): the emptiness of the two
+  alpha circles through each edge, one KD-tree nearest-neighbour query per
+  circle, then the gap repair of §4.3.2.  With one alpha per edge (S3) the
+  three edges of a triangle judge it with three alphas; where they disagree
+  the boundary breaks, and an outer ring with a gap the repair cannot close
+  is deleted chain by chain: a 65 000-point block lost its outer ring and
+  came out as a courtyard-sized sliver (docs/design-notes.md, "Outline
+  coverage").
+
+Either way the side that is outside orients every boundary edge with the
+roof on its left: outer rings come out counter-clockwise, courtyards
+clockwise.
 """
 
 from __future__ import annotations
@@ -17,7 +33,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.contour.spacing import building_alpha, delaunay_edges, point_spacing
+from rooftrace.contour.spacing import building_alpha, delaunay_mesh, point_spacing
 from rooftrace.errors import GeometryError
 
 __all__ = [
@@ -25,6 +41,7 @@ __all__ = [
     "AlphaShape",
     "alpha_shape",
     "boundary_edges",
+    "triangle_boundary",
     "repair_boundary",
     "trace_rings",
 ]
@@ -32,6 +49,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 STRATEGIES = ("global", "building", "point")
+BOUNDARIES = ("triangle", "edge")
 
 
 @dataclass(frozen=True)
@@ -60,8 +78,22 @@ class AlphaOptions:
         (thesis Table 6.1), the smallest building worth mapping.
     scale : float
         Multiplies every alpha of the chosen strategy (1 = the thesis).
+<<<<<<< HEAD
+        Scan patterns leave wider gaps along roof edges than inside, and the
+        union of triangles drops an obtuse triangle at the edge that the
+        thesis' edge test keeps; 1.5 bridges both and measured best with the
+        triangle boundary (1.25 with the edge test; docs/design-notes.md,
+        "Outline coverage").
+    boundary : {'triangle', 'edge'}
+        How the shape is read from the alphas (module docstring):
+        ``triangle`` = union of the Delaunay triangles with circumradius
+        at most their alpha (closed by construction; default, chosen by
+        measurement in docs/design-notes.md, "Outline coverage"), ``edge``
+        = the thesis' empty-circle test per edge with its gap repair.
+=======
         Scan patterns leave wider gaps along roof edges than inside; 1.25
         bridges them and measured best on City3D/AHN3 (docs/design-notes.md).
+>>>>>>> main
     """
 
     section = "alpha"
@@ -71,11 +103,14 @@ class AlphaOptions:
     radius: float = 3.0
     long_edge_sigma: float = 3.0
     min_hole_area: float = 4.0
-    scale: float = 1.25
+    scale: float = 1.5
+    boundary: str = "triangle"
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
             raise ValueError(f"alpha.strategy must be one of {', '.join(STRATEGIES)}, not {self.strategy!r}")
+        if self.boundary not in BOUNDARIES:
+            raise ValueError(f"alpha.boundary must be one of {', '.join(BOUNDARIES)}, not {self.boundary!r}")
         if self.alpha is not None and not self.alpha > 0:
             raise ValueError(f"alpha.alpha must be > 0 m, not {self.alpha}")
         if not self.radius > 0:
@@ -107,6 +142,10 @@ class AlphaShape:
         90th percentile over the Delaunay edges of length / (2 alpha): how
         nearly the sampling's own gaps fill the alpha disk (about 0.5-0.65 on
         AHN3, 0.86 between the demo's scan lines at alpha scale 1).
+    scale : float
+        The factor the spacings were multiplied by (``options.scale`` times
+        the caller's ``alpha_scale``): ``spacing * scale`` is each point's
+        alpha radius, metres.
     """
 
     rings: list[np.ndarray]
@@ -115,6 +154,7 @@ class AlphaShape:
     spacing: np.ndarray
     dropped_area: float = 0.0
     gap_fill: float = float("nan")
+    scale: float = 1.0
 
 
 def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: cKDTree | None = None) -> np.ndarray:
@@ -154,6 +194,47 @@ def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: c
     fwd = right_empty & ~left_empty
     rev = left_empty & ~right_empty
     return np.concatenate([e[fwd], e[rev][:, ::-1]]).astype(np.int64)
+
+
+def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """Directed boundary edges of the union of the triangles with circumradius <= alpha, inside on the left.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+    triangles : ndarray of shape (T, 3) int
+        Delaunay triangles, counter-clockwise.
+    neighbours : ndarray of shape (T, 3) int
+        The triangle across the edge opposite each corner, -1 on the hull
+        (``scipy.spatial.Delaunay.neighbors``).
+    alpha : float or ndarray of shape (T,)
+        Alpha radius per triangle, metres.
+
+    Returns
+    -------
+    ndarray of shape (B, 2) int64
+        ``(from, to)`` point indices; every vertex has as many edges in as out.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    >>> tri = np.array([[0, 1, 2], [0, 2, 3]]); nb = np.array([[-1, 1, -1], [-1, -1, 0]])
+    >>> sorted(map(tuple, triangle_boundary(xy, tri, nb, 1.0).tolist()))  # circumradius 0.71 m: both inside
+    [(0, 1), (1, 2), (2, 3), (3, 0)]
+    >>> triangle_boundary(xy, tri, nb, 0.5).tolist()
+    []
+    """
+    a, b, c = xy[triangles[:, 0]], xy[triangles[:, 1]], xy[triangles[:, 2]]
+    la, lb, lc = np.hypot(*(b - c).T), np.hypot(*(c - a).T), np.hypot(*(a - b).T)
+    area2 = np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        solid = la * lb * lc <= 2.0 * area2 * np.broadcast_to(alpha, (len(triangles),))  # R = abc / (4 area)
+    out = []
+    for k in range(3):
+        across = neighbours[:, k]
+        keep = solid & ~np.where(across >= 0, solid[np.maximum(across, 0)], False)
+        out.append(np.column_stack([triangles[keep, (k + 1) % 3], triangles[keep, (k + 2) % 3]]))
+    return np.concatenate(out).astype(np.int64)
 
 
 def repair_boundary(directed: np.ndarray, edges: np.ndarray, lengths: np.ndarray, n: int) -> np.ndarray:
@@ -295,11 +376,11 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     >>> xy = np.mgrid[0:10:0.5, 0:6:0.5].reshape(2, -1).T
     >>> shape = alpha_shape(xy, AlphaOptions(strategy="building"))
     >>> len(shape.rings), len(shape.rings[0]), round(shape.alpha, 3)
-    (1, 60, 0.707)
+    (1, 60, 0.849)
     """
     options = options or AlphaOptions()
     xy = np.asarray(xy, dtype=np.float64)
-    edges, lengths = delaunay_edges(xy)
+    edges, lengths, triangles, neighbours = delaunay_mesh(xy)
     spacing = np.full(len(xy), np.nan)
     if options.strategy == "point":
         spacing = point_spacing(xy, edges, lengths, options.radius)
@@ -314,9 +395,11 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
         spacing[:] = alpha_value
     alpha_scale = alpha_scale * options.scale
     alpha = alpha * alpha_scale
-    tree = cKDTree(xy)
-    directed = boundary_edges(xy, edges, alpha, tree)
-    directed = repair_boundary(directed, edges, lengths, len(xy))
+    if options.boundary == "triangle":
+        directed = triangle_boundary(xy, triangles, neighbours, spacing[triangles].mean(axis=1) * alpha_scale)
+    else:
+        directed = boundary_edges(xy, edges, alpha, cKDTree(xy))
+        directed = repair_boundary(directed, edges, lengths, len(xy))
     rings = trace_rings(xy, directed)
     areas = np.array([_signed_area(xy[r]) for r in rings])
     outer = [r for r, a in zip(rings, areas) if a > 0]
@@ -330,5 +413,6 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     log.debug("alpha shape: %d rings traced, outer of %.1f m², %d holes kept", len(rings), outer_areas.max(), len(holes))
     dropped = float(outer_areas.sum() - outer_areas.max())
     gap_fill = float(np.percentile(lengths / (2.0 * alpha), 90))
-    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill)
+    return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill,
+                      alpha_scale)
 

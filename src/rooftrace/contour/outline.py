@@ -19,9 +19,10 @@ import shapely
 from scipy.spatial import QhullError
 from threadpoolctl import threadpool_limits
 
-from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
+from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_shape
 from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
+from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
 from rooftrace.contour.edge import EdgeContext
 from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.lines import bridge_inlets, line_outline
@@ -114,12 +115,19 @@ class RoofOutline:
         (invalid rings fixed by make_valid), 'multipart' (the points fall
         apart into several parts even with alpha tripled; the largest is
         kept), 'unregularised' (the CD-spline
-        collapsed the outer ring; the alpha-shape ring is kept), or why there is no outline
-        ('too_few_points', 'collinear', 'no_ring', ...).
+        collapsed the outer ring, or the regularised outline left out points the alpha shape holds;
+        the alpha-shape rings are kept), 'alpha_fallback' (the configured
+        strategy's outline covered too few of the points; ``alpha_strategy`` names the one used),
+        'low_coverage' (no strategy covers 99 % of the points; the best is kept), or why there is
+        no outline ('too_few_points', 'collinear', 'no_ring', ...).
     z_min, z_mean, z_max : float
         Heights of the building's points, metres.
     sigma : float
         Residual standard deviation of the CD-spline fit of the outer ring, metres.
+    coverage : float
+        Share of the building's plan positions inside the polygon or within
+        their alpha radius of it (:func:`~rooftrace.contour.coverage.outline_coverage`);
+        below 0.99 the status says so.
     """
 
     building_id: int
@@ -134,6 +142,7 @@ class RoofOutline:
     z_mean: float = float("nan")
     z_max: float = float("nan")
     sigma: float = float("nan")
+    coverage: float = float("nan")
 
     @property
     def area(self) -> float:
@@ -188,7 +197,18 @@ def _simple(vertices: np.ndarray) -> bool:
 
 def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None,
                   context_xy: np.ndarray | None = None) -> RoofOutline:
-    """Regularised 3D roof outline of one building.
+    """Regularised 3D roof outline of one building, checked to cover the building's points.
+
+    The outline (with its holes, after regularisation) must cover
+    :data:`~rooftrace.contour.coverage.MIN_COVERAGE` of the building's points
+    (inside or within the local alpha, :func:`~rooftrace.contour.coverage.outline_coverage`).
+    When the configured alpha strategy breaks that, the other strategies are
+    tried in turn (point → building → global), then the configured one with
+    alpha doubled and tripled; the first that holds is kept with status
+    ``alpha_fallback``.  When the regularisation gives up points the alpha
+    shape holds, the alpha shape's rings are kept (``unregularised``).  When
+    nothing holds, the outline covering the most is kept with status
+    ``low_coverage`` (or ``multipart``, when the building's points fall apart).
 
     Parameters
     ----------
@@ -215,8 +235,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     ValueError
         ``xyz`` is not of shape (N, 3).
     GeometryError
-        Too few points, collinear points, or no closed ring even with alpha
-        tripled; the message is the status.
+        Too few points, collinear points, or no closed ring with any strategy
+        even with alpha tripled; the message is the status.
 
     Examples
     --------
@@ -224,8 +244,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     >>> g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T  # points 0..9.9 x 0..5.7 m
     >>> xyz = np.column_stack([g, np.full(len(g), 5.0)])
     >>> out = trace_outline(xyz)
-    >>> out.status, len(out.corners[0]), out.degrees, round(out.area)
-    ('ok', 4, [[1, 1, 1, 1]], 57)
+    >>> out.status, len(out.corners[0]), out.degrees, round(out.area), out.coverage
+    ('ok', 4, [[1, 1, 1, 1]], 57, 1.0)
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
@@ -242,11 +262,61 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     context = None
     if context_xy is not None and options.regularize.method == "lines":
         context = EdgeContext(np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2])
+    best, first_error = None, None
+    for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
+        trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
+            options.alpha, strategy=strategy, scale=options.alpha.scale * enlarge))
+        try:
+            shape, status = _alpha_shape(pts, trial.alpha, mean_spacing)
+        except GeometryError as exc:
+            if str(exc) != "no_ring":
+                raise
+            first_error = first_error or exc
+            continue
+        # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
+        # of the building (a ring dropped, the shape fallen apart) is not worth regularising
+        rings = [pts[r, :2] for r in shape.rings]
+        traced = shapely.Polygon(rings[0], rings[1:])
+        traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
+        covered = outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
+        if best is None or covered > best[0]:
+            best = (covered, k, trial, shape, status)
+        if covered >= MIN_COVERAGE:
+            break
+    if best is None:
+        raise first_error
+    covered, k, trial, shape, status = best
+    outline = _outline(pts, origin, shape, status, trial, regularise=True, context=context)
+    if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
+        # the regularisation gave up points the alpha shape holds (a corner cut off): keep the alpha shape's rings
+        outline = _outline(pts, origin, shape, "unregularised", trial, regularise=False)
+    if outline.coverage < MIN_COVERAGE and outline.status != "multipart":
+        outline.status = "low_coverage"
+    elif k > 0:
+        outline.status = "alpha_fallback"
+    z = xyz[:, 2]
+    outline.n_points, outline.z_min, outline.z_mean, outline.z_max = len(xyz), float(z.min()), float(z.mean()), \
+        float(z.max())
+    return outline
+
+
+def _fallbacks(strategy: str, mean_spacing: float | None, alpha: float | None) -> list[tuple[str, float]]:
+    """(strategy, alpha enlargement) to try in turn: the configured one, the others from the most local
+    alpha to the least, then the configured one with alpha doubled and tripled (a few points farther
+    apart than any of the alphas: a small building's stray point)."""
+    order = [strategy] + [s for s in ("point", "building", "global") if s != strategy]
+    if mean_spacing is None and alpha is None and strategy != "global":
+        order.remove("global")  # without a cloud spacing 'global' is 'building'
+    return [(s, 1.0) for s in order] + [(strategy, 2.0), (strategy, 3.0)]
+
+
+def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None) -> tuple[AlphaShape, str]:
+    """The alpha shape of the outline points, alpha enlarged until it closes, holds together and bridges the sampling."""
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
         try:
-            trial = alpha_shape(pts[:, :2], options.alpha, mean_spacing=mean_spacing, alpha_scale=scale)
+            trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
@@ -260,26 +330,35 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
             status = "alpha_enlarged"
             continue
         main_area = abs(_area(pts[trial.rings[0], :2]))
-        if trial.dropped_area <= max(options.alpha.min_hole_area, 0.05 * main_area):
+        if trial.dropped_area <= max(options.min_hole_area, 0.05 * main_area):
             shape = trial
             break
         # the building fell apart into several rings: a larger alpha joins them
         status = "alpha_enlarged"
     if shape is None:
         raise GeometryError("no_ring")
-    if shape.dropped_area > max(options.alpha.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
+    if shape.dropped_area > max(options.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
         status = "multipart"
+    return shape, status
+
+
+def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str, options: OutlineOptions, *,
+             regularise: bool, context: EdgeContext | None = None) -> RoofOutline:
+    """The outline from an alpha shape's rings, regularised or as traced, its coverage measured."""
     rings, degrees, corners = [], [], []
     sigma = float("nan")
     for i, ring in enumerate(shape.rings):
         spacing = float(np.median(shape.spacing[ring]))
-        try:
-            vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options, outer=i == 0, context=context)
-        except GeometryError:
-            vertices = None
+        vertices = None
+        if regularise:
+            try:
+                vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options, outer=i == 0,
+                                                               context=context)
+            except GeometryError:
+                vertices = None
         if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:
-            # regularisation collapsed the ring: keep the alpha-shape ring as it is
-            if i > 0:
+            # not regularised, or the regularisation collapsed the ring: keep the alpha-shape ring as it is
+            if i > 0 and regularise:
                 continue
             vertices, corner_index, deg, s = pts[ring], np.arange(len(ring)), [1] * len(ring), 0.0
             status = "unregularised"
@@ -295,9 +374,10 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         status = "repaired"
     if polygon is None or polygon.is_empty:
         raise GeometryError("degenerate_outline")
-    z = xyz[:, 2]
-    return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(xyz), status,
-                       float(z.min()), float(z.mean()), float(z.max()), sigma)
+    # a point may lie outside by its alpha radius: the shape cuts in between points that far apart
+    coverage = outline_coverage(polygon, pts[:, :2] + origin[:2], shape.spacing * shape.scale)
+    return RoofOutline(0, polygon, degrees, corners, shape.strategy, shape.alpha, len(pts), status, sigma=sigma,
+                       coverage=coverage)
 
 
 def _area(xy: np.ndarray) -> float:
@@ -357,6 +437,10 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
                 context = around.near(xyz[idx, :2], int(bid)) if around is not None else None
                 outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing, context_xy=context)
                 outline.building_id = int(bid)
+                if outline.status in ("alpha_fallback", "low_coverage"):
+                    log.warning("building %d: the %s alpha's shape does not hold 99 %% of its %d points; %s: %s alpha "
+                                "%.2f m, coverage %.3f", bid, options.alpha.strategy, len(idx), outline.status,
+                                outline.alpha_strategy, outline.alpha, outline.coverage)
             except (GeometryError, ValueError, np.linalg.LinAlgError, QhullError, MemoryError) as exc:
                 if not isinstance(exc, GeometryError):  # a bug, but one building must not stop a city
                     log.warning("building %d: outline failed (%s: %s)", bid, type(exc).__name__, exc)
@@ -402,7 +486,8 @@ def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list
     Attributes: building_id, n_points, alpha_strategy, alpha, area (m²),
     z_min, z_mean, z_max (m), n_corners, degrees (per ring the segment
     degrees joined by ',' and rings joined by ';', e.g. ``"1,1,2,1;1,1,1,1"``),
-    sigma (m), status, plus ``extra_attributes``.
+    sigma (m), status, coverage (share of the building's points the outline
+    covers), plus ``extra_attributes``.
     """
     attrs: dict[str, list] = {
         "building_id": [o.building_id for o in outlines],
@@ -417,6 +502,7 @@ def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list
         "degrees": [";".join(",".join(map(str, d)) for d in o.degrees) for o in outlines],
         "sigma": [o.sigma for o in outlines],
         "status": [o.status for o in outlines],
+        "coverage": [o.coverage for o in outlines],
     }
     for key, values in (extra_attributes or {}).items():
         if len(values) != len(outlines):

@@ -17,7 +17,7 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 
-__all__ = ["delaunay_edges", "building_mean_spacing", "building_alpha", "point_spacing"]
+__all__ = ["delaunay_edges", "delaunay_mesh", "building_mean_spacing", "building_alpha", "point_spacing"]
 
 
 def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -40,21 +40,51 @@ def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     GeometryError
         Fewer than 3 points, or all collinear.
     """
+    edges, lengths, _, _ = delaunay_mesh(xy)
+    return edges, lengths
+
+
+def delaunay_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 2D Delaunay triangulation: unique edges (as :func:`delaunay_edges`) and triangles.
+
+    Returns
+    -------
+    edges, lengths
+        As :func:`delaunay_edges`.
+    triangles : ndarray of shape (T, 3) int64
+        Point indices, counter-clockwise.
+    neighbours : ndarray of shape (T, 3) int64
+        The triangle across the edge opposite each corner, -1 on the convex hull.
+
+    Raises
+    ------
+    GeometryError
+        Fewer than 3 points, or all collinear.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
     if len(xy) < 3:
         raise GeometryError("too_few_points")
     try:
-        simplices = Delaunay(xy).simplices
+        tri = Delaunay(xy)
     except QhullError:
         raise GeometryError("collinear") from None
+    simplices = tri.simplices
     if len(simplices) == 0:
         raise GeometryError("collinear")
+    triangles = simplices.astype(np.int64)
+    neighbours = tri.neighbors.astype(np.int64)
+    a, b, c = xy[triangles[:, 0]], xy[triangles[:, 1]], xy[triangles[:, 2]]
+    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    # swapping corners 1 and 2 swaps the edges opposite them, so the neighbours swap too
+    triangles[cw] = triangles[cw][:, [0, 2, 1]]
+    neighbours[cw] = neighbours[cw][:, [0, 2, 1]]
     e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
     e = np.sort(e, axis=1).astype(np.int64)
     n = np.int64(len(xy))
     key = np.unique(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than unique rows
     e = np.column_stack([key // n, key % n])
     lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
-    return e, lengths
+    return e, lengths, triangles, neighbours
 
 
 def building_mean_spacing(xy: np.ndarray) -> float:

@@ -21,6 +21,9 @@ __all__ = ["SceneOptions", "Terrain", "Trees", "PowerLine", "default_buildings",
            "make_power_line", "ROOF_PALETTE", "WALL_PALETTE"]
 
 
+#: the building layouts of ``SceneOptions.scene``
+SCENES = ("default", "blocks")
+
 
 @dataclass(frozen=True)
 class SceneOptions:
@@ -77,6 +80,10 @@ class SceneOptions:
         Cell of the roof-face raster used by the ray caster (m); faces are
         exact planes, only their boundaries are rasterised.  Raised to
         size / 6000 for large scenes (memory).
+    scene : {'default', 'blocks'}
+        The buildings: ``default`` the mix of :func:`default_buildings`,
+        ``blocks`` city blocks of terraced houses around courtyards joined by
+        low garages (:func:`rooftrace.synth.blocks.block_buildings`).
     """
 
     section = "simulate"
@@ -108,8 +115,11 @@ class SceneOptions:
     tree_density: float = 14.0
     power_line: bool = False
     cell: float = 0.05
+    scene: str = "default"
 
     def __post_init__(self) -> None:
+        if self.scene not in SCENES:
+            raise InputError(f"simulate: scene must be one of {', '.join(SCENES)}, got {self.scene!r}")
         positive = ("size", "density", "gsd", "flying_height", "flight_speed", "focal_length_mm", "pixel_size_mm", "cell")
         for name in positive:
             value = getattr(self, name)

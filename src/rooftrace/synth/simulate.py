@@ -19,6 +19,7 @@ from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError, OutputExistsError
 from rooftrace.io.vector import Layer
 from rooftrace.synth.als import scan_scene
+from rooftrace.synth.blocks import block_buildings
 from rooftrace.synth.buildings import Building
 from rooftrace.synth.mix import ROOF_PALETTE, WALL_PALETTE, default_buildings
 from rooftrace.synth.raycast import SurfaceModel
@@ -211,7 +212,7 @@ def simulate_scene(options: SceneOptions | None = None, *, buildings: list[Build
     options : SceneOptions, optional
         Defaults: a 160 m scene, 12 pts/m², 0.2 m GSD, seed 1.
     buildings : list of Building, optional
-        Buildings to use instead of :func:`default_buildings`; they must lie
+        Buildings to use instead of those of ``options.scene``; they must lie
         inside the scene.  Copies are made; the input is not changed.
 
     Returns
@@ -237,7 +238,9 @@ def simulate_scene(options: SceneOptions | None = None, *, buildings: list[Build
     rngs = {k: np.random.default_rng([seed, i]) for i, k in enumerate(("terrain", "trees", "als", "image", "colour"))}
     crs = pyproj.CRS.from_user_input(options.crs)
     terrain = make_terrain(options, rngs["terrain"])
-    if buildings is None:
+    if buildings is None and options.scene == "blocks":
+        buildings = block_buildings(seed, options.size, options.origin)
+    elif buildings is None:
         buildings = default_buildings(seed, options.size, options.origin)
     else:
         buildings = copy.deepcopy(list(buildings))
