@@ -1,12 +1,16 @@
-"""Roof-outline benchmark: alpha strategies, outward correction, snapping and peers.
+"""Roof-outline benchmark: regularisation methods, alpha strategies, outward correction and peers.
 
     .venv/bin/python benchmarks/bench_outline.py city3d      # 50 AHN3 single buildings vs footprints
+    .venv/bin/python benchmarks/bench_outline.py shapes      # lines vs cdspline vs peers, with corner measures
+    .venv/bin/python benchmarks/bench_outline.py simulator   # simulated scenes at 12 pts/m² vs true roof outlines
     .venv/bin/python benchmarks/bench_outline.py delft       # AHN3 class 6 of both tiles vs BGT pand
     .venv/bin/python benchmarks/bench_outline.py synthetic   # curved shapes with exact truth
     .venv/bin/python benchmarks/bench_outline.py speed       # 1,000-point building, outline time
 
 Prints one line per method: mean PoLiS (m) and mean area F-score (per
-building for City3D; one overlay of all polygons for Delft) and run time.
+building for City3D; one overlay of all polygons for Delft) and run time;
+``shapes`` and ``simulator`` add the corner measures of ``rooftrace evaluate`` and
+record their figures with ``_results.record``.
 """
 
 from __future__ import annotations
@@ -33,7 +37,10 @@ DELFT = DATA / "3dfier_delft_ahn3_bgt"
 
 
 THESIS = dict(enabled=False, scale=1.0, t_dist=0.6, offset_factor=0.0, snap=False, test="global", split=False,
-              points_per_degree=1, max_overshoot=1e9)
+              points_per_degree=1, max_overshoot=1e9, method="cdspline")
+#: the regularisations compared by ``shapes`` and ``simulator``: (name, options overrides)
+METHODS = (("rooftrace lines (default)", {}), ("rooftrace cdspline", dict(method="cdspline")),
+           ("thesis cdspline (S3)", THESIS))
 
 
 def _variants():
@@ -41,10 +48,12 @@ def _variants():
     for strategy in ("global", "building", "point"):
         yield (f"thesis    {strategy:8s} (alpha x1, T_dist 0.6, F-test global)",
                OutlineOptions.from_config({}, strategy=strategy, **THESIS))
+        yield f"rooftrace {strategy:8s} lines (default)", OutlineOptions.from_config({}, strategy=strategy)
         for offset in (0.0, 0.1, 0.2, 0.3):
             for snap in (False, True):
-                yield (f"rooftrace {strategy:8s} offset={offset:.1f} snap={int(snap)}",
-                       OutlineOptions.from_config({}, strategy=strategy, offset_factor=offset, snap=snap))
+                yield (f"rooftrace {strategy:8s} cdspline offset={offset:.1f} snap={int(snap)}",
+                       OutlineOptions.from_config({}, strategy=strategy, offset_factor=offset, snap=snap,
+                                                  method="cdspline"))
 
 
 def _peer_concave(xy, ratio):
@@ -123,8 +132,10 @@ def delft() -> None:
     from rooftrace.io.vector import read_layer
 
     cloud = read_points(sorted(DELFT.glob("ahn3_cropped_*.laz")), "EPSG:28992")
-    sel = cloud.fields["classification"] == 6
+    cls = cloud.fields["classification"]
+    sel = cls == 6
     xyz = cloud.xyz[sel]
+    context = cloud.xyz[~sel & ~np.isin(cls, (7, 18)), :2]  # as `rooftrace outline` passes them
     aoi = shapely.union_all([g for p in sorted(DELFT.glob("bgt_*.sqlite")) for g in read_layer(p).geometries])
     ref = shapely.union_all(read_layer(DELFT / "bgt_pand.sqlite").geometries)
     t0 = time.perf_counter()
@@ -144,7 +155,7 @@ def delft() -> None:
     which = sys.argv[2:] or [n for n in variants if "snap=0" not in n]
     for name in which:
         t0 = time.perf_counter()
-        outs = outline_buildings(xyz, ids, variants[name], mean_spacing=spacing)
+        outs = outline_buildings(xyz, ids, variants[name], mean_spacing=spacing, context_xy=context)
         report(name, [o.polygon for o in outs], time.perf_counter() - t0)
     groups = [xyz[ids == i, :2] for i in range(1, ids.max() + 1)]
     for ratio in (0.02, 0.05, 0.1, 0.2):
@@ -189,6 +200,140 @@ def speed() -> None:
               f"(max {max(times) * 1000:.1f}), CPU median {np.median(cpu) * 1000:.1f} ms")
 
 
+def _shape_rows(name: str, polys, truths, seconds: float | None = None, curved=None) -> list[dict]:
+    """Mean PoLiS, F, corner measures (and time) of one method's outlines as result rows; prints one line."""
+    from rooftrace.evaluate.metrics import corner_metrics
+
+    pol = np.array([polis(p, t) if p is not None and not p.is_empty else np.nan for p, t in zip(polys, truths)])
+    f = np.array([area_scores(p if p is not None and not p.is_empty else None, t)["f_score"]
+                  for p, t in zip(polys, truths)])
+    cs = [corner_metrics(p, t) for p, t in zip(polys, truths)]
+    ratio = np.array([c["corner_ratio"] for c in cs])
+    within = np.maximum(ratio, 1 / ratio) <= 1.5
+    rows = [("polis_mean", np.nanmean(pol), "m"), ("f_score", np.mean(np.nan_to_num(f)), ""),
+            ("corner_ratio_median", np.nanmedian(ratio), ""), ("corner_ratio_within_1.5", np.mean(within), ""),
+            ("corner_ratio_at_most_1.5", np.mean(ratio <= 1.5), ""),
+            ("corner_completeness", np.nanmean([c["corner_completeness"] for c in cs]), ""),
+            ("corner_correctness", np.nanmean([c["corner_correctness"] for c in cs]), ""),
+            ("corner_offset_mean", np.nanmean([c["corner_offset"] for c in cs]), "m"), ("failed", np.isnan(pol).sum(), "")]
+    if curved is not None:
+        curved = np.asarray(curved)
+        right = np.array([c["n_corners"] == c["n_corners_reference"] for c in cs])
+        rows += [("polis_mean_straight", np.nanmean(pol[~curved]), "m"), ("right_corners_straight", right[~curved].mean(), ""),
+                 ("polis_mean_curved", np.nanmean(pol[curved]), "m")]
+    if seconds is not None:
+        rows.append(("time_s", seconds, "s"))
+    values = dict((m, v) for m, v, _ in rows)
+    print(f"{name:42s} " + " ".join(f"{v:7.3f}" for v in values.values()))
+    return [dict(method=name, metric=m, value=float(v), unit=u) for m, v, u in rows]
+
+
+def _peer_rows(clouds, truths, curved=None) -> list[dict]:
+    """shapely.concave_hull (best ratio), the concave-hull package (best concavity), buildingregulariser on the first."""
+    import concave_hull
+
+    best = None
+    for ratio in (0.05, 0.1, 0.2, 0.3, 0.5):
+        polys = [_peer_concave(c[:, :2], ratio) for c in clouds]
+        p = np.nanmean([polis(a, t) for a, t in zip(polys, truths)])
+        if best is None or p < best[0]:
+            best = (p, ratio, polys)
+    rows = _shape_rows(f"shapely.concave_hull ratio={best[1]}", best[2], truths, curved=curved)
+    rows += _shape_rows(f"  + buildingregulariser", _regularise(best[2]), truths, curved=curved)
+    best = None
+    for concavity in (1.0, 2.0, 3.0):
+        polys = [shapely.Polygon(concave_hull.concave_hull(c[:, :2], concavity=concavity)) for c in clouds]
+        p = np.nanmean([polis(a, t) for a, t in zip(polys, truths)])
+        if best is None or p < best[0]:
+            best = (p, concavity, polys)
+    rows += _shape_rows(f"concave-hull concavity={best[1]}", best[2], truths, curved=curved)
+    return rows
+
+
+_HEADER = ("PoLiS F cratio_med within1.5 ratio<=1.5 c_compl c_corr c_offset failed")
+
+
+def shapes() -> None:
+    """City3D: lines (default), CD-spline and the thesis beside the peers, with corner measures."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _results import record
+
+    clouds, truths = city3d_instances()
+    xyz = np.concatenate(clouds)
+    ids = np.repeat(np.arange(1, len(clouds) + 1), [len(c) for c in clouds])
+    spacing = float(np.median([cloud_spacing(c[:, :2]) for c in clouds]))
+    print(f"City3D instances_002: {len(clouds)} buildings; columns: {_HEADER} time_s")
+    rows = []
+    for name, kw in METHODS:
+        t0 = time.perf_counter()
+        outs = outline_buildings(xyz, ids, OutlineOptions.from_config({}, **kw), mean_spacing=spacing)
+        rows += _shape_rows(name, [o.polygon for o in outs], truths, time.perf_counter() - t0)
+        if kw == {}:
+            rows += _shape_rows("rooftrace lines + buildingregulariser", _regularise([o.polygon for o in outs]), truths)
+    rows += _peer_rows(clouds, truths)
+    for row in rows:
+        row["target"] = {"polis_mean": "<= 0.10", "corner_ratio_median": "<= 1.3",
+                         "corner_ratio_within_1.5": ">= 0.70"}.get(row["metric"]) if "default" in row["method"] else None
+    record("outline", "city3d_shapes", rows)
+
+
+#: simulated building kinds with curved walls
+CURVED_KINDS = ("round", "stadium", "arc")
+
+
+def _simulated_buildings(seeds, density: float = 12.0):
+    """Per simulated building: its class-6 truth points, the other points near it, its true outline, curved or not."""
+    from rooftrace.synth import SceneOptions, simulate_scene
+
+    out = []
+    for seed in seeds:
+        scene = simulate_scene(SceneOptions(seed=seed, density=density, image=False))
+        xyz = scene.cloud.xyz
+        cls = np.asarray(scene.cloud.fields["truth_class"])
+        bid = np.asarray(scene.cloud.fields["truth_building_id"])
+        kinds = {b.building_id: b.kind for b in scene.buildings}
+        truth = scene.truth["roof_outlines"]
+        for t, b in zip(truth.geometries, truth.attributes["building_id"]):
+            own = (bid == b) & (cls == 6)
+            if own.sum() < 10:
+                continue
+            centre = xyz[own, :2].mean(axis=0)
+            near = ~own & (cls != 7) & (np.abs(xyz[:, :2] - centre).max(axis=1) < 40.0)
+            out.append((xyz[own], xyz[near, :2], t, kinds[b] in CURVED_KINDS))
+    return out
+
+
+def simulator() -> None:
+    """Simulated scenes (seeds 1-3, 12 pts/m², default building mix): every building against its true roof outline."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _results import record
+
+    seeds = [int(a) for a in sys.argv[2:]] or [1, 2, 3]
+    buildings = _simulated_buildings(seeds)
+    truths = [b[2] for b in buildings]
+    curved = [b[3] for b in buildings]
+    print(f"simulator seeds {seeds}: {len(buildings)} buildings ({sum(curved)} curved); columns: {_HEADER} "
+          "PoLiS_straight right_corners_straight PoLiS_curved time_s")
+    rows = []
+    for name, kw in (*METHODS, ("rooftrace lines, no context points", {})):
+        options = OutlineOptions.from_config({}, **kw)
+        use_context = "no context" not in name
+        t0 = time.perf_counter()
+        outs = [trace_outline(xyz, options, context_xy=ctx if use_context else None) for xyz, ctx, _, _ in buildings]
+        polys = [o.polygon for o in outs]
+        rows += _shape_rows(name, polys, truths, time.perf_counter() - t0, curved=curved)
+        deg = [max(max(d) for d in o.degrees) for o, c in zip(outs, curved) if c]
+        rows.append(dict(method=name, metric="curved_degree_at_least_2", value=float(np.mean(np.array(deg) >= 2))))
+        print(f"{'':42s} curved buildings with a segment of degree >= 2: {np.mean(np.array(deg) >= 2):.2f}")
+    rows += _peer_rows([b[0] for b in buildings], truths, curved=curved)
+    targets = {"polis_mean_straight": "<= 0.06", "right_corners_straight": ">= 0.90", "polis_mean": "<= 0.08",
+               "curved_degree_at_least_2": ">= 1.0"}
+    for row in rows:
+        row["target"] = targets.get(row["metric"]) if "default" in row["method"] else None
+    record("outline", "simulator_12ppm", rows)
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "city3d"
-    {"city3d": city3d, "delft": delft, "synthetic": synthetic, "speed": speed}[what]()
+    {"city3d": city3d, "shapes": shapes, "simulator": simulator, "delft": delft, "synthetic": synthetic,
+     "speed": speed}[what]()

@@ -419,8 +419,10 @@ def run_pipeline(
     members = points_by_building(building_id)
 
     t0 = time.perf_counter()
-    outlines = outline_buildings(cloud.xyz, building_id, options.outline,
-                                 mean_spacing=detection.mean_spacing, reporter=reporter)
+    # the roof edge lies between the last roof point and the first that is not roof (noise aside)
+    around = (building_id <= 0) & (detection.classification != 7)
+    outlines = outline_buildings(cloud.xyz, building_id, options.outline, mean_spacing=detection.mean_spacing,
+                                 reporter=reporter, context_xy=cloud.xyz[around, :2])
     if assignment is not None:
         outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
     timings["outline"] = time.perf_counter() - t0

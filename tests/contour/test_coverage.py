@@ -66,7 +66,7 @@ def test_regularisation_that_cuts_points_off_keeps_the_alpha_shape(monkeypatch):
     # a regulariser that cuts a wing off: the alpha-shape rings are kept instead
     import rooftrace.contour.outline as outline
 
-    def cut(xyz, spacing, options):
+    def cut(xyz, spacing, options, **kw):
         keep = xyz[:, 0] < 10.0
         return xyz[keep], np.arange(keep.sum()), [1] * int(keep.sum()), 0.0
 

@@ -38,8 +38,10 @@ def test_straight_shapes(truth):
 
 @pytest.mark.parametrize("truth,name", [(CIRCLE, "circle"), (STADIUM, "stadium")])
 def test_curved_shapes_get_curved_segments(truth, name):
+    # the thesis path: every arc piece longer than 2 m curved (the 'lines' default keeps a short
+    # piece straight when its curvature is within the noise: tests/contour/test_lines.py)
     xyz = sample(truth, 10, seed=2)
-    out = trace_outline(xyz)
+    out = trace_outline(xyz, OutlineOptions.from_config({}, method="cdspline"))
     assert polis(out.polygon, truth) < 0.2
     ring = np.asarray(out.polygon.exterior.coords)[:-1, :2]
     corners = out.corners[0]
@@ -71,8 +73,8 @@ def test_shuffle_and_translation_invariance():
 
 def test_outward_correction_measures_better():
     xyz = sample(RECT, 10, seed=5)
-    inner = trace_outline(xyz, OutlineOptions.from_config({}, offset_factor=0.0)).polygon
-    outer = trace_outline(xyz).polygon
+    inner = trace_outline(xyz, OutlineOptions.from_config({}, method="cdspline", offset_factor=0.0)).polygon
+    outer = trace_outline(xyz, OutlineOptions.from_config({}, method="cdspline")).polygon
     assert outer.area > inner.area
     assert area_scores(outer, RECT)["f_score"] > area_scores(inner, RECT)["f_score"]
 

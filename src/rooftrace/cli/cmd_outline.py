@@ -61,6 +61,7 @@ def outline(
     if len(cloud) == 0:
         log.warning("%s: no points; writing an empty roof_outlines layer", where)
     extra = None
+    context = None
     if single_building:
         ids = cloud.fields["source_index"].astype(np.int64) + 1
         xyz = cloud.xyz
@@ -76,12 +77,14 @@ def outline(
                                  "'rooftrace detect', or use --single-building for a cloud that is one building")
             log.warning("%s: no class-6 (building) points; writing an empty roof_outlines layer", where)
         xyz, ids = classified_buildings(cloud.xyz, cls, cloud.fields.get("building_id"))
+        # ASPRS 7 and 18 are noise: every other point is not roof, and the roof edge lies before it
+        context = cloud.xyz[(cls != BUILDING) & ~np.isin(cls, (7, 18)), :2]
     spacing = None
     if options.alpha.strategy == "global" and options.alpha.alpha is None:
         spacing = median_building_spacing(xyz, ids)
     reporter = reporter_for(quiet)
     try:
-        outlines = outline_buildings(xyz, ids, options, mean_spacing=spacing, reporter=reporter)
+        outlines = outline_buildings(xyz, ids, options, mean_spacing=spacing, reporter=reporter, context_xy=context)
     finally:
         reporter.close()
     if extra is not None:

@@ -1,8 +1,10 @@
 """From one building's points to its regularised 3D roof outline (DESIGN.md stages 6-7).
 
 alpha shape (rings) -> corners (Douglas-Peucker 3D + angle filter) ->
-iterative CD-spline (degree per segment) -> optional snapping -> outward
-correction -> shapely Polygon with Z.
+iterative CD-spline (degree per segment) -> the building's shape: lines and
+curves chosen by model selection, the edge between the last roof point and
+the first other point ('lines', default), or snapping and a fixed outward
+correction ('cdspline') -> shapely Polygon with Z.
 """
 
 from __future__ import annotations
@@ -18,10 +20,12 @@ from scipy.spatial import QhullError
 from threadpoolctl import threadpool_limits
 
 from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_shape
-from rooftrace.contour.cdspline import CDSplineOptions
+from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
+from rooftrace.contour.edge import EdgeContext
 from rooftrace.contour.knots import spline_outline
+from rooftrace.contour.lines import bridge_inlets, line_outline
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.contour.repair import make_valid_outline
 from rooftrace.contour.surface import SurfaceOptions, outline_points
@@ -146,16 +150,32 @@ class RoofOutline:
         return 0.0 if self.polygon is None else float(self.polygon.area)
 
 
-def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions) -> tuple[np.ndarray, np.ndarray, list[int], float]:
+def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, outer: bool = True,
+                  context: EdgeContext | None = None) -> tuple[np.ndarray, np.ndarray, list[int], float]:
     if len(xyz) < 4:
         return xyz, np.arange(len(xyz)), [1] * len(xyz), 0.0
+    reg = options.regularize
+    lines = reg.method == "lines"
+    if lines and outer and reg.bridge_factor > 0:
+        # an inlet with no points on its far side (a step between roof levels) is no part of the shape
+        xyz = xyz[bridge_inlets(xyz[:, :2], reg.bridge_factor * spacing)]
     corners = ring_corners(xyz, options.corners)
     # finer Douglas-Peucker vertices are where a mixed straight/curved segment may split
     candidates = np.setdiff1d(ring_douglas_peucker(xyz, options.corners.t_dist / 3), corners)
     spline = spline_outline(xyz, corners, candidates, options.cdspline)
+    if lines:
+        try:
+            shape = line_outline(xyz, spline, spacing, noise_factor=reg.noise_factor, edge_factor=reg.edge_factor,
+                                 directions=reg.directions, context=context, densify=options.cdspline.densify,
+                                 z_tolerance=options.corners.t_dist,
+                                 refit=lambda knots: iterative_cdspline(xyz, knots, options.cdspline))
+        except ValueError:
+            shape = None
+        if shape is not None and _simple(shape.vertices):
+            return shape.vertices, shape.corner_index, shape.degrees, shape.sigma
+        log.debug("lines: no simple ring, the CD-spline's is kept")
     vertices, corner_index = spline.ring(options.cdspline.densify)
     degrees = spline.degrees
-    reg = options.regularize
     # each regularisation step is kept only if the ring stays simple (no self-crossing)
     if reg.snap:
         direction = dominant_direction(vertices, corner_index, degrees)
@@ -175,7 +195,8 @@ def _simple(vertices: np.ndarray) -> bool:
     return len(vertices) >= 3 and bool(shapely.LinearRing(vertices[:, :2]).is_simple)
 
 
-def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None) -> RoofOutline:
+def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mean_spacing: float | None = None,
+                  context_xy: np.ndarray | None = None) -> RoofOutline:
     """Regularised 3D roof outline of one building, checked to cover the building's points.
 
     The outline (with its holes, after regularisation) must cover
@@ -197,6 +218,12 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     mean_spacing : float, optional
         The cloud's mean point spacing s_avg in metres (alpha of the 'global'
         strategy when ``options.alpha.alpha`` is None).
+    context_xy : ndarray of shape (C, 2) float64, optional
+        Plan coordinates (metres, same CRS) of points around the building that
+        are not its roof: ground, vegetation, other buildings.  The 'lines'
+        regularisation places the edge halfway between the last roof point
+        and the first of these (``[regularize] edge_factor`` spacings out
+        where there are none).
 
     Returns
     -------
@@ -232,6 +259,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
+    context = None
+    if context_xy is not None and options.regularize.method == "lines":
+        context = EdgeContext(np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2])
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
@@ -256,7 +286,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if best is None:
         raise first_error
     covered, k, trial, shape, status = best
-    outline = _outline(pts, origin, shape, status, trial, regularise=True)
+    outline = _outline(pts, origin, shape, status, trial, regularise=True, context=context)
     if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
         # the regularisation gave up points the alpha shape holds (a corner cut off): keep the alpha shape's rings
         outline = _outline(pts, origin, shape, "unregularised", trial, regularise=False)
@@ -313,7 +343,7 @@ def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | N
 
 
 def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str, options: OutlineOptions, *,
-             regularise: bool) -> RoofOutline:
+             regularise: bool, context: EdgeContext | None = None) -> RoofOutline:
     """The outline from an alpha shape's rings, regularised or as traced, its coverage measured."""
     rings, degrees, corners = [], [], []
     sigma = float("nan")
@@ -322,7 +352,8 @@ def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str
         vertices = None
         if regularise:
             try:
-                vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options)
+                vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options, outer=i == 0,
+                                                               context=context)
             except GeometryError:
                 vertices = None
         if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:
@@ -355,7 +386,8 @@ def _area(xy: np.ndarray) -> float:
 
 
 def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: OutlineOptions | None = None, *,
-                      mean_spacing: float | None = None, reporter: Reporter | None = None) -> list[RoofOutline]:
+                      mean_spacing: float | None = None, reporter: Reporter | None = None,
+                      context_xy: np.ndarray | None = None) -> list[RoofOutline]:
     """Outline every building (ids > 0), sorted by id; degenerate ones get a status, not an exception.
 
     Parameters
@@ -367,6 +399,11 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     mean_spacing : float, optional
         Cloud mean spacing s_avg (metres), for the 'global' alpha strategy.
     reporter : Reporter, optional
+    context_xy : ndarray of shape (C, 2) float64, optional
+        Plan coordinates of the points that are no building's (ground,
+        vegetation; noise left out), for the edge position of the 'lines'
+        regularisation.  The other buildings' points always count as not
+        this building's roof.
 
     Returns
     -------
@@ -389,6 +426,7 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     ids, starts = np.unique(building_id[order], return_index=True)
     groups = np.split(order, starts[1:]) if len(order) else []
     reporter = reporter or Reporter()
+    around = _Surroundings(xyz[sel, :2], building_id[sel], context_xy) if options.regularize.method == "lines" else None
     outlines = []
     # the CD-spline fits make thousands of small BLAS calls (AᵀA, solve); a
     # multi-threaded BLAS turns each into a thread rendezvous: Delft's 34
@@ -396,7 +434,8 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     with reporter.stage("outline", total=len(ids)), threadpool_limits(limits=1, user_api="blas"):
         for bid, idx in zip(ids, groups):
             try:
-                outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing)
+                context = around.near(xyz[idx, :2], int(bid)) if around is not None else None
+                outline = trace_outline(xyz[idx], options, mean_spacing=mean_spacing, context_xy=context)
                 outline.building_id = int(bid)
                 if outline.status in ("alpha_fallback", "low_coverage"):
                     log.warning("building %d: the %s alpha's shape does not hold 99 %% of its %d points; %s: %s alpha "
@@ -414,6 +453,31 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
             outlines.append(outline)
             reporter.advance()
     return outlines
+
+
+class _Surroundings:
+    """Points around each building that are not its roof: the context points and the other buildings'.
+
+    Sorted by x once, so that a building's neighbourhood is a slice, not a
+    scan of the whole cloud per building.
+    """
+
+    #: metres around a building's bounding box (the edge looks 3 spacings out)
+    margin = 3.0
+
+    def __init__(self, building_xy: np.ndarray, building_id: np.ndarray, context_xy: np.ndarray | None):
+        ctx = np.zeros((0, 2)) if context_xy is None else np.asarray(context_xy, dtype=np.float64).reshape(-1, 2)
+        xy = np.concatenate([np.asarray(building_xy, dtype=np.float64), ctx])
+        owner = np.concatenate([np.asarray(building_id, dtype=np.int64), np.zeros(len(ctx), np.int64)])
+        order = np.argsort(xy[:, 0], kind="stable")
+        self.xy, self.owner = xy[order], owner[order]
+
+    def near(self, xy: np.ndarray, building: int) -> np.ndarray:
+        lo, hi = xy.min(axis=0) - self.margin, xy.max(axis=0) + self.margin
+        a, b = np.searchsorted(self.xy[:, 0], [lo[0], hi[0]])
+        cand, own = self.xy[a:b], self.owner[a:b]
+        keep = (cand[:, 1] >= lo[1]) & (cand[:, 1] <= hi[1]) & (own != building)
+        return cand[keep]
 
 
 def outlines_layer(outlines: list[RoofOutline], extra_attributes: dict[str, list] | None = None) -> Layer:

@@ -1,6 +1,9 @@
-"""Regularisation beyond the thesis: outward correction and snapping to dominant directions.
+"""Regularisation options, and the 'cdspline' method's outward correction and snapping.
 
-The alpha-shape boundary runs through the outermost roof points, which lie
+The default method, 'lines', is :mod:`rooftrace.contour.lines` (the shape by
+model selection) and :mod:`rooftrace.contour.edge` (the edge between roof and
+non-roof points).  The 'cdspline' method keeps the thesis' CD-spline and
+corrects it as follows.  The alpha-shape boundary runs through the outermost roof points, which lie
 on average about half a point spacing inside the true roof edge; the
 outward correction moves every ring that far away from the roof.  Snapping
 turns near-orthogonal straight segments to the building's dominant
@@ -16,9 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RegularizeOptions", "offset_ring", "dominant_direction", "snap_ring"]
+__all__ = ["METHODS", "RegularizeOptions", "offset_ring", "dominant_direction", "snap_ring"]
 
 log = logging.getLogger(__name__)
+
+#: the regularisation methods, the default first
+METHODS = ("lines", "cdspline")
 
 
 @dataclass(frozen=True)
@@ -27,6 +33,34 @@ class RegularizeOptions:
 
     Attributes
     ----------
+    method : {'lines', 'cdspline'}
+        'lines' (default, beyond the thesis): the building shape by model
+        selection on the traced boundary (:mod:`rooftrace.contour.lines`):
+        straight walls as robust lines meeting at corners, curves only where
+        the CD-spline beats the line by more than the sampling noise, walls
+        on the dominant direction where that fits as well, narrow inlets
+        bridged, the edge placed between the last roof point and the first
+        point that is not roof (:mod:`rooftrace.contour.edge`).
+        'cdspline': the thesis' iterative CD-spline with the F-test, then
+        ``snap`` and the outward shift by ``offset_factor`` below.
+    noise_factor : float
+        'lines': standard deviation of the boundary points about a straight
+        edge, in local spacings (σ0, the floor of every residual variance in
+        the model choice).  The outermost points of a uniform sampling lie
+        0-1 spacing inside the edge: 1/√12 ≈ 0.29.
+    edge_factor : float
+        'lines': outward shift of the fitted boundary to the roof edge, in
+        local spacings, where no points that are not roof are known around
+        the segment (``rooftrace outline`` on class 6 only,
+        ``--single-building``).
+    bridge_factor : float
+        'lines': inlets of the outer ring narrower than this many local
+        spacings are closed (a morphological closing): where two roof levels
+        meet without points on the step the alpha shape cuts a notch.  0
+        disables it.
+    directions : bool
+        'lines': try the building's dominant direction (or its perpendicular)
+        on every wall within 20° of it; a wall takes it when its BIC is lower.
     offset_factor : float
         Outward correction as a fraction of the local mean spacing (ps_avg of
         the ring's points for the per-point alpha, else alpha): distance =
@@ -49,12 +83,24 @@ class RegularizeOptions:
 
     section = "regularize"
 
+    method: str = "lines"
+    noise_factor: float = 0.3
+    edge_factor: float = 0.4
+    bridge_factor: float = 4.0
+    directions: bool = True
     offset_factor: float = 0.1
     snap: bool = True
     snap_tolerance: float = 10.0
     max_offset_ratio: float = 3.0
 
     def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"regularize.method must be one of {', '.join(METHODS)}, not {self.method!r}")
+        for name in ("noise_factor", "edge_factor", "bridge_factor"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"regularize.{name} must be >= 0, not {getattr(self, name)}")
+        if not self.noise_factor > 0:
+            raise ValueError(f"regularize.noise_factor must be > 0, not {self.noise_factor}")
         if self.offset_factor < 0:
             raise ValueError(f"regularize.offset_factor must be >= 0, not {self.offset_factor}")
         if not 0 <= self.snap_tolerance < 45:

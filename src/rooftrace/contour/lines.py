@@ -1,0 +1,717 @@
+"""Building shapes from fitted lines: model selection on the traced boundary (beyond the thesis).
+
+The alpha-shape ring runs through the outermost roof points, so it is as
+jagged as the sampling: its Douglas-Peucker corners sit on noisy points and
+a straight wall often gets extra corners.  Here every segment between two
+corners becomes a model of the boundary points it holds — a straight line
+(robust total least squares) or, when the data asks for it, the CD-spline's
+curve — and the shape is simplified while an information criterion (BIC)
+says the simpler model explains the points as well:
+
+- a segment is curved only if its spline beats the line by more than the
+  noise the point spacing implies (the boundary points of a straight edge
+  scatter over about one spacing, a standard deviation of ``noise_factor``
+  times the spacing, the floor of every residual variance below);
+- neighbouring lines merge, and short runs of segments (notches, small loops,
+  cut corners) are dropped, when the simpler shape's BIC is lower;
+- walls take the building's dominant direction (or its perpendicular) when
+  the constrained fit's BIC beats the free one, wall by wall;
+- corners are where neighbouring lines meet, so straight walls are exactly
+  straight and corners do not sit on points.
+
+Narrow inlets of the ring (no points on a step between two roof levels) are
+bridged first by a morphological closing.  The edge position is handled by
+:mod:`rooftrace.contour.edge`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from numba import njit
+from scipy.spatial import cKDTree
+
+from rooftrace.contour.corners import douglas_peucker
+from rooftrace.contour.edge import EdgeContext, edge_shift
+
+__all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets",
+           "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners"]
+
+log = logging.getLogger(__name__)
+
+#: lines meeting at less than this angle (degrees) are parallel: a step (jog) joins them, not an intersection
+_PARALLEL_DEG = 15.0
+#: two lines splitting a curved segment turn by at least this (degrees) where the curve hides a corner
+_CORNER_DEG = 45.0
+#: a wall within this angle (degrees) of the dominant direction or its perpendicular is a candidate for it
+_DIRECTION_DEG = 20.0
+
+
+@dataclass(eq=False)
+class Line:
+    """A straight segment's model: the boundary points it holds and its fitted line.
+
+    Attributes
+    ----------
+    idx : ndarray of int
+        Ring indices of its points, in ring order.
+    point : ndarray of shape (2,)
+        A point on the line (the robust centroid), metres.
+    direction : ndarray of shape (2,)
+        Unit direction, along the ring's direction of travel.
+    rss : float
+        Sum of squared distances of its points to the line, m².
+    free : bool
+        False when the direction was fixed to the dominant one (one parameter less).
+    span : float
+        Extent of its points along the line, metres.
+    noise2 : float
+        Mean squared noise floor σ0² of its points, m².
+    """
+
+    idx: np.ndarray
+    point: np.ndarray
+    direction: np.ndarray
+    rss: float
+    free: bool = True
+    span: float = 0.0
+    noise2: float = 0.0
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal to the right of the direction of travel: outwards, the roof being on the left."""
+        return np.array([self.direction[1], -self.direction[0]])
+
+    @property
+    def n_params(self) -> int:
+        return 2 if self.free else 1
+
+
+def fit_line(xy: np.ndarray, sigma0: float, direction: np.ndarray | None = None, rounds: int = 3):
+    """Robust total-least-squares line (Huber weights), or the best line of a given direction.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (n, 2) float64
+        Points in travel order (their first-to-last vector orients the line).
+    sigma0 : float
+        Noise floor in metres; the Huber threshold is 1.5 times the larger of it
+        and the robust scale of the residuals.
+    direction : ndarray of shape (2,), optional
+        Fixed unit direction; only the offset is fitted.
+    rounds : int
+        Reweighting rounds.
+
+    Returns
+    -------
+    point, direction : ndarray of shape (2,)
+    rss : float
+        Unweighted sum of squared distances, m².
+    """
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
+    fixed = direction is not None
+    d0 = np.asarray(direction, dtype=np.float64) if fixed else np.zeros(2)
+    cx, cy, dx, dy, rss = _fit_line(xy, float(sigma0), float(d0[0]), float(d0[1]), fixed, int(rounds))
+    return np.array([cx, cy]), np.array([dx, dy]), rss
+
+
+@njit(cache=True)
+def _fit_line(xy, sigma0, dx, dy, fixed, rounds):  # pragma: no cover - compiled
+    # thousands of small fits per building while the model is chosen: numpy's per-call overhead
+    # (average, eigh, median) made the choice ten times slower than the whole CD-spline
+    n = xy.shape[0]
+    w = np.ones(n)
+    r = np.zeros(n)
+    cx = cy = 0.0
+    for _ in range(rounds + 1):
+        sw = w.sum()
+        cx = (w * xy[:, 0]).sum() / sw
+        cy = (w * xy[:, 1]).sum() / sw
+        if not fixed:
+            ex = xy[:, 0] - cx
+            ey = xy[:, 1] - cy
+            sxx = (w * ex * ex).sum()
+            syy = (w * ey * ey).sum()
+            sxy = (w * ex * ey).sum()
+            phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)  # major axis of the 2x2 scatter matrix
+            dx, dy = np.cos(phi), np.sin(phi)
+        r = (xy[:, 0] - cx) * dy - (xy[:, 1] - cy) * dx
+        med = np.median(r)
+        scale = max(sigma0, 1.4826 * np.median(np.abs(r - med)))
+        for i in range(n):
+            a = abs(r[i])
+            w[i] = 1.0 if a <= 1.5 * scale else 1.5 * scale / max(a, 1e-12)
+    if dx * (xy[n - 1, 0] - xy[0, 0]) + dy * (xy[n - 1, 1] - xy[0, 1]) < 0:
+        dx, dy = -dx, -dy
+    return cx, cy, dx, dy, (r * r).sum()
+
+
+def segment_bic(rss: float, n: int, n_params: float, sigma0: float) -> float:
+    """BIC of a boundary model with ``n_params`` parameters: n·ln(max(rss/n, σ0²)) + k·ln(n).
+
+    The floor σ0² is the residual variance the sampling alone gives a perfect
+    model: below it a better fit is noise, and buys no parameter.
+    """
+    n = max(int(n), 1)
+    return n * np.log(max(rss / n, sigma0 * sigma0)) + n_params * np.log(max(n, 2))
+
+
+def bridge_inlets(xy: np.ndarray, width: float) -> np.ndarray:
+    """Ring points left after closing the ring's inlets narrower than ``width`` (morphological closing).
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+        Outer ring, first point not repeated.
+    width : float
+        Metres; 0 keeps every point.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+        True for the points still on the closed outline.  Mitred buffers keep
+        straight walls and corners exactly, so only the inlets lose points.
+    """
+    keep = np.ones(len(xy), bool)
+    if width <= 0 or len(xy) < 4:
+        return keep
+    poly = shapely.Polygon(xy)
+    if not poly.is_valid or poly.area <= 0:
+        return keep
+    closed = poly.buffer(width / 2, join_style="mitre", mitre_limit=10.0).buffer(
+        -width / 2, join_style="mitre", mitre_limit=10.0)
+    if not isinstance(closed, shapely.Polygon) or closed.is_empty:
+        return keep
+    d = shapely.distance(shapely.points(xy), closed.exterior)
+    keep = d <= 1e-6 * max(1.0, float(np.abs(xy).max()))
+    return keep if keep.sum() >= 4 else np.ones(len(xy), bool)
+
+
+def _noise(sigma0, n: int) -> np.ndarray:
+    """σ0 per ring point (a scalar is the same everywhere)."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(sigma0, dtype=np.float64), (n,)))
+
+
+def _fit(xy_ring: np.ndarray, idx: np.ndarray, sigma0: np.ndarray, trim: int) -> Line:
+    idx = np.ascontiguousarray(idx, dtype=np.int64)
+    if np.ndim(sigma0) == 0:
+        sigma0 = _noise(sigma0, len(xy_ring))
+    cx, cy, dx, dy, rss, span, noise2 = _fit_segment(xy_ring, idx, sigma0, trim)
+    return Line(idx, np.array([cx, cy]), np.array([dx, dy]), rss, span=span, noise2=noise2)
+
+
+def _pooled(lines) -> float:
+    """The noise floor σ0 of the points of several lines together, metres."""
+    n = sum(len(ln.idx) for ln in lines)
+    return float(np.sqrt(sum(len(ln.idx) * ln.noise2 for ln in lines) / max(n, 1)))
+
+
+@njit(cache=True)
+def _fit_segment(xy, idx, sigma0, trim):  # pragma: no cover - compiled
+    # corners of the alpha shape are cut off (few points reach into them): the points at either end
+    # of a segment bend away from its wall, so long segments are fitted without them
+    n = len(idx)
+    noise2 = 0.0
+    for i in idx:
+        noise2 += sigma0[i] * sigma0[i]
+    noise2 /= n
+    floor = np.sqrt(noise2)
+    core = idx[trim:n - trim] if n > 2 * trim + 4 else idx
+    cx, cy, dx, dy, _ = _fit_line(xy[core], floor, 0.0, 0.0, False, 3)
+    if dx * (xy[idx[n - 1], 0] - xy[idx[0], 0]) + dy * (xy[idx[n - 1], 1] - xy[idx[0], 1]) < 0:
+        dx, dy = -dx, -dy
+    rss = 0.0
+    lo, hi = np.inf, -np.inf
+    for i in idx:
+        r = (xy[i, 0] - cx) * dy - (xy[i, 1] - cy) * dx
+        rss += r * r
+        a = (xy[i, 0] - cx) * dx + (xy[i, 1] - cy) * dy
+        lo, hi = min(lo, a), max(hi, a)
+    return cx, cy, dx, dy, rss, hi - lo, noise2
+
+
+def _rss_to(xy: np.ndarray, lines: list[Line]) -> float:
+    """Squared distances of points to the nearest of ``lines``, summed."""
+    if len(xy) == 0:
+        return 0.0
+    dist = np.min([np.abs((xy - ln.point) @ ln.normal) for ln in lines], axis=0)
+    return float(dist @ dist)
+
+
+def _angle(a: Line, b: Line) -> float:
+    """Angle between two lines' directions of travel, degrees in [0, 180]."""
+    return float(np.degrees(np.arccos(np.clip(np.dot(a.direction, b.direction), -1.0, 1.0))))
+
+
+def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float, list]:
+    """The better of merging lines ``a, run.., b`` into one and dropping the run between them: (BIC gain, new lines)."""
+    a, *run, b = touched
+    k = len(run)
+    n = sum(len(t.idx) for t in touched)
+    run_idx = np.concatenate([r.idx for r in run]) if run else np.zeros(0, np.int64)
+    floor = _pooled(touched)
+    before = segment_bic(sum(t.rss for t in touched), n, sum(t.n_params + 1 for t in touched), floor)
+    # one wall: a line through a, the run and b (or through a and b, the run counted against it)
+    merged = _fit(xy, np.concatenate([a.idx, run_idx, b.idx]), sigma0, trim)
+    if k:
+        core = _fit(xy, np.concatenate([a.idx, b.idx]), sigma0, trim)
+        core = Line(merged.idx, core.point, core.direction, _rss_to(xy[merged.idx], [core]), span=merged.span,
+                    noise2=merged.noise2)
+        merged = min(merged, core, key=lambda ln: ln.rss)
+    moves = [(segment_bic(merged.rss, n, 3, floor), [merged])]
+    if k and _angle(a, b) >= _PARALLEL_DEG:
+        # two walls that meet: their corner replaces the run
+        rss = a.rss + b.rss + _rss_to(xy[run_idx], [a, b])
+        near_a = np.abs((xy[run_idx] - a.point) @ a.normal) <= np.abs((xy[run_idx] - b.point) @ b.normal)
+        moves.append((segment_bic(rss, n, a.n_params + b.n_params + 2, floor),
+                      [_fit(xy, np.concatenate([a.idx, run_idx[near_a]]), sigma0, trim),
+                       _fit(xy, np.concatenate([run_idx[~near_a], b.idx]), sigma0, trim)]))
+    after, new = min(moves, key=lambda mv: mv[0])
+    return before - after, new
+
+
+def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_run: int = 3) -> list:
+    """Merge and drop straight segments while the BIC of the ring's boundary model decreases.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2)
+        Ring points.
+    segments : list
+        One entry per segment in ring order: a :class:`Line`, or anything
+        else for a curved segment, which is kept as it is.
+    sigma0 : float or ndarray of shape (N,)
+        Noise floor, metres (per ring point: a set of points takes their RMS).
+    trim : int
+        End points left out of each line fit.
+    max_run : int
+        Longest run of segments that may be dropped at once (a notch is three).
+
+    Returns
+    -------
+    list
+        The simplified segments; a line that absorbed a dropped run holds its points.
+
+    Notes
+    -----
+    Two moves are scored on the points of the segments they touch: merging
+    lines ``a, r1..rk, b`` into one line (a wall with a wobble or a small
+    notch; the line fitted through all of them or through a and b alone,
+    whichever fits better) and, between two walls that meet at a corner,
+    dropping the run between them, whose points then count against the
+    nearer wall (a cut corner, a small loop).  Each segment costs its line's
+    parameters plus 1 for its break point.  The best move is made until none
+    lowers the BIC.
+    """
+    segments = list(segments)
+    sigma0 = _noise(sigma0, len(xy))
+    scored: dict = {}  # moves by the segments they touch (compared by identity): most survive a move
+    while sum(isinstance(s, Line) for s in segments) > 3:
+        m = len(segments)
+        moves = []
+        for start in range(m):
+            if not isinstance(segments[start], Line):
+                continue
+            for k in range(0, min(max_run, m - 4) + 1):
+                touched = tuple(segments[(start + j) % m] for j in range(k + 2))
+                if not all(isinstance(t, Line) for t in touched):
+                    continue
+                if touched not in scored:
+                    scored[touched] = _best_move(xy, touched, sigma0, trim)
+                gain, new = scored[touched]
+                if gain > 0:
+                    moves.append((gain, start, k, new))
+        if not moves:
+            break
+        # the best move, and with it every other move in gain order that touches none of the
+        # segments already changed: moves on disjoint segments do not change each other's BIC
+        moves.sort(key=lambda mv: -mv[0])
+        busy: set[int] = set()
+        chosen = {}
+        n_lines = sum(isinstance(s, Line) for s in segments)
+        for gain, start, k, new in moves:
+            span = {(start + j) % m for j in range(k + 2)}
+            if span & busy or n_lines - (k + 2) + len(new) < 3:
+                continue
+            busy |= {(start + j) % m for j in range(-1, k + 3)}  # and their neighbours: the next move's corners
+            chosen[start] = (k, new)
+            n_lines += len(new) - (k + 2)
+        drop = {(start + j) % m for start, (k, _) in chosen.items() for j in range(k + 2)}
+        out = []
+        for j in range(m):
+            if j in chosen:
+                out.extend(chosen[j][1])  # a run across the end of the list leaves them last: still cyclic
+            elif j not in drop:
+                out.append(segments[j])
+        segments = out
+    return segments
+
+
+def dominant_wall_direction(lines: list) -> float | None:
+    """Dominant direction (radians in [0, π/2)) of straight segments, each weighted by n·L².
+
+    The variance of a fitted direction falls with the number of points n and
+    the square of the wall's length L, so long, well-sampled walls decide.
+    """
+    th, w = [], []
+    for ln in lines:
+        if not isinstance(ln, Line) or len(ln.idx) < 2:
+            continue
+        th.append(np.arctan2(ln.direction[1], ln.direction[0]))
+        w.append(len(ln.idx) * ln.span ** 2)
+    if not w or sum(w) == 0:
+        return None
+    th, w = np.asarray(th), np.asarray(w)
+    return float((np.arctan2(np.sum(w * np.sin(4 * th)), np.sum(w * np.cos(4 * th))) / 4.0) % (np.pi / 2))
+
+
+def constrain_directions(xy: np.ndarray, lines: list, sigma0, trim: int = 1) -> tuple[list, float | None]:
+    """Walls near the dominant direction (mod 90°) take it exactly where the BIC prefers it.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2)
+    lines : list
+        Segments in ring order; entries that are not :class:`Line` (curves) are passed through.
+    sigma0 : float or ndarray of shape (N,)
+        Noise floor, metres (per ring point).
+    trim : int
+
+    Returns
+    -------
+    lines : list
+        Constrained walls have ``free = False``; other entries (curves) as given.
+    direction : float or None
+        The dominant direction (radians) or None when no wall took it.
+
+    Notes
+    -----
+    Per wall, the free line (2 parameters) is compared with the line of the
+    dominant direction (1 parameter) on the wall's points; the dominant
+    direction is re-estimated from the walls that took it, and the choice
+    made again.
+    """
+    sigma0 = _noise(sigma0, len(xy))
+    theta = dominant_wall_direction(lines)
+    if theta is None:
+        return lines, None
+    out = lines
+    for _ in range(2):
+        out, taken = [], []
+        for ln in lines:
+            if not isinstance(ln, Line):
+                out.append(ln)
+                continue
+            free = _fit(xy, ln.idx, sigma0, trim)
+            phi = np.arctan2(free.direction[1], free.direction[0])
+            delta = (phi - theta + np.pi / 4) % (np.pi / 2) - np.pi / 4
+            if abs(np.degrees(delta)) > _DIRECTION_DEG:
+                out.append(free)
+                continue
+            d = np.array([np.cos(phi - delta), np.sin(phi - delta)])
+            core = ln.idx[trim:len(ln.idx) - trim] if len(ln.idx) > 2 * trim + 4 else ln.idx
+            floor = float(np.sqrt(free.noise2))
+            c, d, _ = fit_line(xy[core], floor, direction=d)
+            r = (xy[ln.idx] - c) @ np.array([d[1], -d[0]])
+            fixed = Line(ln.idx, c, d, float(r @ r), free=False, span=free.span, noise2=free.noise2)
+            n = len(ln.idx)
+            if segment_bic(fixed.rss, n, 1, floor) <= segment_bic(free.rss, n, 2, floor):
+                out.append(fixed)
+                taken.append(free)
+            else:
+                out.append(free)
+        new_theta = dominant_wall_direction(taken) if taken else None
+        if new_theta is None or abs(new_theta - theta) < 1e-9:
+            break
+        theta = new_theta
+    return out, theta if any(isinstance(ln, Line) and not ln.free for ln in out) else None
+
+
+def line_corners(a: Line, b: Line, xy_break: np.ndarray, max_move: float) -> np.ndarray:
+    """Vertices joining line ``a`` to the next line ``b``: their intersection, or a step between parallels.
+
+    Parameters
+    ----------
+    a, b : Line
+    xy_break : ndarray of shape (2,)
+        Where the ring passes from a to b (the last point of a and first of b, averaged).
+    max_move : float
+        An intersection farther than this from ``xy_break`` (metres) is
+        treated as parallel lines.
+
+    Returns
+    -------
+    ndarray of shape (1, 2) or (2, 2)
+    """
+    den = a.direction[0] * b.direction[1] - a.direction[1] * b.direction[0]
+    if abs(den) >= np.sin(np.radians(_PARALLEL_DEG)):
+        s = ((b.point - a.point)[0] * b.direction[1] - (b.point - a.point)[1] * b.direction[0]) / den
+        p = a.point + s * a.direction
+        if np.hypot(*(p - xy_break)) <= max_move:
+            return p[None, :]
+    # nearly parallel lines (a step in a wall): the feet of the break point on both
+    fa = a.point + np.dot(xy_break - a.point, a.direction) * a.direction
+    fb = b.point + np.dot(xy_break - b.point, b.direction) * b.direction
+    if np.hypot(*(fa - fb)) < 1e-9:
+        return fa[None, :]
+    return np.vstack([fa, fb])
+
+
+@dataclass(eq=False)
+class Curve:
+    """A curved segment: the CD-spline's vertices from its first corner to the next, and its points.
+
+    Attributes
+    ----------
+    idx : ndarray of int
+        Ring indices of its points, in ring order.
+    vertices : ndarray of shape (k, 3)
+        Spline samples, both corners included.
+    degree : int
+    """
+
+    idx: np.ndarray
+    vertices: np.ndarray
+    degree: int
+
+
+@dataclass(frozen=True)
+class LineOutline:
+    """Result of :func:`line_outline`.
+
+    Attributes
+    ----------
+    vertices : ndarray of shape (K, 3)
+        Closed ring, first vertex not repeated, roof on the left.
+    corner_index : ndarray of int, shape (M,)
+        Vertex of each segment's first corner.
+    degrees : list of int
+        Per segment: 1 for a line, the spline degree for a curve.
+    sigma : float
+        Root mean square distance of the ring points to the outline before the edge shift, metres.
+    direction : float or None
+        Dominant direction the walls took (radians), None when none did.
+    measured_edges : int
+        Segments whose edge shift came from the non-roof points around them.
+    """
+
+    vertices: np.ndarray
+    corner_index: np.ndarray
+    degrees: list
+    sigma: float
+    direction: float | None
+    measured_edges: int
+
+
+def _curve_normals(v: np.ndarray) -> np.ndarray:
+    """Unit outward (right-hand) normals at a polyline's vertices, from the neighbouring vertices."""
+    d = np.gradient(v[:, :2], axis=0) if len(v) > 1 else np.array([[1.0, 0.0]])
+    d /= np.maximum(np.linalg.norm(d, axis=1), 1e-12)[:, None]
+    return np.column_stack([d[:, 1], -d[:, 0]])
+
+
+def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: float, edge_factor: float,
+                 directions: bool = True, context: EdgeContext | None = None, densify: float = 0.5,
+                 z_tolerance: float = 0.3, refit: Callable | None = None) -> LineOutline:
+    """Building-shaped ring from the ring points and the CD-spline fitted to them.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 3) float64
+        Ring points (alpha-shape boundary), roof on the left, metres.
+    spline : CDSpline
+        The CD-spline of ``points`` (its segments, degrees and curves).
+    spacing : float
+        Local mean point spacing of the ring, metres.
+    noise_factor : float
+        The boundary points' scatter about a straight edge, in spacings (σ0).
+    edge_factor : float
+        Outward edge shift in spacings where ``context`` does not measure it.
+    directions : bool
+        Try the dominant direction on every wall (model selection).
+    context : EdgeContext, optional
+        The points around the building that are not its roof.
+    densify : float
+        Step of the curve samples, metres.
+    z_tolerance : float
+        A wall gets a vertex where its height profile leaves a straight line
+        by more than this (metres; a gable's apex).
+    refit : callable, optional
+        ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring
+        indices, increasing): the spline fitted again when a simplified line
+        bends beyond the noise.
+
+    Returns
+    -------
+    LineOutline
+    """
+    xy = points[:, :2]
+    # the boundary scatters over the gaps between the points it runs through: the mean spacing for an
+    # even sampling, but the scan-line distance where the lines end at a roof edge (a saw-tooth)
+    gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
+    step = 0.5 * (gap + np.roll(gap, 1))
+    # per point, smoothed along the ring over a few neighbours: a saw-tooth alternates long and short gaps
+    width = 5
+    kernel = np.ones(width) / width
+    step = np.convolve(np.concatenate([step[-width:], step, step[:width]]), kernel, mode="same")[width:-width]
+    sigma0 = noise_factor * np.maximum(spacing, step)
+    trim = 1
+    segments = _curves_on(points, None, spline, sigma0, trim, densify)
+    if len(segments) < 3:
+        raise ValueError("line_outline: fewer than 3 segments")
+    segments = simplify_lines(xy, segments, sigma0, trim)
+    if refit is not None and any(isinstance(g, Line) and _bends(xy, g) for g in segments):
+        # merged lines can hide a gentle curve the first segmentation cut into straight pieces:
+        # the spline is fitted again on the simplified segments, and the same test decides
+        first = int(np.argmin([g.idx[0] for g in segments]))
+        segments = segments[first:] + segments[:first]  # the spline's corners increase
+        segments = _curves_on(points, segments, refit(np.array([int(g.idx[0]) for g in segments])), sigma0,
+                              trim, densify)
+    theta = None
+    if directions:
+        segments, theta = constrain_directions(xy, segments, sigma0, trim)
+    residual_fit = [_segment_residual(xy, s) for s in segments]
+    # the edge: every segment moves out to where the roof ends
+    measured = 0
+    shifted = []
+    for s, (res, normal) in zip(segments, residual_fit):
+        shift, ok = edge_shift(xy[s.idx], res, normal, spacing, context, edge_factor)
+        measured += ok
+        if isinstance(s, Line):
+            shifted.append(Line(s.idx, s.point + shift * s.normal, s.direction, s.rss, s.free, s.span, s.noise2))
+        else:
+            v = s.vertices.copy()
+            v[:, :2] += shift * _curve_normals(v)
+            shifted.append(Curve(s.idx, v, s.degree))
+    ring, corners, degrees = _assemble(xy, points[:, 2], shifted, max(2.0, 5.0 * spacing), z_tolerance)
+    rms = float(np.sqrt(np.mean(np.concatenate([r for r, _ in residual_fit]) ** 2)))
+    return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
+
+
+def _bends(xy: np.ndarray, line: Line) -> bool:
+    """Whether a parabola across the line explains its points better than the line (BIC, noise floor)."""
+    floor = float(np.sqrt(line.noise2))
+    rel = xy[line.idx] - line.point
+    u, v = rel @ line.direction, rel @ line.normal
+    if len(u) < 6:
+        return False
+    coef, *_ = np.linalg.lstsq(np.column_stack([u * u, u, np.ones_like(u)]), v, rcond=None)
+    r = v - np.column_stack([u * u, u, np.ones_like(u)]) @ coef
+    return segment_bic(float(r @ r), len(u), 3, floor) < segment_bic(line.rss, len(u), 2, floor)
+
+
+def _curves_on(points: np.ndarray, segments: list | None, spline, sigma0, trim: int, densify: float) -> list:
+    """Segments of a CD-spline: a curve where the spline beats the line by the BIC, else a fitted line.
+
+    ``segments`` (if given) are the segments the spline was fitted on, in the
+    same order; their points are kept as they are.
+    """
+    xy = points[:, :2]
+    verts, corner_index = spline.ring(densify)
+    corner_index = list(corner_index) + [len(verts)]
+    closed = np.vstack([verts, verts[:1]])
+    out: list = []
+    for k, d in enumerate(spline.degrees):
+        if segments is not None:
+            idx = segments[k].idx
+        else:
+            idx = np.flatnonzero(spline.segment == k)
+            idx = idx[np.argsort(spline.t[idx], kind="stable")]
+        if len(idx) < 2:
+            continue
+        line = segments[k] if segments is not None and isinstance(segments[k], Line) else _fit(xy, idx, sigma0, trim)
+        if d >= 2:
+            # distances across the curve, as the lines' are (not to the point's spline parameter)
+            arc = closed[corner_index[k]:corner_index[k + 1] + 1]
+            res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
+            rss = float(res @ res)
+            # curved only if the spline's extra control points pay for themselves over the line
+            floor = float(np.sqrt(line.noise2))
+            if segment_bic(rss, len(idx), 2 * d, floor) < segment_bic(line.rss, len(idx), 2, floor):
+                # a corner the segmentation missed also bends the segment: two lines meeting at the
+                # point farthest from the chord are the other model a curve has to beat
+                chord = xy[idx[-1]] - xy[idx[0]]
+                off = np.abs(np.cross(chord, xy[idx] - xy[idx[0]])) / max(np.hypot(*chord), 1e-12)
+                cut = int(np.clip(np.argmax(off), 2, len(idx) - 2))
+                pair = [_fit(xy, idx[:cut], sigma0, trim), _fit(xy, idx[cut:], sigma0, trim)]
+                # (a smooth curve cannot turn sharply: at a missed corner the two lines fit closer, and
+                # meet at an angle no arc piece between two Douglas-Peucker corners turns through)
+                if len(idx) >= 8 and pair[0].rss + pair[1].rss <= rss and _angle(*pair) >= _CORNER_DEG:
+                    out.extend(pair)
+                else:
+                    out.append(Curve(idx, closed[corner_index[k]:corner_index[k + 1] + 1], d))
+                continue
+        out.append(line)
+    return out
+
+
+def _segment_residual(xy: np.ndarray, s) -> tuple[np.ndarray, np.ndarray]:
+    """Signed outward distances of a segment's points to its model, and the outward normal(s)."""
+    if isinstance(s, Line):
+        return (xy[s.idx] - s.point) @ s.normal, s.normal
+    v = s.vertices[:, :2]
+    normals = _curve_normals(s.vertices)
+    near = cKDTree(v).query(xy[s.idx])[1]
+    return np.einsum("ij,ij->i", xy[s.idx] - v[near], normals[near]), normals[near]
+
+
+def _height_breaks(xy: np.ndarray, z: np.ndarray, line: Line, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the height along a straight wall breaks (a gable's apex): positions on the line and heights.
+
+    A 1D Douglas-Peucker on (position along the line, z) of the wall's points;
+    the kept inner points become vertices on the line, so the plan shape keeps
+    its corners and the outline its 3D profile.
+    """
+    along = (xy[line.idx] - line.point) @ line.direction
+    order = np.argsort(along, kind="stable")
+    profile = np.column_stack([along[order], z[line.idx][order]])
+    keep = douglas_peucker(profile, tolerance)[1:-1]
+    return profile[keep, 0], profile[keep, 1]
+
+
+def _assemble(xy: np.ndarray, z: np.ndarray, segments: list, max_move: float, z_tolerance: float):
+    """Vertices, corner indices and degrees of the ring the segments make, corners where lines meet."""
+    verts, corners, degrees, heights = [], [], [], []
+    m = len(segments)
+    for k in range(m):
+        prev, cur = segments[k - 1], segments[k]
+        if isinstance(prev, Line) and isinstance(cur, Line):
+            brk = 0.5 * (xy[prev.idx[-1]] + xy[cur.idx[0]])
+            at = list(line_corners(prev, cur, brk, max_move))
+        elif isinstance(cur, Line):
+            p = prev.vertices[-1, :2]
+            at = [cur.point + np.dot(p - cur.point, cur.direction) * cur.direction]
+        elif isinstance(prev, Line):
+            p = cur.vertices[0, :2]
+            at = [prev.point + np.dot(p - prev.point, prev.direction) * prev.direction]
+        else:
+            at = [cur.vertices[0, :2]]
+        for j, p in enumerate(at):
+            corners.append(len(verts))
+            verts.append(np.asarray(p, dtype=np.float64))
+            heights.append(np.nan)
+            degrees.append(1 if j < len(at) - 1 or isinstance(cur, Line) else cur.degree)
+        if not isinstance(cur, Line):
+            verts.extend(cur.vertices[1:-1, :2])
+            heights.extend(cur.vertices[1:-1, 2])
+            continue
+        nxt = segments[(k + 1) % m]
+        start = np.dot(verts[-1] - cur.point, cur.direction)
+        end = np.dot((nxt.point if isinstance(nxt, Line) else nxt.vertices[0, :2]) - cur.point, cur.direction)
+        for pos, height in zip(*_height_breaks(xy, z, cur, z_tolerance)):
+            if start < pos < end:
+                # an apex on a wall is a corner of the 3D outline, not of its plan
+                corners.append(len(verts))
+                verts.append(cur.point + pos * cur.direction)
+                heights.append(height)
+                degrees.append(1)
+    v2 = np.asarray(verts)
+    zz = np.asarray(heights, dtype=np.float64)
+    # corner heights: the eave's, from the nearest ring point
+    gap = np.isnan(zz)
+    zz[gap] = z[cKDTree(xy).query(v2[gap])[1]]
+    return np.column_stack([v2, zz]), corners, degrees

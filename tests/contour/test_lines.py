@@ -1,0 +1,189 @@
+"""Building shapes by model selection (contour.lines) and the edge between roof and non-roof points (contour.edge)."""
+
+import numpy as np
+import pytest
+import shapely
+import shapely.affinity
+
+from rooftrace.contour.edge import EdgeContext, edge_shift
+from rooftrace.contour.lines import (Line, bridge_inlets, constrain_directions, fit_line, line_corners, segment_bic,
+                                     simplify_lines)
+from rooftrace.contour.outline import OutlineOptions, trace_outline
+from rooftrace.evaluate.metrics import polis
+from tests.contour.shapes import CIRCLE, COURTYARD, L_SHAPE, RECT, sample
+
+U_SHAPE = shapely.Polygon([(0, 0), (20, 0), (20, 14), (14, 14), (14, 5), (6, 5), (6, 14), (0, 14)])
+#: a hall with a gently curved front: an arc of radius 30 m rising 1.7 m over its 20 m chord
+ARC = shapely.Point(10, -20).buffer(30, quad_segs=512).intersection(shapely.box(0, 0, 20, 12))
+
+
+def scene(polygon, density=10.0, seed=0, jitter=0.25, margin=4.0):
+    """Jittered-grid points over the polygon and a margin around it: (roof xyz, the others' xy)."""
+    rng = np.random.default_rng(seed)
+    s = 1 / np.sqrt(density)
+    x0, y0, x1, y1 = polygon.bounds
+    g = np.mgrid[x0 - margin:x1 + margin:s, y0 - margin:y1 + margin:s].reshape(2, -1).T + rng.uniform(0, s, (1, 2))
+    g = g + rng.uniform(-jitter * s, jitter * s, g.shape)
+    inside = shapely.contains_xy(polygon, g[:, 0], g[:, 1])
+    roof = np.column_stack([g[inside], 10 + 0.05 * rng.normal(size=inside.sum())])
+    return roof, g[~inside]
+
+
+def plan_corners(polygon):
+    simple = shapely.simplify(shapely.force_2d(polygon), 0.02)
+    return sum(len(r.coords) - 1 for r in (simple.exterior, *simple.interiors))
+
+
+@pytest.mark.parametrize("truth, corners", [(RECT, 4), (L_SHAPE, 6), (U_SHAPE, 8), (COURTYARD, 8)])
+@pytest.mark.parametrize("angle", [0.0, 17.0])
+def test_straight_walled_shapes_get_their_corners_and_straight_walls(truth, corners, angle):
+    truth = shapely.affinity.rotate(truth, angle, origin=(0, 0))
+    for seed in range(2):
+        roof, others = scene(truth, seed=seed)
+        out = trace_outline(roof, context_xy=others)
+        assert plan_corners(out.polygon) == corners
+        assert all(d == 1 for ring in out.degrees for d in ring)
+        assert polis(out.polygon, truth) < 0.08
+        # corners where the walls meet, not on points: each within a fraction of a spacing of the truth
+        for ring, true_ring in zip((out.polygon.exterior, *out.polygon.interiors),
+                                   (truth.exterior, *truth.interiors)):
+            c = np.asarray(shapely.simplify(ring, 0.02).coords)[:-1, :2]
+            t = np.asarray(true_ring.coords)[:-1]
+            assert np.linalg.norm(c[:, None] - t[None], axis=2).min(axis=1).max() < 0.3  # a spacing
+
+
+def test_lines_beat_the_thesis_cdspline_on_a_noisy_rotated_rectangle():
+    truth = shapely.affinity.rotate(RECT, 33, origin=(0, 0))
+    roof, others = scene(truth, density=6.0, seed=4, jitter=0.45)
+    lines = trace_outline(roof, context_xy=others)
+    spline = trace_outline(roof, OutlineOptions.from_config({}, method="cdspline"))
+    assert plan_corners(lines.polygon) == 4 <= plan_corners(spline.polygon)
+    assert polis(lines.polygon, truth) < polis(spline.polygon, truth)
+
+
+@pytest.mark.parametrize("truth", [CIRCLE, ARC])
+def test_curved_walls_stay_curved(truth):
+    for seed in range(2):
+        out = trace_outline(sample(truth, 10, seed=seed))
+        degrees = np.asarray(out.degrees[0])
+        # the arcs are made of segments of degree >= 2, the straight walls of lines
+        assert (degrees >= 2).sum() >= (3 if truth is CIRCLE else 1)
+        assert polis(out.polygon, truth) < 0.1
+
+
+def test_the_edge_lies_between_the_last_roof_point_and_the_first_other_point():
+    truth = shapely.box(0, 0, 20, 12)
+    errors_ctx, errors_none = [], []
+    for seed in range(4):
+        roof, others = scene(truth, density=4.0, seed=seed, jitter=0.0)  # a grid: the edge falls anywhere between
+        with_ctx = trace_outline(roof, context_xy=others).polygon
+        without = trace_outline(roof, OutlineOptions.from_config({}, edge_factor=0.0)).polygon
+        errors_ctx.append(with_ctx.area - truth.area)
+        errors_none.append(without.area - truth.area)
+    # through the outermost points the outline lies inside (area short by ~ perimeter x half a spacing);
+    # halfway to the first outside point it is unbiased
+    perimeter_x_half_gap = truth.length * 0.5 / np.sqrt(4.0)
+    assert np.mean(errors_none) < -0.6 * perimeter_x_half_gap
+    assert abs(np.mean(errors_ctx)) < 0.25 * perimeter_x_half_gap
+
+
+def test_edge_shift_measures_the_gap_and_falls_back_without_points():
+    xy = np.column_stack([np.arange(0, 10, 0.5), np.zeros(20)])
+    normal = np.array([0.0, -1.0])  # outwards: the roof lies at y > 0
+    outside = np.column_stack([np.arange(0.1, 10, 0.5), np.full(20, -0.6)])
+    shift, measured = edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(outside), fallback=0.4)
+    assert measured and shift == pytest.approx(0.3)
+    shift, measured = edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(None), fallback=0.4)
+    assert not measured and shift == pytest.approx(0.2)
+    far = outside - [0, 5.0]  # beyond 3 spacings: occlusion or water, no evidence
+    assert edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(far), fallback=0.4) == (pytest.approx(0.2), False)
+
+
+def test_fit_line_is_exact_on_a_line_and_robust_to_an_outlier():
+    t = np.linspace(0, 10, 30)
+    xy = np.column_stack([t, 0.5 * t + 1])
+    point, direction, rss = fit_line(xy, 0.05)
+    assert rss == pytest.approx(0, abs=1e-18)
+    assert direction == pytest.approx(np.array([2, 1]) / np.sqrt(5))
+    xy[15, 1] += 3.0
+    _, robust, _ = fit_line(xy, 0.05)
+    assert abs(np.cross(robust, direction)) < 0.01
+
+
+def _lines_of(xy, breaks, sigma0):
+    from rooftrace.contour.lines import _fit
+
+    return [_fit(xy, np.arange(a, b), sigma0, 1) for a, b in zip(breaks[:-1], breaks[1:])]
+
+
+def test_model_selection_drops_a_notch_within_the_noise_and_keeps_a_real_step():
+    rng = np.random.default_rng(0)
+    for depth, kept in ((0.08, False), (1.0, True)):
+        # a 30 x 10 m ring, counter-clockwise, with a 3 m wide notch in its first wall
+        x = np.arange(0, 30, 0.3)
+        bottom = np.column_stack([x, np.where((x > 12) & (x < 15), depth, 0.0)])
+        y = np.linspace(0, 10, 34)[:-1]
+        right = np.column_stack([np.full(33, 30.0), y])
+        top = np.column_stack([30 - x, np.full(len(x), 10.0)])
+        left = np.column_stack([np.zeros(33), 10 - y])
+        xy = np.concatenate([bottom, right, top, left])
+        xy = xy + rng.normal(0, 0.03, xy.shape)
+        n = len(x)
+        breaks = [0, 40, 41, 50, 51, n, n + 33, 2 * n + 33, len(xy)]
+        lines = simplify_lines(xy, _lines_of(xy, breaks, 0.1), 0.1)
+        assert (len(lines) > 4) == kept
+        if not kept:
+            assert all(abs(np.cross(a.direction, b.direction)) > 0.99 for a, b in zip(lines, lines[1:] + lines[:1]))
+
+
+def test_dominant_direction_is_taken_only_where_the_data_allows():
+    rng = np.random.default_rng(1)
+    sigma0 = 0.1
+
+    def wall(angle_deg, length, offset):
+        t = np.arange(0, length, 0.3)
+        a = np.radians(angle_deg)
+        return np.column_stack([t * np.cos(a), t * np.sin(a) + offset]) + rng.normal(0, 0.03, (len(t), 2))
+
+    # three long walls on 0/90 degrees, one 0.3 degrees off (within the noise), one 4 degrees off over 25 m
+    walls = [wall(0, 30, 0), wall(90, 20, 40), wall(0.3, 30, 80), wall(90, 20, 120), wall(4.0, 25, 160)]
+    xy = np.concatenate(walls)
+    bounds = np.cumsum([0] + [len(w) for w in walls])
+    lines = _lines_of(xy, bounds, sigma0)
+    out, theta = constrain_directions(xy, lines, sigma0)
+    assert theta == pytest.approx(0, abs=np.radians(0.2)) or theta == pytest.approx(np.pi / 2, abs=np.radians(0.2))
+    assert [ln.free for ln in out] == [False, False, False, False, True]
+
+
+def test_bic_floor_makes_fits_below_the_sampling_noise_worth_nothing():
+    assert segment_bic(0.001, 100, 2, 0.1) == segment_bic(0.5, 100, 2, 0.1)
+    assert segment_bic(0.001, 100, 2, 0.1) < segment_bic(0.001, 100, 3, 0.1)
+    assert segment_bic(10.0, 100, 3, 0.1) < segment_bic(20.0, 100, 2, 0.1)
+
+
+def test_parallel_lines_are_joined_by_a_step_not_intersected():
+    a = Line(np.arange(3), np.array([0.0, 0.0]), np.array([1.0, 0.0]), 0.0)
+    b = Line(np.arange(3), np.array([5.0, 1.0]), np.array([1.0, 0.0]), 0.0)
+    step = line_corners(a, b, np.array([4.0, 0.5]), 3.0)
+    assert step.tolist() == [[4.0, 0.0], [4.0, 1.0]]
+    c = Line(np.arange(3), np.array([4.0, 0.0]), np.array([0.0, 1.0]), 0.0)
+    assert line_corners(a, c, np.array([3.8, 0.2]), 3.0).tolist() == [[4.0, 0.0]]
+
+
+def test_a_narrow_inlet_without_points_is_bridged_a_wide_one_kept():
+    for width, bridged in ((1.0, True), (4.0, False)):
+        poly = shapely.box(0, 0, 20, 10).difference(shapely.box(8, 5, 8 + width, 10))
+        ring = np.asarray(shapely.segmentize(poly.exterior, 0.3).coords)[:-1]
+        keep = bridge_inlets(ring, 2.0)
+        inner = (ring[:, 0] > 7.99) & (ring[:, 0] < 8 + width + 0.01) & (ring[:, 1] > 4.99) & (ring[:, 1] < 9.99)
+        assert (not keep[inner].any()) == bridged
+        assert keep[~inner & (ring[:, 1] < 4.9)].all()
+
+
+def test_cdspline_method_is_the_thesis_path():
+    roof, _ = scene(L_SHAPE, seed=2)
+    spline = trace_outline(roof, OutlineOptions.from_config({}, method="cdspline"))
+    lines = trace_outline(roof)
+    assert spline.polygon.exterior.coords[:] != lines.polygon.exterior.coords[:]
+    with pytest.raises(ValueError, match="method"):
+        OutlineOptions.from_config({}, method="splines")
