@@ -223,7 +223,7 @@ def _shape_rows(name: str, polys, truths, seconds: float | None = None, curved=N
                  ("polis_mean_curved", np.nanmean(pol[curved]), "m")]
     if seconds is not None:
         rows.append(("time_s", seconds, "s"))
-    values = dict((m, v) for m, v, _ in rows)
+    values = {m: v for m, v, _ in rows}
     print(f"{name:42s} " + " ".join(f"{v:7.3f}" for v in values.values()))
     return [dict(method=name, metric=m, value=float(v), unit=u) for m, v, u in rows]
 
@@ -239,7 +239,7 @@ def _peer_rows(clouds, truths, curved=None) -> list[dict]:
         if best is None or p < best[0]:
             best = (p, ratio, polys)
     rows = _shape_rows(f"shapely.concave_hull ratio={best[1]}", best[2], truths, curved=curved)
-    rows += _shape_rows(f"  + buildingregulariser", _regularise(best[2]), truths, curved=curved)
+    rows += _shape_rows("  + buildingregulariser", _regularise(best[2]), truths, curved=curved)
     best = None
     for concavity in (1.0, 2.0, 3.0):
         polys = [shapely.Polygon(concave_hull.concave_hull(c[:, :2], concavity=concavity)) for c in clouds]

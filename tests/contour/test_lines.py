@@ -6,8 +6,15 @@ import shapely
 import shapely.affinity
 
 from rooftrace.contour.edge import EdgeContext, edge_shift
-from rooftrace.contour.lines import (Line, bridge_inlets, constrain_directions, fit_line, line_corners, segment_bic,
-                                     simplify_lines)
+from rooftrace.contour.lines import (
+    Line,
+    bridge_inlets,
+    constrain_directions,
+    fit_line,
+    line_corners,
+    segment_bic,
+    simplify_lines,
+)
 from rooftrace.contour.outline import OutlineOptions, trace_outline
 from rooftrace.evaluate.metrics import polis
 from tests.contour.shapes import CIRCLE, COURTYARD, L_SHAPE, RECT, sample

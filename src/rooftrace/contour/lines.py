@@ -316,7 +316,7 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_ru
         for start in range(m):
             if not isinstance(segments[start], Line):
                 continue
-            for k in range(0, min(max_run, m - 4) + 1):
+            for k in range(min(max_run, m - 4) + 1):
                 touched = tuple(segments[(start + j) % m] for j in range(k + 2))
                 if not all(isinstance(t, Line) for t in touched):
                     continue
@@ -333,7 +333,7 @@ def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_ru
         busy: set[int] = set()
         chosen = {}
         n_lines = sum(isinstance(s, Line) for s in segments)
-        for gain, start, k, new in moves:
+        for _gain, start, k, new in moves:
             span = {(start + j) % m for j in range(k + 2)}
             if span & busy or n_lines - (k + 2) + len(new) < 3:
                 continue
