@@ -245,7 +245,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     >>> xyz = np.column_stack([g, np.full(len(g), 5.0)])
     >>> out = trace_outline(xyz)
     >>> out.status, len(out.corners[0]), out.degrees, round(out.area), out.coverage
-    ('ok', 4, [[1, 1, 1, 1]], 57, 1.0)
+    ('ok', 4, [[1, 1, 1, 1]], 61, 1.0)
     """
     options = options or OutlineOptions()
     xyz = np.asarray(xyz, dtype=np.float64)
