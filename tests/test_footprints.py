@@ -125,7 +125,8 @@ def test_delft_bgt_footprints_take_their_roofs_and_split_the_rows():
     building = cls == B
     det = np.zeros(len(cloud), np.int32)
     det[building] = connected_buildings(cloud.xyz[building, :2], 1.0)  # the rows come out as single buildings
-    res = assign_footprints(cloud.xyz, cls, det, fps, FootprintOptions(overhang=1.5), density=10.0)
+    density = 10.0  # AHN3's nominal pts/m²
+    res = assign_footprints(cloud.xyz, cls, det, fps, FootprintOptions(overhang=1.5), density=density)
     # nearly every footprint over the tile holds a roof; the others are small sheds (< 25 m²) with a fallback
     covered = int(np.sum(res.n_cloud > 0))
     assert covered >= 120 and res.status.count("ok") >= covered - 12
@@ -153,7 +154,7 @@ def test_delft_bgt_footprints_take_their_roofs_and_split_the_rows():
     assert len(polys) >= 5
     for i, poly in zip(row, polys):
         inside = shapely.contains_xy(fps.polygons[i], *cloud.xyz[bid == i + 1, :2].T).sum()
-        if inside < 0.25 * 10.0 * fps.polygons[i].area:
+        if inside < 0.25 * density * fps.polygons[i].area:
             # a footprint its roof points cover at under a quarter of the cloud's density (a 22 m² shed with
             # 35 points): the triangle alpha shape outlines the points, not the footprint (known limit)
             continue

@@ -205,6 +205,7 @@ def evaluate_cmd(
     from rooftrace.evaluate import SUMMARY_KEYS, evaluate
     from rooftrace.evaluate.report import write_report
     from rooftrace.io.atomic import atomic_path
+    from rooftrace.io.checks import check_camera_has_image
 
     setup_logging(quiet)
     if not 0.0 < min_overlap <= 1.0:
@@ -215,8 +216,7 @@ def evaluate_cmd(
         raise InputError(f"--boundary-band must be a positive distance in metres, got {boundary_band}")
     if not corner_tolerance > 0.0:
         raise InputError(f"--corner-tolerance must be a positive distance in metres, got {corner_tolerance}")
-    if camera is not None and image is None:
-        raise InputError("--camera needs --image: give the image the camera file describes")
+    check_camera_has_image(image, camera)
     for path in (extracted, reference, aoi, points, compare, image, camera):
         if path is not None and not path.exists():
             raise InputError(f"{path}: no such file")

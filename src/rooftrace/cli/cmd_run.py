@@ -57,6 +57,7 @@ def run(
     from rooftrace.errors import InputError
     from rooftrace.io.atomic import check_output, commit_together
     from rooftrace.io.checks import (
+        check_camera_has_image,
         check_image_covers,
         check_image_size,
         check_points,
@@ -72,8 +73,7 @@ def run(
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, header_points, untiled_bytes
 
     setup_logging(quiet)
-    if camera is not None and image is None:
-        raise InputError("--camera needs --image: give the image the camera file describes")
+    check_camera_has_image(image, camera)
     formats = [output_format(o) for o in outputs]
     if len({o.resolve() for o in outputs}) != len(outputs):
         raise InputError("the same -o file is given twice; give each output once")

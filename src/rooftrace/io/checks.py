@@ -14,6 +14,7 @@ import numpy as np
 from rooftrace.errors import InputError
 
 __all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
+           "check_camera_has_image",
            "check_points", "check_footprints_overlap"]
 
 #: a cloud narrower than this across its main direction (metres) is a line, not an area
@@ -137,6 +138,12 @@ def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float 
         raise InputError(f"{where}: the image does not cover the data ({100 * fraction:.1f} % of it projects "
                          "inside the image); check the image, the camera file and the CRS")
     return fraction
+
+
+def check_camera_has_image(image, camera) -> None:
+    """Refuse a camera file given without the image it describes (an orthophoto alone needs no camera file)."""
+    if camera is not None and image is None:
+        raise InputError("--camera needs --image: give the image the camera file describes")
 
 
 def check_image_size(size: tuple[int, int], camera, image: str, camera_file: str) -> None:

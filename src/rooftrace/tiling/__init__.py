@@ -229,7 +229,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     """
     from rooftrace.config import validate_config
     from rooftrace.io.atomic import check_output, commit_together
-    from rooftrace.io.checks import check_same_crs, require_metric_crs
+    from rooftrace.io.checks import check_camera_has_image, check_same_crs, require_metric_crs
     from rooftrace.io.models import write_models
     from rooftrace.io.points import parse_crs
     from rooftrace.io.vector import write_layers
@@ -237,8 +237,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     from rooftrace.pipeline import building_layers
     from rooftrace.refine import RefineOptions
 
-    if camera is not None and image is None:
-        raise InputError("--camera needs --image: give the image the camera file describes")
+    check_camera_has_image(image, camera)
     model_outputs = [check_output(p, overwrite) for p in model_outputs]
     if output is None and not model_outputs:
         raise InputError("no output given")
