@@ -6,13 +6,20 @@ A valid :class:`~rooftrace.model.types.Solid` here is one outer shell that is
   in each direction (so the orientations agree), the surfaces around every
   vertex form one fan, and the shell is one connected piece;
 - **outward**: the enclosed (signed) volume is positive;
-- **planar**: every surface lies within ``planarity`` of its plane;
+- **planar**: every surface lies within ``planarity`` of its plane
+  (val3dity's error 203), and the triangles of its constrained
+  triangulation all face the same way, within ``normals_deviation``
+  degrees of each other (error 204: a surface a few millimetres wide is
+  flat by distance but its triangles tilt at random);
 - **simple in its plane**: every surface, projected on its plane, is a valid
   polygon (no self-intersection, holes inside the outer ring, area > 0),
   outer ring counter-clockwise seen from outside, holes clockwise.
 
-Vertices are compared on a grid (``grid``, 1 mm by default, the precision
-of the CityJSON writer), so two vertices closer than the grid are one.
+Vertices are first rounded to ``grid`` (1 mm by default, the precision of
+the CityJSON writer), then vertices closer than ``snap_tolerance`` are one,
+as val3dity snaps them when it reads a file: two vertices one grid step
+apart become one there, and a ring through both repeats a vertex (its
+error 102).
 What is *not* checked: intersections between different surfaces of the
 shell (val3dity's ``SHELL_SELF_INTERSECTION``); the builders make 2.5D
 shells (walls vertical, one roof height per plan position) where those
@@ -23,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 
@@ -100,7 +108,45 @@ def _bases(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, _cross(n, u)
 
 
-def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planarity) -> list[str]:
+def _triangle_tilt(polys, flat, xyz, surf, unit) -> np.ndarray:
+    """Largest angle (degrees) between the normals of two triangles of each surface.
+
+    The triangles are the constrained Delaunay triangulation of the surface
+    in its plane (``polys``, vertices ``flat``), lifted back to their 3D
+    vertices, as val3dity triangulates a surface to test its error 204.
+    Triangles of zero area in 3D have no normal and are skipped.
+    """
+    n_surfaces = len(polys)
+    tris, of = shapely.get_parts(shapely.constrained_delaunay_triangles(polys), return_index=True)
+    tilt = np.zeros(n_surfaces)
+    if not len(tris):
+        return tilt
+    corners = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
+    # back to the 3D vertex each corner is (the triangulation copies the vertices it is given);
+    # surfaces far apart in a third coordinate so that no corner finds another surface's vertex
+    span = np.abs(flat).max() * 4.0 + 1.0
+    _, at = cKDTree(np.column_stack([flat, surf * span])).query(
+        np.column_stack([corners.reshape(-1, 2), np.repeat(of, 3) * span]))
+    p = xyz[at].reshape(-1, 3, 3)
+    normal = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    # the 2D triangle's orientation decides which side its 3D normal faces
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    normal *= np.sign(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])[:, None]
+    norm = np.linalg.norm(normal, axis=1)
+    ok = norm > 1e-12
+    normal, of = normal[ok] / norm[ok, None], of[ok]
+    # each triangle against the surface normal; two triangles can be at most twice that apart, so
+    # only surfaces with a triangle beyond half the tolerance need the pairwise angles
+    off = np.degrees(np.arccos(np.clip((normal * unit[of]).sum(axis=1), -1.0, 1.0)))
+    np.maximum.at(tilt, of, off)
+    for k in np.flatnonzero(tilt > 0.5):
+        n = normal[of == k]
+        tilt[k] = np.degrees(np.arccos(np.clip((n @ n.T).min(), -1.0, 1.0)))
+    return tilt
+
+
+def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planarity,
+                    normals_deviation) -> list[str]:
     """Rings with too few or repeated vertices, non-planar surfaces, surfaces not simple in their plane."""
     errors = []
     bad_ring = sizes < 3
@@ -149,6 +195,10 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
     valid = shapely.is_valid(polys)
     for k in np.flatnonzero(~valid):
         errors.append(f"surface {k}: self-intersecting in its plane ({shapely.is_valid_reason(polys[k])})")
+    if valid.all():
+        tilt = _triangle_tilt(polys, flat, xyz - origin, owner[ring], unit)
+        for k in np.flatnonzero(tilt > normals_deviation):
+            errors.append(f"surface {k}: not planar (its triangles' normals {tilt[k]:.1f} degrees apart)")
     ccw = shapely.is_ccw(lr)
     hole = np.ones(len(lr), bool)
     hole[first] = False
@@ -159,7 +209,8 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
     return errors
 
 
-def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[str]:
+def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tolerance: float = 1e-3,
+                 normals_deviation: float = 20.0) -> list[str]:
     """What makes a solid invalid; an empty list when it is valid.
 
     Parameters
@@ -170,7 +221,13 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[
         Newell normal through the vertices' mean; val3dity's default
         ``planarity_d2p_tol``).
     grid : float, default 0.001
-        Vertices closer than this (m) are one vertex.
+        Vertices are rounded to this grid (m), as the CityJSON writer does.
+    snap_tolerance : float, default 0.001
+        Rounded vertices this close (m) or closer are one vertex
+        (val3dity's default ``--snap_tol``; ``0``: only equal vertices).
+    normals_deviation : float, default 20
+        Largest angle (degrees) between the normals of two triangles of a
+        surface (val3dity's default ``--planarity_n_tol``).
 
     Returns
     -------
@@ -190,9 +247,16 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
     xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
-    _, vid = np.unique(keys, axis=0, return_inverse=True)
+    unique, vid = np.unique(keys, axis=0, return_inverse=True)
     vid = vid.ravel()
-    errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity)
+    if snap_tolerance > 0:
+        # val3dity compares decoded floats (``d < tol``): a pair exactly one tolerance apart may
+        # merge or not there, so it counts as merged here
+        pairs = cKDTree(unique * grid).query_pairs(snap_tolerance * (1 + 1e-6), output_type="ndarray")
+        if len(pairs):
+            vid = components(len(unique), pairs)[vid].astype(np.int64)
+    errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity,
+                             normals_deviation)
     if errors:
         return errors
     # closed and consistently oriented: each directed edge once, and its reverse once
