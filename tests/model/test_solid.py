@@ -51,9 +51,11 @@ def test_a_curved_outline_keeps_every_vertex_within_2_cm():
     solid = prism_solid(cells, 0.0)
     walls = np.vstack([s.rings[0] for s in solid.surfaces if s.kind == "WallSurface"])
     r = np.hypot(walls[:, 0], walls[:, 1])
-    assert np.abs(r - 5.0).max() < 1e-3  # vertices stay on the circle
+    # vertices stay on the circle, up to the 1 cm plan lattice
+    assert np.abs(r - 5.0).max() <= 0.01 * np.sqrt(0.5) + 1e-9
     n = sum(s.kind == "WallSurface" for s in solid.surfaces)
-    assert n >= 128 and 5.0 * (1 - np.cos(np.pi / n)) < 0.02  # facets within 2 cm of the arc
+    # facets within 2 cm of the arc, lattice included
+    assert n >= 128 and 5.0 * (1 - np.cos(np.pi / n)) + 0.01 * np.sqrt(0.5) < 0.02
 
 
 def test_faces_with_gaps_and_overlaps_still_tile_the_footprint():

@@ -63,6 +63,10 @@ class ModelOptions:
         this (m) are separate height levels.
     grid : float
         Vertex grid (m); the CityJSON writer's scale.
+    snap : float
+        Plan lattice of the solids' vertices (m), a multiple of ``grid``:
+        vertices are at least this far apart, well above the 1 mm within
+        which validators (val3dity) merge vertices when they read a file.
     z_tolerance : float
         Heights of one vertex closer than this (m) are one height.
     planarity : float
@@ -78,6 +82,7 @@ class ModelOptions:
     ground_percentile: float = 10.0
     level_step: float = 0.5
     grid: float = 0.001
+    snap: float = 0.01
     z_tolerance: float = 0.01
     planarity: float = 0.01
     validate: bool = True
@@ -86,7 +91,7 @@ class ModelOptions:
         for name in ("roof_percentile", "ground_percentile"):
             if not 0 <= getattr(self, name) <= 100:
                 raise ValueError(f"{name} must be in [0, 100], got {getattr(self, name)}")
-        for name in ("level_step", "grid", "z_tolerance", "planarity"):
+        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
 
@@ -183,7 +188,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         return part, dict.fromkeys(("1.2", "1.3", "2.2"), "no roof points in the footprint")
     h = float(np.percentile(z, options.roof_percentile))
     part.attributes["h_roof_lod12"] = round(h, 3)
-    kw = dict(footprint=footprint, grid=options.grid, z_tolerance=options.z_tolerance)
+    kw = dict(footprint=footprint, grid=options.grid, snap=options.snap, z_tolerance=options.z_tolerance)
     try:
         part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
     except _FAILURES as exc:

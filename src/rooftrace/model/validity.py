@@ -34,14 +34,15 @@ from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 
-__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal"]
+__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_triangles", "triangle_tilt",
+           "surface_tilt"]
 
 
-def _ring_table(solid):
+def _ring_table(surfaces):
     """All rings stacked: vertices (V, 3), ring of each vertex, next vertex, surface of each ring."""
-    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in solid.surfaces for r in s.rings]
+    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in surfaces for r in s.rings]
     sizes = np.array([len(r) for r in rings], dtype=np.int64)
-    owner = np.repeat(np.arange(len(solid.surfaces)), [len(s.rings) for s in solid.surfaces])
+    owner = np.repeat(np.arange(len(surfaces)), [len(s.rings) for s in surfaces])
     xyz = np.vstack(rings) if rings else np.zeros((0, 3))
     ring = np.repeat(np.arange(len(rings)), sizes)
     start = np.r_[0, np.cumsum(sizes)[:-1]]
@@ -90,7 +91,7 @@ def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     """
     if not solid.surfaces:
         return 0.0
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     if origin is None:
         origin = xyz[0]
     area = _area_vectors(xyz, ring, nxt, owner, sizes, len(solid.surfaces), origin) / 2.0
@@ -108,40 +109,143 @@ def _bases(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, _cross(n, u)
 
 
-def _triangle_tilt(polys, flat, xyz, surf, unit) -> np.ndarray:
-    """Largest angle (degrees) between the normals of two triangles of each surface.
+def surface_triangles(polys: np.ndarray, flat: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay triangles of surfaces drawn in 2D, as indices of their vertices.
 
-    The triangles are the constrained Delaunay triangulation of the surface
-    in its plane (``polys``, vertices ``flat``), lifted back to their 3D
-    vertices, as val3dity triangulates a surface to test its error 204.
-    Triangles of zero area in 3D have no normal and are skipped.
+    Parameters
+    ----------
+    polys : ndarray of shapely Polygon, shape (S,)
+        Each surface in 2D (its plane, or plan view for a roof), built from
+        the rows of ``flat`` (the triangulation adds no vertex).
+    flat : ndarray of shape (V, 2)
+        2D vertices of all surfaces (m).
+    surf : ndarray of shape (V,), int
+        Surface of each vertex.
+
+    Returns
+    -------
+    corners : ndarray of shape (T, 3), int
+        Rows of ``flat`` at each triangle's corners, counter-clockwise in 2D.
+    of : ndarray of shape (T,), int
+        Surface of each triangle.
     """
-    n_surfaces = len(polys)
     tris, of = shapely.get_parts(shapely.constrained_delaunay_triangles(polys), return_index=True)
-    tilt = np.zeros(n_surfaces)
     if not len(tris):
-        return tilt
-    corners = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
-    # back to the 3D vertex each corner is (the triangulation copies the vertices it is given);
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    xy = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
+    # back to the vertex each corner is (the triangulation copies the vertices it is given);
     # surfaces far apart in a third coordinate so that no corner finds another surface's vertex
     span = np.abs(flat).max() * 4.0 + 1.0
     _, at = cKDTree(np.column_stack([flat, surf * span])).query(
-        np.column_stack([corners.reshape(-1, 2), np.repeat(of, 3) * span]))
-    p = xyz[at].reshape(-1, 3, 3)
+        np.column_stack([xy.reshape(-1, 2), np.repeat(of, 3) * span]))
+    corners = at.reshape(-1, 3)
+    e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    corners[cw] = corners[cw][:, ::-1]
+    return corners, of
+
+
+def triangle_tilt(xyz: np.ndarray, corners: np.ndarray, of: np.ndarray, unit: np.ndarray,
+                  limit: float) -> np.ndarray:
+    """Largest angle (degrees) between the normals of two triangles of each surface, where it matters.
+
+    val3dity's error 204 compares the normals of a surface's triangles; a
+    surface a few millimetres wide, or with vertices a centimetre apart, is
+    flat by distance yet its triangles tilt at random.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (V, 3)
+        Vertices (m).
+    corners, of : ndarray
+        Triangles as :func:`surface_triangles` gives them.
+    unit : ndarray of shape (S, 3)
+        Unit normal of each surface, on the side the triangles face.
+    limit : float
+        Tolerance (degrees) the result is compared with: the exact pairwise
+        angle is computed only for surfaces with a triangle more than half
+        of it from ``unit`` (two triangles within half of it of one
+        direction are within ``limit`` of each other).
+
+    Returns
+    -------
+    ndarray of shape (S,)
+        Triangles of zero area in 3D have no normal and are skipped.
+    """
+    tilt = np.zeros(len(unit))
+    p = xyz[corners]
     normal = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    # the 2D triangle's orientation decides which side its 3D normal faces
-    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    normal *= np.sign(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])[:, None]
     norm = np.linalg.norm(normal, axis=1)
     ok = norm > 1e-12
     normal, of = normal[ok] / norm[ok, None], of[ok]
-    # each triangle against the surface normal; two triangles can be at most twice that apart, so
-    # only surfaces with a triangle beyond half the tolerance need the pairwise angles
     off = np.degrees(np.arccos(np.clip((normal * unit[of]).sum(axis=1), -1.0, 1.0)))
     np.maximum.at(tilt, of, off)
-    for k in np.flatnonzero(tilt > 0.5):
+    for k in np.flatnonzero(tilt > limit / 2):
         n = normal[of == k]
         tilt[k] = np.degrees(np.arccos(np.clip((n @ n.T).min(), -1.0, 1.0)))
+    return tilt
+
+
+def _centres(xyz, surf, n_surfaces):
+    count = np.bincount(surf, minlength=n_surfaces)
+    return np.column_stack([np.bincount(surf, weights=xyz[:, i], minlength=n_surfaces)
+                            for i in range(3)]) / np.maximum(count, 1)[:, None]
+
+
+def _in_plane(xyz, ring, nxt, owner, sizes, start, n_surfaces):
+    """Every surface drawn in its own plane (through its vertices' mean, across its Newell normal).
+
+    Returns the origin the coordinates are taken from, the area vectors, the
+    2D vertices, the rings and the first ring of each surface, and the
+    surfaces as 2D polygons.
+    """
+    origin = xyz.min(axis=0)
+    normal = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin)
+    surf = owner[ring]
+    rel = xyz - origin - _centres(xyz - origin, surf, n_surfaces)[surf]
+    u, v = _bases(np.where(np.linalg.norm(normal, axis=1, keepdims=True) > 1e-12, normal, [[0.0, 0.0, 1.0]]))
+    flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
+    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
+    closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
+    lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
+    n_rings = np.bincount(owner, minlength=n_surfaces)
+    first = np.r_[0, np.cumsum(n_rings)[:-1]]
+    simple = np.flatnonzero(n_rings == 1)
+    polys = np.empty(n_surfaces, dtype=object)
+    polys[simple] = shapely.polygons(lr[first[simple]])
+    for k in np.flatnonzero(n_rings > 1):
+        polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
+    return origin, normal, flat, lr, first, polys
+
+
+def surface_tilt(surfaces, limit: float = 20.0) -> np.ndarray:
+    """Largest angle (degrees) between two triangles of each surface, triangulated in its plane.
+
+    What :func:`solid_errors` compares with ``normals_deviation`` (see
+    :func:`triangle_tilt` for ``limit``).
+
+    Parameters
+    ----------
+    surfaces : sequence of Surface
+    limit : float, default 20
+
+    Returns
+    -------
+    ndarray of shape (S,)
+        0 for a surface that is not a valid polygon in its plane.
+    """
+    xyz, ring, nxt, owner, sizes, start = _ring_table(surfaces)
+    n = len(surfaces)
+    origin, normal, flat, _, _, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n)
+    norm = np.linalg.norm(normal, axis=1)
+    ok = (norm > 1e-12) & shapely.is_valid(polys)
+    tilt = np.zeros(n)
+    if ok.any():
+        keep = ok[owner[ring]]
+        index = np.cumsum(ok) - 1
+        corners, of = surface_triangles(polys[ok], flat[keep], index[owner[ring]][keep])
+        sub = triangle_tilt(xyz[keep] - origin, corners, of, normal[ok] / norm[ok, None], limit)
+        tilt[ok] = sub
     return tilt
 
 
@@ -162,41 +266,26 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
         errors.append(f"surface {k}: a ring passes twice through one vertex")
     if errors:
         return errors
-    origin = xyz.min(axis=0)
-    normal = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin)
+    origin, normal, flat, lr, first, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n_surfaces)
     norm = np.linalg.norm(normal, axis=1)
     for k in np.flatnonzero(~(norm > 1e-12)):
         errors.append(f"surface {k}: zero area")
     if errors:
         return errors
     surf = owner[ring]
-    count = np.bincount(surf, minlength=n_surfaces)
-    centre = np.column_stack([np.bincount(surf, weights=xyz[:, i] - origin[i], minlength=n_surfaces)
-                              for i in range(3)]) / count[:, None]
     unit = normal / norm[:, None]
+    centre = _centres(xyz - origin, surf, n_surfaces)
     dist = np.abs(((xyz - origin - centre[surf]) * unit[surf]).sum(axis=1))
     worst = np.zeros(n_surfaces)
     np.maximum.at(worst, surf, dist)
     for k in np.flatnonzero(worst > planarity):
         errors.append(f"surface {k}: not planar ({worst[k]:.4f} m from its plane)")
-    u, v = _bases(normal)
-    rel = xyz - origin - centre[surf]
-    flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
-    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
-    closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
-    lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
-    n_rings = np.bincount(owner, minlength=n_surfaces)
-    first = np.r_[0, np.cumsum(n_rings)[:-1]]
-    simple = np.flatnonzero(n_rings == 1)
-    polys = np.empty(n_surfaces, dtype=object)
-    polys[simple] = shapely.polygons(lr[first[simple]])
-    for k in np.flatnonzero(n_rings > 1):
-        polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
     valid = shapely.is_valid(polys)
     for k in np.flatnonzero(~valid):
         errors.append(f"surface {k}: self-intersecting in its plane ({shapely.is_valid_reason(polys[k])})")
     if valid.all():
-        tilt = _triangle_tilt(polys, flat, xyz - origin, owner[ring], unit)
+        corners, of = surface_triangles(polys, flat, owner[ring])
+        tilt = triangle_tilt(xyz - origin, corners, of, unit, normals_deviation)
         for k in np.flatnonzero(tilt > normals_deviation):
             errors.append(f"surface {k}: not planar (its triangles' normals {tilt[k]:.1f} degrees apart)")
     ccw = shapely.is_ccw(lr)
@@ -245,7 +334,7 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     surfaces = solid.surfaces
     if len(surfaces) < 4:
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
     unique, vid = np.unique(keys, axis=0, return_inverse=True)
     vid = vid.ravel()
