@@ -7,7 +7,7 @@ import pytest
 import shapely
 
 from rooftrace.errors import GeometryError
-from rooftrace.model import horizontal_plane, prism_solid, solid_errors, solid_volume
+from rooftrace.model import Surface, horizontal_plane, prism_solid, solid_errors, solid_volume
 from tests.model.cases import CASES, GROUND
 
 
@@ -81,3 +81,33 @@ def test_a_roof_below_the_ground_is_refused():
 def test_no_cells_is_refused():
     with pytest.raises(GeometryError, match="no roof cells"):
         prism_solid([], 0.0)
+
+
+def test_two_vertices_closer_than_validators_snap_are_one_vertex():
+    # a footprint vertex 0.6 mm from the corner: on the 1 mm grid these were two vertices 1 mm apart,
+    # which val3dity merges when it reads the file (its error 102); on the 1 cm plan lattice they are one
+    fp = shapely.Polygon([(0, 0), (10, 0), (10, 8), (0.0006, 8.0003), (0, 8)])
+    assert any("duplicate" in e for e in solid_errors(prism_solid([(fp, horizontal_plane(6.0))], 0.0, snap=0.001)))
+    for solid in (prism_solid([(fp, horizontal_plane(6.0))], 0.0), prism_solid(CASES["gable"]()[0], 0.0, footprint=fp)):
+        assert solid_errors(solid) == []
+        xyz = np.unique(np.vstack([r for s in solid.surfaces for r in s.rings]), axis=0)
+        d = np.linalg.norm(xyz[:, None] - xyz[None], axis=2)
+        assert d[d > 0].min() >= 0.01 - 1e-9
+    with pytest.raises(ValueError, match="multiple of grid"):
+        prism_solid([(fp, horizontal_plane(6.0))], 0.0, snap=0.0015)
+
+
+def test_a_roof_surface_whose_triangles_tilt_is_written_as_its_triangles():
+    from rooftrace.model.solid import _split_tilted
+    from rooftrace.model.validity import surface_tilt
+
+    # grid units (mm): a 10 x 8 m roof at 6 m with a vertex 1 cm beside a corner, 4 mm too high
+    ring = [(0, 0, 6000), (10000, 0, 6000), (10000, 8000, 6000), (10, 8000, 6004), (0, 8000, 6000)]
+    flat = [[(0, 0, 6000), (5000, 0, 6000), (5000, 4000, 6000)]]
+    out = _split_tilted([[ring], flat], 10.0)
+    assert out[-1] == flat and len(out) == 1 + 3  # the pentagon's three triangles, the flat one kept
+    tris = [np.asarray(r[0], float) for r in out[:-1]]
+    assert shapely.union_all([shapely.Polygon(t[:, :2]) for t in tris]).area == pytest.approx(
+        shapely.Polygon(np.asarray(ring)[:, :2]).area)
+    assert surface_tilt([Surface([t], "RoofSurface") for t in tris]).max() == 0.0
+    assert surface_tilt([Surface([np.asarray(ring, float)], "RoofSurface")])[0] > 10.0
