@@ -111,3 +111,16 @@ def test_a_roof_surface_whose_triangles_tilt_is_written_as_its_triangles():
         shapely.Polygon(np.asarray(ring)[:, :2]).area)
     assert surface_tilt([Surface([t], "RoofSurface") for t in tris]).max() == 0.0
     assert surface_tilt([Surface([np.asarray(ring, float)], "RoofSurface")])[0] > 10.0
+
+
+def test_planes_crossing_between_lattice_points_along_a_shared_edge():
+    # two steep faces (slopes +2 and -2 across their shared edge x = 5) swap which is higher at
+    # y = 4.004 m; the crossing goes to the lattice point y = 4.00, where their heights still differ by
+    # 1.6 cm: it gets one height for both (before, the wall between them kept changing side there)
+    def plane(slope):
+        return np.array([0.0, -slope, 1.0, -12.0 + slope * 4.004])  # z = 12 + slope (y - 4.004)
+
+    solid = prism_solid([(shapely.box(0, 0, 5, 8), plane(2.0)), (shapely.box(5, 0, 10, 8), plane(-2.0))], 0.0)
+    assert solid_errors(solid) == []
+    top = np.vstack([s.rings[0] for s in solid.surfaces if s.kind == "RoofSurface"])
+    assert np.abs(top[(top[:, 0] == 5.0) & (np.abs(top[:, 1] - 4.0) < 1e-9), 2] - 12.0).max() <= 0.009

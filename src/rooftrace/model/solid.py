@@ -356,11 +356,14 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         pl = planes[f]
         return np.round(-(pl[:, 0] * xy[:, 0] + pl[:, 1] * xy[:, 1] + pl[:, 3]) / pl[:, 2] / grid)
 
+    crossings: set[int] = set()  # vertices where two planes cross: one height, whatever the tolerance
+
     def one_height(p, zz):
         """One height per (vertex, near-equal heights): a ridge is one line for both of its planes."""
         order = np.lexsort((zz, p))
         sv, sz = p[order], zz[order]
-        new_group = np.r_[True, (sv[1:] != sv[:-1]) | (np.diff(sz) >= tol)]
+        forced = np.isin(sv[1:], np.fromiter(crossings, dtype=np.int64, count=len(crossings)))
+        new_group = np.r_[True, (sv[1:] != sv[:-1]) | ((np.diff(sz) >= tol) & ~forced)]
         gid = np.cumsum(new_group) - 1
         mean = np.round(np.bincount(gid, weights=sz) / np.bincount(gid)).astype(np.int64)
         out = np.empty_like(zz)
@@ -404,6 +407,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
             if (wx, wy) in table.index:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
             crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex((wx, wy))
+            # on the lattice the point is up to half a step off the crossing, where the two
+            # heights may differ by more than the tolerance: they are made one there
+            crossings.add(crossing[(pp, qq)])
         face_rings = [[_insert(r, crossing) for r in rings] for rings in face_rings]
     else:
         raise GeometryError("two roof faces cross along their shared edge")
