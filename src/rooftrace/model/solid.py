@@ -12,11 +12,12 @@ exact; plan positions on a coarser lattice, ``snap``, 1 cm by default):
 1. The cells' and the footprint's boundaries are snapped to the ``snap``
    lattice, noded together and polygonised (so two plan vertices are at
    least ``snap`` apart: a validator reading the file merges vertices
-   closer than its own tolerance, 1 mm for val3dity, and a ring through two
-   such vertices would repeat one; faces narrower than the lattice
-   vanish instead of tilting at random); each piece goes to the cell holding it (pieces no cell
-   holds - gaps of the roof partition - to the neighbour sharing most
-   boundary), so the cells tile the footprint exactly, edge to edge.
+   closer than its own tolerance, 1 mm for val3dity, and a ring through
+   two such vertices would repeat one; faces narrower than the lattice
+   vanish instead of tilting at random); each piece goes to the cell
+   holding it (pieces no cell holds - gaps of the roof partition - to the
+   neighbour sharing most boundary), so the cells tile the footprint
+   exactly, edge to edge.
 2. Every vertex lying on another cell's edge is inserted in that edge (no
    T-junctions), and where two neighbouring planes cross along a shared
    edge the crossing point is inserted too (the wall between them changes
@@ -62,16 +63,15 @@ def _polygons(geom) -> list[Polygon]:
     return [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty and g.area > 0]
 
 
-def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int], Polygon]:
-    # grid: here the plan lattice, ``snap``
+def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[int], Polygon]:
     """Pieces of the noded arrangement, dissolved per cell; and the footprint they tile."""
-    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), grid))
-    fp = shapely.set_precision(shapely.force_2d(footprint), grid)
+    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), lattice))
+    fp = shapely.set_precision(shapely.force_2d(footprint), lattice)
     if len(polys) == 1 and shapely.equals(polys[0], fp) and fp.geom_type == "Polygon":
         pieces = np.array([fp], dtype=object)  # one cell that is the footprint (LoD 1.2): nothing to node
     else:
         lines = [shapely.boundary(fp)] + [shapely.boundary(p) for p in polys if not p.is_empty]
-        noded = shapely.union_all(lines, grid_size=grid)
+        noded = shapely.union_all(lines, grid_size=lattice)
         pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
     if not len(pieces):
         raise GeometryError("the footprint has no area")
@@ -112,14 +112,14 @@ def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int]
         mine = pieces[owner == c]
         merged = mine if len(mine) == 1 else _polygons(shapely.coverage_union_all(mine))
         if not all(g.is_valid for g in merged):
-            merged = _polygons(shapely.union_all(mine, grid_size=grid))
+            merged = _polygons(shapely.union_all(mine, grid_size=lattice))
         for g in merged:
             faces.append(shapely.orient_polygons(g, exterior_cw=False))
             face_cell.append(int(c))
     # the pieces are a coverage (edges shared exactly): their fast coverage union
     whole = _polygons(shapely.coverage_union_all(pieces))
     if len(whole) != 1 or not whole[0].is_valid:
-        whole = _polygons(shapely.union_all(pieces, grid_size=grid))
+        whole = _polygons(shapely.union_all(pieces, grid_size=lattice))
     if len(whole) != 1:
         raise GeometryError(f"the footprint falls into {len(whole)} pieces")
     return faces, face_cell, shapely.orient_polygons(whole[0], exterior_cw=False)
