@@ -400,13 +400,17 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         d0 = (zz[cross] - zz[nx[o[cross]]]).astype(np.float64)
         d1 = (zz[nx[cross]] - zz[o[cross]]).astype(np.float64)
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
-        w = xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])
-        w = (np.round(w / lattice) * lattice).astype(np.int64)
+        exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for pp, qq, (wx, wy) in zip(p[cross].tolist(), q[cross].tolist(), w.tolist()):
-            if (wx, wy) in table.index:
+        for pp, qq, (ex, ey) in zip(p[cross].tolist(), q[cross].tolist(), exact.tolist()):
+            # the nearest lattice point that is not a vertex yet (a crossing within half a step of
+            # a vertex would land on it): the edge bends by at most a step there, in both faces
+            near = sorted(((x - ex) ** 2 + (y - ey) ** 2, x * lattice, y * lattice) for x in (np.floor(ex), np.ceil(ex))
+                          for y in (np.floor(ey), np.ceil(ey)))
+            free = [(int(x), int(y)) for _, x, y in near if (int(x), int(y)) not in table.index]
+            if not free:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
-            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex((wx, wy))
+            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free[0])
             # on the lattice the point is up to half a step off the crossing, where the two
             # heights may differ by more than the tolerance: they are made one there
             crossings.add(crossing[(pp, qq)])
