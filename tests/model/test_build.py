@@ -121,3 +121,6 @@ def test_options_are_checked():
         ModelOptions(roof_percentile=120)
     with pytest.raises(ValueError, match="grid"):
         ModelOptions(grid=0)
+    with pytest.raises(ValueError, match="snap must be a multiple of grid"):
+        ModelOptions(snap=0.0155)
+    assert ModelOptions(snap=0.02).snap == 0.02

@@ -94,6 +94,8 @@ class ModelOptions:
         for name in ("level_step", "grid", "snap", "z_tolerance", "planarity"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
+        if self.snap < self.grid or abs(self.snap / self.grid - round(self.snap / self.grid)) > 1e-6:
+            raise ValueError(f"snap must be a multiple of grid ({self.grid} m), got {self.snap}")
 
 
 def ground_height(terrain_z: np.ndarray, percentile: float = 10.0) -> float:
