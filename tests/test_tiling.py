@@ -16,9 +16,10 @@ import shapely
 
 from rooftrace.cli.main import main
 from rooftrace.errors import InputError
-from rooftrace.io.vector import read_layer
+from rooftrace.io.vector import Layer, read_layer
 from rooftrace.tiling import (
     TileOptions,
+    TileResult,
     merge_tiles,
     owned_buildings,
     sample_windows,
@@ -147,9 +148,9 @@ def test_split_refuses_non_las(tmp_path):
 
 
 def test_bad_tile_options_name_the_flag():
-    with pytest.raises(InputError, match="--tile-size"):
+    with pytest.raises(InputError, match="tile_size"):
         TileOptions(tile_size=-5)
-    with pytest.raises(InputError, match="--workers"):
+    with pytest.raises(InputError, match="workers must"):
         TileOptions(workers=0)
 
 
@@ -190,9 +191,9 @@ def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
 def test_merge_numbers_buildings_by_their_lowest_point_whatever_the_tile_order():
     def tile(ids, keys, xs):
         polys = [shapely.box(x, 0, x + 1, 1) for x in xs]
-        layer = {"wkb": [shapely.to_wkb(p) for p in polys], "geometry_type": "Polygon",
-                 "attributes": {"building_id": ids, "area": [1.0] * len(ids)}}
-        return {"layers": {"roof_outlines": layer}, "buildings": {"id": ids, "key": keys}}
+        layer = Layer(polys, {"building_id": ids, "area": [1.0] * len(ids)}, "Polygon")
+        return TileResult("0_0", layers={"roof_outlines": layer}, building_ids=np.array(ids),
+                          building_keys=np.array(keys, float))
 
     a = tile([1, 2], [[5, 0, 0], [1, 0, 0]], [5, 1])
     b = tile([1], [[3, 0, 0]], [3])

@@ -91,6 +91,15 @@ class RunResult:
     assignment: FootprintAssignment | None = None
     parts: list = field(default_factory=list)
 
+    def point_labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Class and building id of every point, in input order, as the layers number the buildings.
+
+        With footprints the building of a point is its footprint's (the
+        outlines were made from those points); else the detection's.
+        """
+        ids = self.building_id if self.footprints is not None else self.detection.building_id
+        return self.detection.classification, ids
+
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
         from rooftrace.contour.buildings import outline_statuses

@@ -11,7 +11,7 @@ import logging
 
 import numpy as np
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 
 __all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
            "check_camera_has_image",
@@ -143,7 +143,7 @@ def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float 
 def check_camera_has_image(image, camera) -> None:
     """Refuse a camera file given without the image it describes (an orthophoto alone needs no camera file)."""
     if camera is not None and image is None:
-        raise InputError("--camera needs --image: give the image the camera file describes")
+        raise OptionError("{camera} needs {image}: give the image the camera file describes", "camera", "image")
 
 
 def check_image_size(size: tuple[int, int], camera, image: str, camera_file: str) -> None:

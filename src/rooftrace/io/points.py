@@ -15,7 +15,7 @@ import numpy as np
 import pyproj
 
 from rooftrace.cloud import PointCloud
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.io.checks import horizontal_crs
 from rooftrace.io.las import (
     LAS_SUFFIXES,
@@ -42,7 +42,7 @@ def parse_crs(text: str | None) -> pyproj.CRS | None:
     try:
         return pyproj.CRS.from_user_input(text)
     except pyproj.exceptions.CRSError:
-        raise InputError(f"--crs {text!r} is not a CRS pyproj understands; use e.g. EPSG:28992") from None
+        raise OptionError(f"{{crs}} {text!r} is not a CRS pyproj understands; use e.g. EPSG:28992", "crs") from None
 
 
 def read_ply(path: str | os.PathLike) -> PointCloud:

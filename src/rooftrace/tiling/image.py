@@ -183,15 +183,17 @@ def cut_neighbourhoods(discs: np.ndarray, extent: Sequence[float], bounds: Seque
     return near_open_side(np.column_stack([x - r, y - r, x + r, y + r]), extent, bounds)
 
 
-def join_neighbourhoods(results: Sequence[dict]) -> np.ndarray | None:
+def join_neighbourhoods(results: Sequence) -> np.ndarray | None:
     """The points of every tile's building neighbourhoods, each once, in the order of the input files.
+
+    ``results`` are the tiles' :class:`rooftrace.tiling.tile.TileResult`.
 
     Returns
     -------
     ndarray of shape (M, 3), float64, or None
         ``None`` when no tile kept any point.
     """
-    parts = [r["refine_points"] for r in results if len(r.get("refine_points", {}).get("gidx", ()))]
+    parts = [r.refine_points for r in results if len(r.refine_points.get("gidx", ()))]
     if not parts:
         return None
     gidx = np.concatenate([p["gidx"] for p in parts])
@@ -201,11 +203,15 @@ def join_neighbourhoods(results: Sequence[dict]) -> np.ndarray | None:
     return xyz[first]
 
 
-def merged_planes(results: Sequence[dict], numbers: Sequence[tuple]) -> dict[int, np.ndarray]:
-    """Roof planes of every building by its merged id (``numbers`` from :func:`building_numbers`)."""
+def merged_planes(results: Sequence, numbers: Sequence[tuple]) -> dict[int, np.ndarray]:
+    """Roof planes of every building by its merged id.
+
+    ``results`` are the tiles' :class:`rooftrace.tiling.tile.TileResult`,
+    ``numbers`` from :func:`rooftrace.tiling.tile.building_numbers`.
+    """
     out = {}
     for _, t, old, new in numbers:
-        planes = results[t].get("planes", {}).get(old)
+        planes = results[t].planes.get(old)
         if planes is not None:
             out[int(new)] = planes
     return out
