@@ -1,8 +1,8 @@
 """The method as a flowchart: detect → outline → roof planes and ridges → 3D models → (image refinement).
 
 Each step is one call into a stage package; this module only wires them,
-groups points per building and turns the results into the output layers of
-DESIGN.md (``roof_outlines``, ``ridges``, ``roof_faces``).  It does no I/O:
+groups points per building and turns the results into the output layers
+(``roof_outlines``, ``ridges``, ``roof_faces``, ...).  It does no I/O:
 the CLI reads the inputs and writes what :func:`run_pipeline` returns.
 """
 
@@ -296,7 +296,7 @@ def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure]
                     refined: RefineResult | None = None, models: list[BuildingModel] | None = None, *,
                     parts: Layer | None = None, footprints: Footprints | None = None,
                     assignment: FootprintAssignment | None = None) -> dict[str, Layer]:
-    """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
+    """The output layers (docs/models.md) from the stage results, plus ``building_parts``.
 
     The 3D ``lodXX`` layers come when ``models`` is given.
 

@@ -1,4 +1,4 @@
-"""The camera file (``camera.json``, DESIGN.md "Camera file") read and written.
+"""The camera file (``camera.json``, docs/image.md) read and written.
 
 ``"type": "frame"`` gives a :class:`~rooftrace.image.camera.FrameCamera`;
 ``"type": "orthophoto"`` gives an :class:`~rooftrace.image.camera.OrthoCamera`

@@ -1,4 +1,4 @@
-"""Image refinement of LiDAR roofs (seed 000): candidates -> MRF grouping -> reconstruction -> 3D.
+"""Image refinement of LiDAR roofs (Marcato & Dal Poz): candidates -> MRF grouping -> reconstruction -> 3D.
 
 :func:`refine_buildings` refines many buildings with one image (and corrects
 the camera's exterior orientation from all of them); :func:`refine_building`

@@ -1,11 +1,11 @@
-"""Image refinement of LiDAR roofs (seed 000): candidates -> MRF grouping -> reconstruction -> 3D.
+"""Image refinement of LiDAR roofs (Marcato & Dal Poz): candidates -> MRF grouping -> reconstruction -> 3D.
 
 For each building:
 
 1. the roof's line topology (outline sides + ridges, :func:`roof_topology`);
 2. candidate image lines per side/ridge in windows around their projections
-   (:func:`rooftrace.image.candidates.extract_candidates`, seed 000 §2.1 and
-   seed 003) and Harris corners in those windows;
+   (:func:`rooftrace.image.candidates.extract_candidates`, Marcato & Dal Poz §2.1 and
+   Marcato & Dal Poz 2011) and Harris corners in those windows;
 3. the MRF energy (eq. 6-13) minimised by the genetic algorithm (§2.3); the
    exact minimiser runs too when the problem is small enough and the gap
    between the two is reported (``ga_exact_gap``);
@@ -195,7 +195,7 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
         b_opt = opt
         if sigma is not None and opt.derive_sigma:
-            # windows and registration errors follow this roof's LiDAR precision, not seed 000's 0.48 m
+            # windows and registration errors follow this roof's LiDAR precision, not Marcato & Dal Poz's 0.48 m
             from rooftrace.image.candidates import CandidateOptions
 
             b_opt = dataclasses.replace(opt, candidates=dataclasses.replace(opt.candidates or CandidateOptions(),
