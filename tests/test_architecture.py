@@ -156,3 +156,27 @@ def test_every_flag_of_run_is_an_option_of_the_library_and_back():
     config_only = {"chunk_size", "sample_points"}  # [tiling] tuning, not per run
     assert tile_fields - config_only <= set(flags), tile_fields - config_only - set(flags)
     assert SECTIONS["tiling"] is TileOptions and SECTIONS["run"] is RunOptions
+
+
+def test_helpers_that_cross_modules_are_public():
+    """No module imports another's ``_private`` name, nor a ``_private`` module of another package.
+
+    A helper two modules share is part of the package's design: it gets a
+    public name in a module named by its role.  (A package's own
+    ``_kernels`` module stays private to that package.)
+    """
+    crossing = []
+    for path in PACKAGE.rglob("*.py"):
+        name = _module_name(path)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if not isinstance(node, ast.ImportFrom) or not (node.module or "").startswith("rooftrace"):
+                continue
+            private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+            if private and node.module != name:
+                crossing.append(f"{name}:{node.lineno} imports {', '.join(private)} from {node.module}")
+            parts = node.module.split(".")
+            for i, part in enumerate(parts):
+                if part.startswith("_") and not part.startswith("__") and ".".join(parts[:i]) != package:
+                    crossing.append(f"{name}:{node.lineno} imports the private module {node.module}")
+    assert not crossing, "\n".join(crossing)
