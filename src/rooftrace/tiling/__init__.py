@@ -77,6 +77,7 @@ from rooftrace.tiling.image import (
     image_fingerprint,
     join_neighbourhoods,
     merged_planes,
+    roofs_of_layers,
 )
 from rooftrace.tiling.split import (  # noqa: F401
     POINT_DTYPE,
@@ -265,14 +266,16 @@ def _refine_merged(layers: dict[str, Layer], results: list[TileResult], image: P
     """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
     from rooftrace.io.checks import check_image_size
     from rooftrace.io.raster import read_image
-    from rooftrace.pipeline import refine_layers
+    from rooftrace.pipeline import refined_layers
+    from rooftrace.refine import refine_roofs
 
     grey = read_image(image)
     check_image_size(grey.shape[::-1], cam, str(image), str(camera))  # the file may have changed since the check
     points = join_neighbourhoods(results)
-    planes = merged_planes(results, building_numbers(results))
+    roofs = roofs_of_layers(layers, merged_planes(results, building_numbers(results)))
     with reporter.stage("image refinement", total=None):
-        return refine_layers(layers, planes, points, grey, cam, options=options.refine, seed=seed)
+        refined = refine_roofs(roofs, grey, cam, points_xyz=points, options=options.refine, seed=seed)
+    return refined, refined_layers(layers, refined)
 
 
 def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, tiling: TileOptions | None = None,

@@ -2,7 +2,7 @@
 
 The tiles run the LiDAR method only; the image never goes to a worker.
 After the merge the parent refines every building in one pass with
-:func:`rooftrace.pipeline.refine_layers`, the function the untiled run
+:func:`rooftrace.refine.refine_roofs`, the function the untiled run
 uses, because the refinement is not per building: the exterior-orientation
 correction (``[refine] orientation``) fits one camera to the line matches of
 all buildings, and the genetic algorithm of building ``i`` is seeded with
@@ -38,7 +38,7 @@ import numpy as np
 from rooftrace.tiling.split import near_open_side
 
 __all__ = ["check_image_inputs", "image_fingerprint", "neighbourhood_points", "cut_neighbourhoods",
-           "join_neighbourhoods", "merged_planes"]
+           "join_neighbourhoods", "merged_planes", "roofs_of_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -215,3 +215,20 @@ def merged_planes(results: Sequence, numbers: Sequence[tuple]) -> dict[int, np.n
         if planes is not None:
             out[int(new)] = planes
     return out
+
+
+def roofs_of_layers(layers: dict, planes: dict[int, np.ndarray]):
+    """The merged layers of a tiled run as the refinement takes them (:class:`rooftrace.refine.LidarRoofs`).
+
+    The tiles hand their buildings to the merge as layers; this reads the
+    outlines, ridges and their buildings back from ``roof_outlines`` and
+    ``ridges``, in the layers' (building-id) order, as
+    :func:`rooftrace.pipeline.lidar_roofs` takes them from the stages.
+    """
+    from rooftrace.refine import LidarRoofs
+
+    outlines, ridges = layers["roof_outlines"], layers["ridges"]
+    return LidarRoofs(building_ids=[int(b) for b in outlines.attributes["building_id"]],
+                      outlines=list(outlines.geometries), ridges=list(ridges.geometries),
+                      ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
+                      ridge_kinds=list(ridges.attributes["kind"]), planes=planes)
