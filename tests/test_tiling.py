@@ -330,6 +330,35 @@ def test_tiled_classified_points_equal_one_piece(block, one_piece, tiled):
         np.testing.assert_array_equal(np.asarray(b[name]), np.asarray(src[name]), err_msg=name)
 
 
+def test_tiled_footprints_give_the_buildings_of_one_piece(block, one_piece, tmp_path):
+    """Footprints are split along the tiles as the points are: every footprint's building, its number and
+    its points' labels are those of the untiled run, a footprint over no data included."""
+    from rooftrace.io.vector import write_layers
+
+    outlines = read_layer(one_piece, "roof_outlines")
+    # the buildings' outlines drawn a little inside, as a cadastre draws walls under the eaves, and one
+    # footprint far from the data (status no_points, owned by the nearest tile)
+    polygons = [shapely.force_2d(g).buffer(-0.5, join_style="mitre") for g in outlines.geometries if g is not None]
+    x1, y1 = shapely.total_bounds(polygons)[2:]
+    polygons = [p for p in polygons if not p.is_empty] + [shapely.box(x1 + 200, y1 + 200, x1 + 210, y1 + 210)]
+    prints = tmp_path / "footprints.gpkg"
+    write_layers(prints, {"pand": Layer(polygons, {"identificatie": [f"p{i}" for i in range(len(polygons))]},
+                                        "Polygon")}, read_layer(one_piece, "roof_outlines").crs)
+    common = ["--config", str(block / "config.toml"), "--footprints", str(prints), "-q"]
+    a, b = tmp_path / "one.gpkg", tmp_path / "tiled.gpkg"
+    assert main(["run", str(block / "points.laz"), "-o", str(a), "--classified", str(tmp_path / "one.laz"),
+                 *common]) == 0
+    assert main(["run", str(block / "points.laz"), "-o", str(b), "--classified", str(tmp_path / "tiled.laz"),
+                 *common, *TILED]) == 0
+    assert_same_layers(a, b, tol=0.0)
+    fa, fb = read_layer(a, "roof_outlines"), read_layer(b, "roof_outlines")
+    assert fa.attributes["footprint_id"] == fb.attributes["footprint_id"] == [f"p{i}" for i in range(len(polygons))]
+    assert fb.attributes["footprint_status"][-1] == "no_points" and len(polygons) > 5
+    la, lb = laspy.read(tmp_path / "one.laz"), laspy.read(tmp_path / "tiled.laz")
+    np.testing.assert_array_equal(np.asarray(lb["building_id"]), np.asarray(la["building_id"]))
+    np.testing.assert_array_equal(np.asarray(lb.classification), np.asarray(la.classification))
+
+
 def test_tiled_classified_needs_one_point_format(block, tmp_path, capsys):
     src = laspy.read(block / "points.laz")
     other = laspy.convert(src, point_format_id=1 if src.point_format.id != 1 else 3)

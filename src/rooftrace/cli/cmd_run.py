@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from rooftrace.cli import options as opt
@@ -105,19 +106,26 @@ def run(
         tiled = True
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
-    if tiled and announced != 0 and footprints is not None:
-        raise InputError("--footprints runs untiled for now; drop --tile-size/--workers/--scheduler/--resume, "
-                         "or cut the footprints and the cloud into blocks that fit in memory")
     where = ", ".join(map(str, inputs))
     if tiled and announced != 0:
+        from rooftrace.io.points import parse_crs
         from rooftrace.tiling import run_tiled
+        from rooftrace.tiling.split import scan_headers
+
+        prints = None
+        if footprints is not None:  # over the headers' box: the tiled run reads no point before the tiles
+            head = scan_headers(inputs)
+            b = head["bounds"]
+            prints = _read_footprints(footprints, footprint_id, parse_crs(crs) if crs else head["crs"][0],
+                                      np.array([[b[0], b[1], 0.0], [b[2], b[3], 0.0]]), where)
 
         # the tiles and their results, kept for --resume until the outputs are written
         run_dir = Path(str(gpkg if gpkg is not None else model_files[0]) + ".parts")
         reporter = reporter_for(quiet)
         try:
             result = run_tiled(inputs, run_options, tile_options, run_dir=run_dir, crs=crs, image=image,
-                               camera=camera, seed=seed, reporter=reporter, classified=classified is not None)
+                               camera=camera, seed=seed, reporter=reporter, classified=classified is not None,
+                               footprints=prints)
         finally:
             reporter.close()
         _write_outputs(result, gpkg, model_files, classified, result.crs, overwrite, inputs=inputs)
@@ -146,11 +154,7 @@ def run(
 
     prints = None
     if footprints is not None:
-        from rooftrace.io.checks import check_footprints_overlap
-        from rooftrace.io.footprints import read_footprints
-
-        prints = read_footprints(footprints, cloud.crs, id_field=footprint_id)
-        check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
+        prints = _read_footprints(footprints, footprint_id, cloud.crs, cloud.xyz, where)
 
     if len(cloud) == 0:
         _write_empty(gpkg, model_files, classified, cloud, overwrite, json_, where)
@@ -173,6 +177,16 @@ def run(
     else:
         log.info("%d buildings, %d ridges, %d roof faces, %d 3D models -> %s", summary["buildings"], summary["ridges"],
                  summary["roof_faces"], len(result.models), ", ".join(map(str, outputs)))
+
+
+def _read_footprints(path: Path, id_field: str | None, crs, xyz: np.ndarray, where: str):
+    """The footprints in the points' CRS, refused when none lies over the points' box."""
+    from rooftrace.io.checks import check_footprints_overlap
+    from rooftrace.io.footprints import read_footprints
+
+    prints = read_footprints(path, crs, id_field=id_field)
+    check_footprints_overlap(prints, xyz, str(path), where)
+    return prints
 
 
 def _write_outputs(result, gpkg: Path | None, model_files: list[Path], classified: Path | None, crs,

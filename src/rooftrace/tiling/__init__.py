@@ -95,6 +95,7 @@ from rooftrace.tiling.tile import (
     TileTask,
     building_numbers,
     estimate_parameters,
+    footprints_per_tile,
     merge_tiles,
     merged_models,
     merged_point_labels,
@@ -106,6 +107,7 @@ from rooftrace.tiling.tile import (
 
 if TYPE_CHECKING:  # rooftrace.config imports TileOptions from this package
     from rooftrace.config import RunOptions
+    from rooftrace.footprints import Footprints
     from rooftrace.lidar.detect import DerivedParams
     from rooftrace.refine import RefineResult
 
@@ -261,6 +263,19 @@ class TiledRunResult:
         }
 
 
+def _footprints_fingerprint(footprints: Footprints) -> str:
+    """What ``resume`` compares of the footprints: a hash of their geometries, ids and id field."""
+    import hashlib
+
+    import shapely
+
+    digest = hashlib.sha256(footprints.id_field.encode())
+    for polygon, fid in zip(footprints.polygons, footprints.ids):
+        digest.update(shapely.to_wkb(polygon))
+        digest.update(repr(fid).encode())
+    return digest.hexdigest()
+
+
 def _refine_merged(layers: dict[str, Layer], results: list[TileResult], image: Path, camera: Path, cam,
                    options: RunOptions, seed: int, reporter: Reporter):
     """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
@@ -281,7 +296,7 @@ def _refine_merged(layers: dict[str, Layer], results: list[TileResult], image: P
 def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, tiling: TileOptions | None = None,
               *, run_dir: os.PathLike | None = None, crs=None, image: os.PathLike | None = None,
               camera: os.PathLike | None = None, seed: int = 0, reporter: Reporter | None = None,
-              classified: bool = False) -> TiledRunResult:
+              classified: bool = False, footprints: Footprints | None = None) -> TiledRunResult:
     """The whole method on inputs of any size, in tiles: split, measure the parameters, process, merge.
 
     Parameters
@@ -312,6 +327,12 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
         Also give the class and merged building id of every input point
         (:meth:`TiledRunResult.point_labels`; inputs of one point format, so
         that one LAS file can hold them all).
+    footprints : Footprints, optional
+        Building footprints in the points' CRS: one building per footprint,
+        as :func:`rooftrace.pipeline.run_pipeline` makes them.  They are
+        split along the tiles as the points are; each tile outputs the
+        footprints whose centre is in its core, so a footprint's building
+        is the untiled run's when the buffer holds it and its neighbours.
 
     Returns
     -------
@@ -373,7 +394,7 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
     run_dir = Path(tempfile.mkdtemp(prefix="rooftrace-tiles-")) if temporary else Path(run_dir)
     try:
         result = _run_in(run_dir, paths, head, options, tiling, crs_obj, image, camera, cam, seed,
-                         reporter or Reporter(), classified, refine_context)
+                         reporter or Reporter(), classified, refine_context, footprints)
     finally:
         if temporary:
             shutil.rmtree(run_dir, ignore_errors=True)
@@ -382,7 +403,7 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
 
 def _run_in(run_dir: Path, paths: list[Path], head: dict, options: RunOptions, tiling: TileOptions, crs_obj,
             image, camera, cam, seed: int, reporter: Reporter, classified: bool,
-            refine_context: float | None) -> TiledRunResult:
+            refine_context: float | None, footprints: Footprints | None) -> TiledRunResult:
     """:func:`run_tiled` after its checks, in ``run_dir``."""
     from rooftrace.lidar.detect import DerivedParams
     from rooftrace.pipeline import building_layers
@@ -396,7 +417,8 @@ def _run_in(run_dir: Path, paths: list[Path], head: dict, options: RunOptions, t
             "options": asdict(options), "seed": seed, "classified": classified,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
             **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
-               if image is not None else {})}
+               if image is not None else {}),
+            **({"footprints": _footprints_fingerprint(footprints)} if footprints is not None else {})}
     meta = json.loads(json.dumps(meta, default=str))
     meta_path = run_dir / "run.json"
     if tiling.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
@@ -427,8 +449,10 @@ def _run_in(run_dir: Path, paths: list[Path], head: dict, options: RunOptions, t
     wkt = crs_obj.to_wkt() if crs_obj is not None else None
     # the tiles get the parameters as the file holds them, so that a resumed run gives what a fresh one gives
     fixed = DerivedParams.from_dict(derived.to_dict())
+    per_tile = (footprints_per_tile(footprints, index, keys, reach=2.0 * options.footprints.overhang + 1.0)
+                if footprints is not None else {})
     tasks = [TileTask(str(run_dir), k, tuple(tile_core(index, k)), wkt, options, seed, fixed,
-                      tuple(tile_extent(index, k)), classified, refine_context) for k in keys]
+                      tuple(tile_extent(index, k)), classified, refine_context, per_tile.get(k)) for k in keys]
     t0 = time.perf_counter()
     with reporter.stage("tiles", total=len(tasks)):
         result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], tiling, reporter)

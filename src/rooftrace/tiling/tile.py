@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from rooftrace.footprints import Footprints
 from rooftrace.io.vector import Layer
 from rooftrace.lidar.detect import DerivedParams, DetectOptions
 from rooftrace.model.types import BuildingModel
@@ -110,6 +111,29 @@ def owned_buildings(xyz: np.ndarray, building_id: np.ndarray, core: Sequence[flo
 
 
 @dataclasses.dataclass(frozen=True)
+class TileFootprints:
+    """The footprints of a run as one tile sees them.
+
+    Attributes
+    ----------
+    footprints : Footprints
+        Every footprint near the buffered tile (within reach of its points'
+        assignment and of the outline clipping) and every footprint the tile
+        owns, in the run's order.
+    index : ndarray of shape (F,), int64
+        Position of each in the run's footprints: the merge numbers the
+        buildings by it, as the untiled run does (building id = position + 1).
+    owned : ndarray of shape (F,), bool
+        The footprints whose building this tile outputs: each footprint is
+        owned by exactly one tile (:func:`footprints_per_tile`).
+    """
+
+    footprints: Footprints
+    index: np.ndarray
+    owned: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
 class TileTask:
     """One tile's work as it goes to a worker.
 
@@ -142,6 +166,9 @@ class TileTask:
         ``[refine] context`` (m) of a run with an image: also keep the roof
         planes of the owned buildings and the points around them that the
         parent's image refinement uses (:func:`rooftrace.tiling.image.neighbourhood_points`).
+    footprints : TileFootprints, optional
+        The footprints this tile sees and those it owns (a run with
+        footprints: one building per footprint).
     """
 
     run_dir: str
@@ -154,6 +181,7 @@ class TileTask:
     extent: tuple[float, float, float, float] | None = None
     classified: bool = False
     refine_context: float | None = None
+    footprints: TileFootprints | None = None
 
     def run(self) -> str:
         """:func:`process_tile` of this task; the path of the tile's result."""
@@ -242,20 +270,27 @@ def process_tile(task: TileTask) -> str:
         fixed = dataclasses.replace(fixed, extent=tuple(float(v) for v in task.extent))
     result = TileResult(key=key, points=len(cloud))
     labelled = None  # (classification, building_id, ids, keys) of the detection, when it ran
+    prints = task.footprints
     if len(cloud) >= 3 and np.ptp(cloud.xyz[:, :2], axis=0).min() > 0:
         found: dict[str, np.ndarray] = {}
 
         def owned_only(xyz: np.ndarray, detection) -> np.ndarray:
             # outlines and roof planes are the costly stages: spend them on
             # the buildings this tile keeps, not on those of its buffer
-            found["ids"], found["owned"], found["keys"], found["box"] = owned_buildings(
-                xyz, detection.building_id, core, fixed.origin)
+            if prints is not None:  # a footprint's building: where the parent said
+                found.update(footprint_buildings(prints))
+            else:
+                found["ids"], found["owned"], found["keys"], found["box"] = owned_buildings(
+                    xyz, detection.building_id, core, fixed.origin)
             return found["ids"][found["owned"]]
 
-        run_out = run_pipeline(cloud, task.options, seed=task.seed, derived=fixed, buildings=owned_only)
+        run_out = run_pipeline(cloud, task.options, seed=task.seed, derived=fixed, buildings=owned_only,
+                               footprints=None if prints is None else prints.footprints)
         det = run_out.detection
         ids, owned, keys, box = found["ids"], found["owned"], found["keys"], found["box"]
-        labelled = (det.classification, det.building_id, ids, keys)
+        # with footprints, a point's building is its footprint's, owned here or not
+        labelled = (det.classification, det.building_id if prints is None else run_out.assignment.building_id,
+                    ids, keys)
         keep_ids = ids[owned]
         # a building must be processed with all its points: one that reaches
         # the buffer's outer edge (where the tile stops but the data goes on)
@@ -290,6 +325,70 @@ def process_tile(task: TileTask) -> str:
     tmp.write_bytes(pickle.dumps(result))
     os.replace(tmp, out)
     return str(out)
+
+
+def footprint_buildings(prints: TileFootprints) -> dict[str, np.ndarray]:
+    """The buildings of a tile with footprints, as :func:`owned_buildings` gives those of the detection.
+
+    Building ``i + 1`` of the tile is its footprint ``i``; its sort key is
+    the footprint's position in the run (so the merge numbers it as the
+    untiled run does) and its box the footprint's bounds.
+    """
+    import shapely
+
+    n = len(prints.footprints)
+    keys = np.zeros((n, 3))
+    keys[:, 0] = prints.index
+    box = shapely.bounds(np.asarray(prints.footprints.polygons, dtype=object)).reshape(-1, 4)
+    return {"ids": np.arange(1, n + 1, dtype=np.int64), "owned": np.asarray(prints.owned, bool), "keys": keys,
+            "box": box}
+
+
+def footprints_per_tile(footprints: Footprints, index: dict, keys: Sequence[str], reach: float
+                        ) -> dict[str, TileFootprints]:
+    """Split a run's footprints along its tiles, as the points are split.
+
+    Parameters
+    ----------
+    footprints : Footprints
+        The run's footprints, in the points' CRS.
+    index : dict
+        The split's index (:func:`rooftrace.tiling.split.split_to_tiles`).
+    keys : sequence of str
+        The tiles.
+    reach : float
+        How far (m) beyond a tile's buffered extent a footprint still
+        matters to the tile's footprints (the assignment's overhang band and
+        the search for neighbours that clip an outline).
+
+    Returns
+    -------
+    dict of str to TileFootprints
+        Per tile, the footprints that touch its buffered extent grown by
+        ``reach``, and those it owns.  A footprint is owned by the tile
+        whose core holds the centre of its bounding box, or when that tile
+        has no points, by the tile with the nearest core; so every footprint
+        is output once, even one over no data.
+    """
+    import shapely
+
+    polygons = np.asarray(footprints.polygons, dtype=object)
+    bounds = shapely.bounds(polygons).reshape(-1, 4)
+    centre = (bounds[:, :2] + bounds[:, 2:]) / 2
+    cores = np.array([tile_core(index, k) for k in keys], float).reshape(-1, 4)  # xmin, xmax, ymin, ymax
+    # distance from each centre to each core box (0 inside); the first of equals, in tile order, wins
+    dx = np.maximum(np.maximum(cores[None, :, 0] - centre[:, None, 0], centre[:, None, 0] - cores[None, :, 1]), 0.0)
+    dy = np.maximum(np.maximum(cores[None, :, 2] - centre[:, None, 1], centre[:, None, 1] - cores[None, :, 3]), 0.0)
+    owner = np.argmin(np.nan_to_num(np.hypot(dx, dy), nan=np.inf), axis=1) if len(keys) else np.zeros(0, int)
+    tree = shapely.STRtree(polygons)
+    out = {}
+    for t, k in enumerate(keys):
+        near = tree.query(shapely.box(*tile_extent(index, k)).buffer(reach, join_style="mitre"))
+        mine = np.union1d(near, np.flatnonzero(owner == t)).astype(np.int64)  # sorted: the run's order
+        out[k] = TileFootprints(
+            Footprints(tuple(polygons[mine]), tuple(footprints.ids[i] for i in mine), footprints.id_field),
+            mine, owner[mine] == t)
+    return out
 
 
 def _owned_features(layer: Layer, keep_ids: np.ndarray) -> Layer:
