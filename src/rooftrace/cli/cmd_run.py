@@ -119,8 +119,8 @@ def run(
             prints = _read_footprints(footprints, footprint_id, parse_crs(crs) if crs else head["crs"][0],
                                       np.array([[b[0], b[1], 0.0], [b[2], b[3], 0.0]]), where)
 
-        # the tiles and their results, kept for --resume until the outputs are written
-        run_dir = Path(str(gpkg if gpkg is not None else model_files[0]) + ".parts")
+        first = gpkg if gpkg is not None else model_files[0]
+        run_dir = Path(str(first) + ".parts")  # the tiles and their results, kept for --resume until written
         reporter = reporter_for(quiet)
         try:
             result = run_tiled(inputs, run_options, tile_options, run_dir=run_dir, crs=crs, image=image,
@@ -130,7 +130,7 @@ def run(
             reporter.close()
         _write_outputs(result, gpkg, model_files, classified, result.crs, overwrite, inputs=inputs)
         shutil.rmtree(run_dir, ignore_errors=True)
-        summary = {"output": str(run_dir)[:-len(".parts")], **result.summary()}
+        summary = {"output": str(first), **result.summary()}
         if not summary["buildings"]:
             log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
                         "is" if len(outputs) == 1 else "are")
