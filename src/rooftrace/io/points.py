@@ -234,9 +234,9 @@ def common_crs(paths: list[Path], crss: list) -> pyproj.CRS | None:
     first = crss[0]
     for p, c in zip(paths[1:], crss[1:]):
         if (first is None) != (c is None) or (first is not None and not first.equals(c, ignore_axis_order=True)):
-            raise InputError(
+            raise OptionError(
                 f"{p}: CRS ({_crs_name(c)}) differs from {paths[0]} ({_crs_name(first)}); "
-                "reproject one of them or assign one with --crs"
+                "reproject one of them or assign one with {crs}", "crs"
             )
     return first
 
