@@ -439,7 +439,7 @@ def _save_labels(path: Path, cloud, core: Sequence[float], labelled) -> None:
 
 
 def tile_core(index: dict, key: str) -> tuple[float, float, float, float]:
-    """The core of tile ``key`` (xmin, ymin, xmax, ymax; infinite on the outer sides of the grid)."""
+    """The core of tile ``key`` (xmin, xmax, ymin, ymax, half-open; infinite on the outer sides of the grid)."""
     size = index["tile_size"]
     xs, ys = tile_grid(index["bounds"], size)
     i, j = (int(v) for v in key.split("_"))
