@@ -66,7 +66,9 @@ from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
+from rooftrace.lidar._kernels import unique_pairs
+from rooftrace.lidar.segment import (SegmentOptions, join_strips, link_pairs, order_labels, region_growing,
+                                     sector_pairs)
 from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
 from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
@@ -281,6 +283,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
+    # paired scan lines lie up to twice the widest common gap apart
+    reach = max(link_d, 2.0 * gap) if so.link_sectors else None
     co = opt.classify
     k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), co.min_neighbours, co.max_neighbours))
     # the plane of a normal must rest on more than one scan line (lines far
@@ -300,12 +304,21 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                                       neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
+        if so.link_sectors:
+            # every other point blocks a link: ground between a roof and a crown
+            clean_idx = np.flatnonzero(~noise)
+            where = np.full(n, -1, np.int64)
+            where[clean_idx] = np.arange(len(clean_idx))
+            across = sector_pairs(xyz[clean_idx, :2] - shift[:2], where[above[high]], reach, so.link_sectors)
+            both = np.concatenate([pairs, across])
+            pairs = unique_pairs(both[:, 0], both[:, 1], len(high))
         normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
-            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d,
+            **options_dict(so), "link_distance": link_d, "sector_reach": reach, "link_height": link_h,
+            "merge_distance": merge_d,
             "normal_neighbours": k_normal, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }
