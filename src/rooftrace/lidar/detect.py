@@ -310,7 +310,8 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             where = np.full(n, -1, np.int64)
             where[clean_idx] = np.arange(len(clean_idx))
             across = sector_pairs(xyz[clean_idx, :2] - shift[:2], where[above[high]], reach, so.link_sectors,
-                                  normals=feats[high, 4:7], max_angle=so.sector_max_angle)
+                                  normals=feats[high, 4:7], max_angle=so.sector_max_angle,
+                                  smooth=feats[high, 7] <= so.sector_max_residual * sigma_h)
             both = np.concatenate([pairs, across])
             pairs = unique_pairs(both[:, 0], both[:, 1], len(high))
         normals = feats[high, 4:7] if so.height_test == "normal" else None
