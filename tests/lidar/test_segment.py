@@ -1,8 +1,14 @@
 import numpy as np
 import pytest
 
-from rooftrace.lidar.segment import (SegmentOptions, link_pairs, merge_touching, order_labels, region_growing,
-                                     sector_pairs)
+from rooftrace.lidar.segment import (
+    SegmentOptions,
+    link_pairs,
+    merge_touching,
+    order_labels,
+    region_growing,
+    sector_pairs,
+)
 
 
 def _roof(x0, y0, w, d, z, step=0.4, slope=0.0):

@@ -60,15 +60,14 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
+from rooftrace.lidar._kernels import unique_pairs
 from rooftrace.lidar.buildings import assemble_buildings, group_widths
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar._kernels import unique_pairs
-from rooftrace.lidar.segment import (SegmentOptions, join_strips, link_pairs, order_labels, region_growing,
-                                     sector_pairs)
+from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing, sector_pairs
 from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
 from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
@@ -76,6 +75,9 @@ from rooftrace.progress import Reporter
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
 
 log = logging.getLogger(__name__)
+
+#: mean Delaunay edge of random (Poisson) points of unit density, 32/(9 pi) (Miles 1970)
+POISSON_EDGE = 32.0 / (9.0 * np.pi)
 
 
 
@@ -276,7 +278,12 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         params["ground"] = {**options_dict(opt.ground), **gparams}
 
     so = opt.segment
-    link_d = so.link_distance or so.link_factor * s_avg
+    # s_avg, the mean Delaunay edge, grows with the gaps between scan lines
+    # (1.3-1.5 times that of random points of the same density, 1.132/sqrt(d_avg),
+    # where the lines lie far apart); where the sector links bridge those gaps
+    # L_Dxy follows the density, or it links crowns into roofs over 1.5 m
+    spacing = min(s_avg, POISSON_EDGE / np.sqrt(d_avg)) if so.link_sectors else s_avg
+    link_d = so.link_distance or so.link_factor * spacing
     # roof levels split by a gap between scan lines are one building
     merge_d = so.merge_distance or max(link_d, gap)
     # along the normals the pair test must also absorb the normals' own
