@@ -14,7 +14,10 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
    default the size up to N of lowest entropy, :mod:`rooftrace.lidar.features`)
    and a surface normal for every non-ground point (§3.4);
 5. region growing of the points above ``segment.min_height`` into roof-level
-   clusters (§3.3; the height test is measured along the normals);
+   clusters (§3.3; the height test is measured along the normals; beyond
+   the thesis each point is also linked to its nearest point per direction,
+   so roofs hold together across scan lines farther apart than L_Dxy,
+   :func:`rooftrace.lidar.segment.sector_pairs`);
 6. k-means on the mean entropy of the clusters of at least T_Np points
    (§3.4) with the guards of :mod:`rooftrace.lidar.classify`, and by
    default (``classify.decision``) the plane residual of each cluster
