@@ -282,7 +282,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
 
     so = opt.segment
     # s_avg, the mean Delaunay edge, grows with the gaps between scan lines
-    # (1.3-1.5 times that of random points of the same density, 1.132/sqrt(d_avg),
+    # (1.15-1.35 times that of random points of the same density, 1.132/sqrt(d_avg),
     # where the lines lie far apart); where the sector links bridge those gaps
     # L_Dxy follows the density, or it links crowns into roofs over 1.5 m
     spacing = min(s_avg, POISSON_EDGE / np.sqrt(d_avg)) if so.link_sectors else s_avg

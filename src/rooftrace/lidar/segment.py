@@ -61,7 +61,10 @@ class SegmentOptions:
         Points lower than this above the ground (m) are not segmented
         (cars, walls' feet, low vegetation).
     link_distance : float or None
-        L_Dxy (m); ``None``: ``link_factor·s_avg``.
+        L_Dxy (m); ``None``: ``link_factor·s_avg``, with ``link_sectors``
+        s_avg taken at most the mean Delaunay edge of random points of the
+        same density, 1.132/sqrt(d_avg): scan lines far apart lengthen
+        s_avg, and the sector links bridge them instead.
     link_factor : float, default 2.25
         L_Dxy in units of s_avg.  The thesis uses 2 (Table 6.1); with s_avg
         measured over every return (crowns pull it down) 2.25 keeps roofs
