@@ -252,8 +252,9 @@ def sector_pairs(xy: np.ndarray, sources: np.ndarray, max_distance: float, n_sec
     are pairs within L_Dxy anyway.  Where a crown overhangs a roof nothing
     lies between them; with ``normals`` a pair is kept only when its two
     normals differ by at most ``max_angle``, as on one roof face (the
-    smoothness constraint of Rabbani et al. 2006, here on the long links only),
-    and with ``smooth`` only when both lie on a smooth surface.
+    smoothness constraint of Rabbani et al. 2006; :func:`region_growing`
+    does not need it within L_Dxy), and with ``smooth`` only when both lie
+    on a smooth surface.
 
     Parameters
     ----------
@@ -290,10 +291,12 @@ def sector_pairs(xy: np.ndarray, sources: np.ndarray, max_distance: float, n_sec
     [(0, 0), (0, 1), (1, 1), (3, 3)]
     """
     sources = np.asarray(sources, dtype=np.int64)
-    nearest = sector_nearest(xy, sources, max_distance, n_sectors)
+    # only points that may be linked ask for their neighbours; every point answers
+    asking = np.arange(len(sources)) if smooth is None else np.flatnonzero(smooth)
+    nearest = sector_nearest(xy, sources[asking], max_distance, n_sectors)
     local = np.full(len(xy), -1, np.int64)
     local[sources] = np.arange(len(sources))
-    a = np.repeat(np.arange(len(sources)), n_sectors)
+    a = np.repeat(asking, n_sectors)
     b = np.where(nearest.ravel() >= 0, local[nearest.ravel()], -1)
     ok = b >= 0
     a, b = a[ok], b[ok]
