@@ -94,6 +94,19 @@ def test_the_edge_lies_between_the_last_roof_point_and_the_first_other_point():
     assert abs(np.mean(errors_ctx)) < 0.25 * perimeter_x_half_gap
 
 
+def test_the_edge_does_not_follow_the_ground_into_a_wall_s_scan_shadow():
+    truth = shapely.box(0, 0, 20, 12)
+    errors = []
+    for seed in range(4):
+        roof, others = scene(truth, density=4.0, seed=seed, jitter=0.0)
+        # no ground returns within 1 m of the south wall: the first non-roof point there is 1-1.5 m out
+        shadow = (others[:, 1] < 0) & (others[:, 1] > -1.0)
+        south = trace_outline(roof, context_xy=others[~shadow]).polygon
+        errors.append(-south.bounds[1])  # how far the south wall lies beyond the true one, metres
+    # the outermost roof points lie 0-0.5 m inside: beyond the edge by at most one step, not half the gap
+    assert abs(np.mean(errors)) < 0.1
+
+
 def test_edge_shift_measures_the_gap_and_falls_back_without_points():
     xy = np.column_stack([np.arange(0, 10, 0.5), np.zeros(20)])
     normal = np.array([0.0, -1.0])  # outwards: the roof lies at y > 0
