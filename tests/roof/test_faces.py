@@ -140,3 +140,28 @@ def test_cell_choice_equals_the_pairwise_vote():
     np.add.at(viol, (m[wrong], i[wrong]), 1)
     score = viol * (k + 1) ** 2 - votes * (k + 1) + np.arange(k)
     assert np.array_equal(_cell_choice(cm, segidx, ptr, line, near, sign, z), np.argmin(score, axis=1))
+    nearest = viol * (k + 1) ** 2 + np.arange(k)  # without the vote: fewest violations, then the nearest
+    assert np.array_equal(_cell_choice(cm, segidx, ptr, line, near, sign, z, False), np.argmin(nearest, axis=1))
+
+
+def test_labelled_points_lie_under_their_own_plane_at_steps():
+    """Nearest-point faces with the simplification held back where it would misplace points: at the
+    height steps of a terraced row almost no labelled point lies under another plane's face more
+    than 0.1 m off (the k-nearest majority with free simplification misplaced ten times more)."""
+    from rooftrace.roof.faces import partition_outline
+
+    model = models.terraced(angle=17)
+    xyz, face = models.sample_roof(model, 10, 0.03, seed=3)
+    roof = roof_structure(xyz, model.outline)
+    lab = roof.labels >= 0
+    own = plane_height(roof.planes[roof.labels[lab]], xyz[lab, :2])
+
+    def misplaced(**kw):
+        polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, cell=roof.spacing / 2,
+                                        line_tolerance=1.0, **kw)
+        at, f = shapely.STRtree(polys).query(shapely.points(xyz[lab, :2]), predicate="within")
+        z = plane_height(roof.planes[np.asarray(pids)[f]], xyz[lab][at, :2])
+        return np.mean(np.abs(z - own[at]) > 0.1)
+
+    now, before = misplaced(), misplaced(vote=True, max_dz=None)
+    assert now < 0.003 and before > 5 * now  # measured: 0.08 % against 0.9 %
