@@ -29,6 +29,7 @@ import numpy as np
 import shapely
 from rasterio import features
 from rasterio.transform import Affine
+from scipy import ndimage
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
@@ -93,12 +94,18 @@ def _absorb_slivers(polys: list, ids: list, min_area: float):
 def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.ndarray, planes: np.ndarray,
                max_dz: float) -> int:
     """Labelled points (plan ``xy``, own plane height ``own_z``) in a region whose plane is more than ``max_dz`` off."""
-    at, reg = shapely.STRtree(regions).query(shapely.points(xy), predicate="intersects")
-    pid = ids[reg]
-    keep = pid >= 0
-    at, pid = at[keep], pid[keep]
-    off = np.abs(plane_height(planes[pid], xy[at]) - own_z[at]) > max_dz
-    return int(np.unique(at[off]).size)
+    n = 0
+    box = shapely.bounds(regions)
+    for reg, pid, (x0, y0, x1, y1) in zip(regions, ids, box):
+        if pid < 0:
+            continue
+        # only the points this region's plane is far from can be misplaced in it (a region has few)
+        cand = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
+        a, b, c, d = planes[pid]
+        cand = cand[np.abs(-(a * xy[cand, 0] + b * xy[cand, 1] + d) / c - own_z[cand]) > max_dz]
+        if len(cand):
+            n += int(np.count_nonzero(shapely.contains_xy(reg, xy[cand, 0], xy[cand, 1])))
+    return n
 
 
 def _regularised(regions: list, ids: list, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
@@ -249,7 +256,14 @@ def partition_outline(
     if max_dz is None:
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     else:
-        regions = _regularised(regions, ids, P, lab, planes, tolerance=simplify * cell, max_dz=max_dz)
+        # only points near a region boundary can change region: those whose
+        # cell has another label within the tolerance (plus a cell)
+        r = int(np.ceil(simplify)) + 1
+        mixed = ndimage.maximum_filter(grid, 2 * r + 1) != ndimage.minimum_filter(grid, 2 * r + 1)
+        col = np.clip(((P[:, 0] - x0) / cell).astype(np.int64), 0, nx - 1)
+        row = np.clip(((y1 - P[:, 1]) / cell).astype(np.int64), 0, ny - 1)
+        near = mixed[row, col]
+        regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell, max_dz=max_dz)
     polys, pids = [], []
     for reg, pid in zip(regions, ids):
         if pid < 0:
