@@ -165,3 +165,21 @@ def test_labelled_points_lie_under_their_own_plane_at_steps():
 
     now, before = misplaced(), misplaced(vote=True, max_dz=None)
     assert now < 0.003 and before > 5 * now  # measured: 0.08 % against 0.9 %
+
+
+def test_a_line_across_a_step_is_not_trusted():
+    """The line rule (the lower plane across a convex line) is checked against the points near the
+    line: a true ridge keeps it, a step whose planes' line the adjacency put there loses it."""
+    from rooftrace.roof.faces import _line_misplaces
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 8, (4000, 2))
+    east = xy[:, 0] > 4
+    lab = east.astype(np.int64)
+    ends = np.array([[4.0, 0.0], [4.0, 8.0]])
+    # a gable ridge along x = 4: both planes meet there (z = 8 on the line)
+    ridge = np.array([[-0.5, 0, 1, -6.0], [0.5, 0, 1, -10.0]]) / np.hypot(0.5, 1)
+    assert not _line_misplaces(ends, 0, 1, +1, xy, lab, ridge, 1.0, 0.1)
+    # a slope rising to 7 m at x = 4 beside a flat roof at 8 m: a 1 m step, the extended planes cross at x = 6
+    step = np.array([[-0.5, 0, 1, -5.0], [0, 0, 1, -8.0]]) / [[np.hypot(0.5, 1)], [1.0]]
+    assert _line_misplaces(ends, 0, 1, +1, xy, lab, step, 1.0, 0.1)
