@@ -41,9 +41,7 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -63,29 +61,9 @@ from rooftrace.model import LODS, solid_errors
 from rooftrace.model.measure import roof_height_at
 from rooftrace.pipeline import points_by_building, run_pipeline
 from rooftrace.roof.planes import plane_height
+from val3dity import BUILD_HINT, validate
 
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
-
-
-def _val3dity(binary: str | None) -> str | None:
-    for candidate in (binary, shutil.which("val3dity"), "/opt/val3dity/bin/val3dity",
-                      str(DATA.parent / "tools" / "val3dity" / "bin" / "val3dity")):
-        if candidate and Path(candidate).is_file():
-            return candidate
-    return None
-
-
-def _val3dity_share(binary: str, path: Path) -> dict[str, float]:
-    """Share of valid solids per LoD in val3dity's report of a CityJSON file."""
-    report = path.with_suffix(".report.json")
-    subprocess.run([binary, str(path), "--report", str(report)], check=True, capture_output=True)
-    doc = json.loads(report.read_text())
-    valid: dict[str, list[bool]] = {}
-    for feature in doc.get("features", []):
-        for prim in feature.get("primitives", []):
-            lod = str(prim.get("lod", "?"))
-            valid.setdefault(lod, []).append(bool(prim.get("validity")))
-    return {lod: float(np.mean(v)) for lod, v in valid.items()}
 
 
 def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprints) -> list[dict]:
@@ -136,7 +114,7 @@ def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprint
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--val3dity", default=None, help="val3dity binary (default: searched)")
+    ap.add_argument("--val3dity", default=None, help="val3dity binary (default: benchmarks/val3dity.py's search)")
     ap.add_argument("--repeats", type=int, default=3, help="writes timed (best of)")
     ap.add_argument("--footprints", type=Path, default=None, help="footprints of the run (e.g. bgt_pand.sqlite)")
     args = ap.parse_args()
@@ -243,15 +221,15 @@ def main() -> None:
         print(f"write {len(many)} buildings: peak Python allocation {peaks[k]:.1f} MiB")
         rows.append({"method": "rooftrace", "metric": f"write_peak_mib_x{k}", "value": peaks[k], "unit": "MiB",
                      "target": None})
-    binary = _val3dity(args.val3dity)
-    if binary:
-        shares = _val3dity_share(binary, tmp / "delft.city.json")
-        for lod, share in sorted(shares.items()):
-            print(f"val3dity LoD {lod}: {share:.1%} valid")
-            rows.append({"method": "val3dity", "metric": f"valid_share_lod{lod.replace('.', '')}", "value": share,
-                         "unit": "", "target": ">= 0.98"})
+    report = validate(tmp / "delft.city.json", binary=args.val3dity)
+    if report is not None:
+        for lod, row in report["lod"].items():
+            print(f"val3dity LoD {lod}: {row['share']:.1%} valid ({row['valid']} of {row['solids']})")
+            rows.append({"method": "val3dity", "metric": f"valid_share_lod{lod.replace('.', '')}",
+                         "value": row["share"], "unit": "", "target": ">= 0.98" if lod == "2.2" else ">= 1.0"})
+        print("val3dity errors:", {f"{k} {report['error_names'].get(k, '')}": n for k, n in report["errors"].items()})
     else:
-        print("val3dity not found (../shared/tools/val3dity/build.sh builds it); own check only")
+        print(BUILD_HINT + "; own check only")
     shutil.rmtree(tmp, ignore_errors=True)
     print(record("models", "delft" if footprints is None else "delft_footprints", rows))
 

@@ -101,7 +101,7 @@ def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.n
     for reg, pid, (x0, y0, x1, y1) in zip(regions, ids, box):
         if pid < 0:
             continue
-        # only the points this region's plane is far from can be misplaced in it (a region has few)
+        # only points whose own plane this region's is far from can be misplaced in it: test just those
         cand = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
         a, b, c, d = planes[pid]
         cand = cand[np.abs(-(a * xy[cand, 0] + b * xy[cand, 1] + d) / c - own_z[cand]) > max_dz]
@@ -197,8 +197,7 @@ def partition_outline(
         A cell away from the lines takes the majority plane of its ``k``
         nearest points (ties to the nearest) rather than the nearest point's:
         smoother boundaries, but at a height step the majority moves the
-        boundary off the points (Delft: 5.6 % of the labelled points under
-        another plane's face, against 0.7 % nearest).
+        boundary off the points (see docs/design-notes.md, 3D models).
     max_dz : float or None
         Simplification may not put more labelled points under a face more
         than this (m) off their own plane than the raster does (the
