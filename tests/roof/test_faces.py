@@ -183,3 +183,21 @@ def test_a_line_across_a_step_is_not_trusted():
     # a slope rising to 7 m at x = 4 beside a flat roof at 8 m: a 1 m step, the extended planes cross at x = 6
     step = np.array([[-0.5, 0, 1, -5.0], [0, 0, 1, -8.0]]) / [[np.hypot(0.5, 1)], [1.0]]
     assert _line_misplaces(ends, 0, 1, +1, xy, lab, step, 1.0, 0.1)
+
+
+def test_close_face_vertices_are_merged_and_the_faces_still_tile():
+    """A face boundary with a 2 mm kink and a vertex 0.4 mm short of the outline: both gone, shared
+    vertices still shared, the outline's corners kept, the faces still tile it."""
+    from rooftrace.roof.faces import merge_close_vertices
+
+    outline = Polygon([(0, 0), (10, 0), (10, 6), (0, 6)])
+    line = [(5.0, 0.0), (5.0, 3.0), (5.002, 3.0), (5.002, 5.9996), (5.002, 6.0)]
+    left = Polygon([(0, 0), *line, (0, 6)])
+    right = Polygon([*line[::-1], (10, 0), (10, 6)])
+    faces = merge_close_vertices([left, right], outline, 0.01)
+    xy = np.unique(np.vstack([shapely.get_coordinates(f) for f in faces]), axis=0)
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    assert d[d > 0].min() > 0.01 and len(xy) == 7  # four corners, the line's two ends and its bend
+    assert all(f.is_valid for f in faces) and sum(f.area for f in faces) == pytest.approx(60.0)
+    assert shapely.union_all(faces).equals(outline)
+    assert {(0.0, 0.0), (10.0, 0.0), (10.0, 6.0), (0.0, 6.0)} <= set(map(tuple, xy))

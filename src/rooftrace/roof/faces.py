@@ -35,10 +35,11 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
+from rooftrace.graph import components
 from rooftrace.roof._candidates import _cell_choice, _cell_lines
 from rooftrace.roof.planes import plane_height
 
-__all__ = ["partition_outline", "snap_to_lines", "lift_to_plane", "step_edges"]
+__all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
 
 log = logging.getLogger(__name__)
 
@@ -302,6 +303,71 @@ def partition_outline(
                 pids.append(pid)
     polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
     return polys, pids
+
+
+def merge_close_vertices(polys: list, outline, eps: float) -> list:
+    """Face vertices moved onto a vertex within ``eps`` (m): no face edge that short, the outline's vertices kept.
+
+    Where a cell staircase meets the outline, or its steps are projected onto
+    a ridge line (:func:`snap_to_lines`), vertices come out a fraction of a
+    millimetre apart, which the models' vertex grid and validators (val3dity
+    snaps at 1 mm) turn into repeated points or hair-thin walls.  A vertex
+    within ``eps`` of the outline goes onto it; a cluster of close vertices
+    moves onto its outline vertex, else onto a vertex on the outline, else
+    onto its first vertex in coordinate order, so vertices shared by two
+    faces stay shared; the outline's own vertices never move.  A face the
+    moves would make invalid keeps its vertices (and its neighbours keep the
+    shared ones); if the faces would stop tiling the outline, they are
+    returned unchanged.
+    """
+    if eps <= 0 or not polys:
+        return polys
+    coords = [shapely.get_coordinates(p) for p in polys]
+    xy, inv = np.unique(np.vstack(coords), axis=0, return_inverse=True)
+    ring = shapely.boundary(outline)
+    off = shapely.distance(ring, shapely.points(xy))
+    # vertices a hair inside the outline go onto it (else the wall there is a hair long)
+    graze = (off > 0) & (off < eps)
+    pos = xy.copy()
+    if graze.any():
+        pos[graze] = shapely.get_coordinates(shapely.line_interpolate_point(
+            ring, shapely.line_locate_point(ring, shapely.points(xy[graze]))))
+    pairs = cKDTree(pos).query_pairs(eps, output_type="ndarray")
+    if not len(pairs) and not graze.any():
+        return polys
+    corners = shapely.get_coordinates(ring)
+    fixed = cKDTree(corners).query(xy)[0] == 0
+    label = components(len(xy), pairs.reshape(-1, 2))
+    # the target of each cluster: its outline vertex, else a vertex on the outline (cuts of a face boundary with
+    # it), else its first vertex; ties in coordinate order (xy is sorted)
+    order = np.lexsort((np.arange(len(xy)), off >= eps, ~fixed))
+    rank = np.empty(len(xy), dtype=np.int64)
+    rank[order] = np.arange(len(xy))
+    best = np.full(label.max() + 1, len(xy), dtype=np.int64)
+    np.minimum.at(best, label, rank)
+    target = np.where(fixed, np.arange(len(xy)), order[best[label]])  # the outline's own vertices stay
+    inv = inv.ravel()
+    starts = np.cumsum([0] + [len(c) for c in coords])
+    area = sum(p.area for p in polys)
+    held = np.zeros(len(xy), bool)
+    # a face the moves would make invalid keeps its vertices (and so do its neighbours, which share them)
+    for _ in range(8):
+        at = np.where(held[:, None], xy, pos)[np.where(held, np.arange(len(xy)), target)][inv]
+        try:
+            moved = [shapely.remove_repeated_points(shapely.transform(p, lambda _, a=at[starts[k]:starts[k + 1]]: a))
+                     for k, p in enumerate(polys)]
+        except shapely.errors.GEOSException:
+            break
+        bad = [k for k, p in enumerate(moved) if not (p.geom_type == "Polygon" and not p.is_empty and p.is_valid)]
+        if not bad:
+            if (abs(sum(p.area for p in moved) - area) <= 1e-6 * max(area, 1.0)
+                    and abs(shapely.union_all(moved).area - area) <= 1e-6 * max(area, 1.0)):
+                return moved
+            break
+        for k in bad:
+            held[inv[starts[k]:starts[k + 1]]] = True
+    log.debug("merging close face vertices undone (would break the tiling)")
+    return polys
 
 
 def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
