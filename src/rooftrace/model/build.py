@@ -207,8 +207,6 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
     except _FAILURES as exc:
         log.warning("part %d: roof faces not cut to the part (%s)", part_id, exc)
         cells = []
-    if cells:
-        kw["footprint"] = _with_face_corners(footprint, cells)
     if not cells:
         why["2.2"] = f"no roof faces ({roof_status})"
         if "1.2" in part.lods:
@@ -216,6 +214,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         else:
             why["1.3"] = why["1.2"]
         return part, why
+    kw["footprint"] = _with_face_corners(footprint, cells)
     try:
         levels = []
         for members in _levels(cells, options.level_step):

@@ -2,9 +2,9 @@
 
 A cell whose k nearest labelled points disagree takes the candidate with
 the fewest violations of the intersection lines near it, then (with
-``vote``) the most votes, then the nearest.  In numpy this went through (cells, k, k) arrays of
-candidate pairs, a third of the face partition on Delft; here one pass per
-cell does the integer bookkeeping.  The float work (distances of cells to
+``vote``) the most votes, then the nearest.  In numpy this went through
+(cells, k, k) arrays of candidate pairs, a third of the face partition on
+Delft; here one pass per cell does the integer bookkeeping.  The float work (distances of cells to
 lines, plane heights) stays in numpy, in :mod:`~rooftrace.roof.faces`.
 
 Private to :mod:`rooftrace.roof.faces`.
@@ -66,10 +66,11 @@ def _cell_choice(cand, segidx, ptr, line, near, sign, z, vote=True):  # pragma: 
     """Index (0..k-1) of the candidate each cell takes.
 
     Score, lowest wins (first on ties): violations x (k+1)² - votes x (k+1)
-    + rank (without ``vote``: violations x (k+1)² + rank), where a violation is a candidate pair across a line within the
-    tolerance (``near`` per entry of ``line``) whose heights ``z`` (R, k)
-    disagree with the line's convexity (``sign``: the lower plane across a
-    convex line, the higher across a concave one).
+    + rank (without ``vote``: violations x (k+1)² + rank), where a violation
+    is a candidate pair across a line within the tolerance (``near`` per
+    entry of ``line``) whose heights ``z`` (R, k) disagree with the line's
+    convexity (``sign``: the lower plane across a convex line, the higher
+    across a concave one).
     """
     n, k = cand.shape
     pos = np.full(_n_lines(segidx), -1, dtype=np.int64)
