@@ -134,13 +134,15 @@ def _line_misplaces(ends: np.ndarray, a: int, b: int, convex: int, P: np.ndarray
 
 
 def _regularised(regions: list, ids: list, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
-                 tolerance: float, max_dz: float):
+                 tolerance: float, floor: float, max_dz: float):
     """The regions simplified together at the largest tolerance (m) that misplaces no more labelled points.
 
-    Tolerances ``tolerance, tolerance / 2, ...`` down to a twentieth are
+    Tolerances ``tolerance, tolerance / 2, ...`` down to ``floor`` are
     tried; a misplaced point is one under a region whose plane is more than
     ``max_dz`` (m) off the point's own plane, counted against the raster
-    regions themselves (whose own misplacements are the cell size's).
+    regions themselves (whose own misplacements are the cell size's).  When
+    none passes, the regions are simplified at ``floor``: below a cell that
+    only straightens the raster's staircases, within the raster's own error.
     """
     geoms = np.array(regions, dtype=object)
     if tolerance <= 0 or not len(P):
@@ -149,12 +151,12 @@ def _regularised(regions: list, ids: list, P: np.ndarray, lab: np.ndarray, plane
     own_z = plane_height(planes[lab], P[:, :2])
     base = _misplaced(geoms, ids, P[:, :2], own_z, planes, max_dz)
     t = tolerance
-    while t >= tolerance / 20:
+    while t > floor:
         simplified = shapely.coverage_simplify(geoms, t, simplify_boundary=False)
         if _misplaced(simplified, ids, P[:, :2], own_z, planes, max_dz) <= base:
             return simplified
         t /= 2
-    return geoms
+    return shapely.coverage_simplify(geoms, floor, simplify_boundary=False) if floor > 0 else geoms
 
 
 def partition_outline(
@@ -202,7 +204,8 @@ def partition_outline(
     max_dz : float or None
         Simplification may not put more labelled points under a face more
         than this (m) off their own plane than the raster does (the
-        tolerance is halved until it does not), and a line whose rule puts
+        tolerance is halved until it does not, down to 0.75 cells, which only
+        straightens the raster's staircases), and a line whose rule puts
         more than 5 % of the points near it that far off is not used; None:
         every line, and simplify at ``simplify`` cells regardless.
 
@@ -291,7 +294,8 @@ def partition_outline(
         col = np.clip(((P[:, 0] - x0) / cell).astype(np.int64), 0, nx - 1)
         row = np.clip(((y1 - P[:, 1]) / cell).astype(np.int64), 0, ny - 1)
         near = mixed[row, col]
-        regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell, max_dz=max_dz)
+        regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell,
+                               floor=min(0.75, simplify) * cell, max_dz=max_dz)
     polys, pids = [], []
     for reg, pid in zip(regions, ids):
         if pid < 0:
