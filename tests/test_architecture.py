@@ -115,3 +115,68 @@ def test_the_library_never_imports_the_cli_typer_or_click():
 def test_no_import_cycles_among_modules():
     cycle = _cycle(_package_edges(_graph()))
     assert cycle is None, " -> ".join(cycle)
+
+
+def test_every_flag_of_run_is_an_option_of_the_library_and_back():
+    """``rooftrace run``'s flags and the library's options cannot drift apart.
+
+    Every flag is a scalar field of :class:`RunOptions` (``--no-planes``
+    sets ``planes``), a field of :class:`TileOptions`, a keyword of
+    :func:`run_tiled` / :func:`run_pipeline`, or an input/output of the
+    command; every scalar field of both options classes that a user sets per
+    run has a flag (the stage tables are the config file's).
+    """
+    import dataclasses
+    import inspect
+
+    import typer.main
+
+    from rooftrace.cli.main import app
+    from rooftrace.cli.options import flag_for
+    from rooftrace.config import SECTIONS, RunOptions
+    from rooftrace.pipeline import run_pipeline
+    from rooftrace.tiling import TileOptions, run_tiled
+
+    command = typer.main.get_command(app).commands["run"]
+    flags = {p.name: p for p in command.params}
+    run_fields = {f.name: f for f in dataclasses.fields(RunOptions)}
+    # the fields that are not a stage's options dataclass
+    scalar = {n for n, f in run_fields.items() if not dataclasses.is_dataclass(f.default_factory)}
+    tile_fields = {f.name for f in dataclasses.fields(TileOptions)}
+    keywords = set(inspect.signature(run_tiled).parameters) | set(inspect.signature(run_pipeline).parameters)
+    command_only = {"inputs", "outputs", "config", "json_", "overwrite", "quiet", "footprint_id"}
+    renamed = {"no_planes": "planes"}
+    for name, param in flags.items():
+        field = renamed.get(name, name)
+        assert field in scalar | tile_fields | keywords | command_only, f"flag of run {name!r} maps to no option"
+        if field in scalar | tile_fields and param.opts:
+            assert flag_for(name) in param.opts, (name, param.opts)  # library errors spell it so
+    # the stage options of a run come from the config's tables, each one a known section
+    assert all(name in [renamed.get(f, f) for f in flags] for name in scalar)
+    config_only = {"chunk_size", "sample_points"}  # [tiling] tuning, not per run
+    assert tile_fields - config_only <= set(flags), tile_fields - config_only - set(flags)
+    assert SECTIONS["tiling"] is TileOptions and SECTIONS["run"] is RunOptions
+
+
+def test_helpers_that_cross_modules_are_public():
+    """No module imports another's ``_private`` name, nor a ``_private`` module of another package.
+
+    A helper two modules share is part of the package's design: it gets a
+    public name in a module named by its role.  (A package's own
+    ``_kernels`` module stays private to that package.)
+    """
+    crossing = []
+    for path in PACKAGE.rglob("*.py"):
+        name = _module_name(path)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if not isinstance(node, ast.ImportFrom) or not (node.module or "").startswith("rooftrace"):
+                continue
+            private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+            if private and node.module != name:
+                crossing.append(f"{name}:{node.lineno} imports {', '.join(private)} from {node.module}")
+            parts = node.module.split(".")
+            for i, part in enumerate(parts):
+                if part.startswith("_") and not part.startswith("__") and ".".join(parts[:i]) != package:
+                    crossing.append(f"{name}:{node.lineno} imports the private module {node.module}")
+    assert not crossing, "\n".join(crossing)

@@ -16,9 +16,10 @@ import shapely
 
 from rooftrace.cli.main import main
 from rooftrace.errors import InputError
-from rooftrace.io.vector import read_layer
+from rooftrace.io.vector import Layer, read_layer
 from rooftrace.tiling import (
     TileOptions,
+    TileResult,
     merge_tiles,
     owned_buildings,
     sample_windows,
@@ -147,9 +148,9 @@ def test_split_refuses_non_las(tmp_path):
 
 
 def test_bad_tile_options_name_the_flag():
-    with pytest.raises(InputError, match="--tile-size"):
+    with pytest.raises(InputError, match="tile_size"):
         TileOptions(tile_size=-5)
-    with pytest.raises(InputError, match="--workers"):
+    with pytest.raises(InputError, match="workers must"):
         TileOptions(workers=0)
 
 
@@ -190,9 +191,9 @@ def test_only_a_side_where_the_data_goes_on_can_cut_a_building():
 def test_merge_numbers_buildings_by_their_lowest_point_whatever_the_tile_order():
     def tile(ids, keys, xs):
         polys = [shapely.box(x, 0, x + 1, 1) for x in xs]
-        layer = {"wkb": [shapely.to_wkb(p) for p in polys], "geometry_type": "Polygon",
-                 "attributes": {"building_id": ids, "area": [1.0] * len(ids)}}
-        return {"layers": {"roof_outlines": layer}, "buildings": {"id": ids, "key": keys}}
+        layer = Layer(polys, {"building_id": ids, "area": [1.0] * len(ids)}, "Polygon")
+        return TileResult("0_0", layers={"roof_outlines": layer}, building_ids=np.array(ids),
+                          building_keys=np.array(keys, float))
 
     a = tile([1, 2], [[5, 0, 0], [1, 0, 0]], [5, 1])
     b = tile([1], [[3, 0, 0]], [3])
@@ -327,6 +328,35 @@ def test_tiled_classified_points_equal_one_piece(block, one_piece, tiled):
     assert {"X", "Y", "Z", "intensity", "gps_time", "return_number"} <= set(kept)
     for name in kept:  # every input dimension, untouched
         np.testing.assert_array_equal(np.asarray(b[name]), np.asarray(src[name]), err_msg=name)
+
+
+def test_tiled_footprints_give_the_buildings_of_one_piece(block, one_piece, tmp_path):
+    """Footprints are split along the tiles as the points are: every footprint's building, its number and
+    its points' labels are those of the untiled run, a footprint over no data included."""
+    from rooftrace.io.vector import write_layers
+
+    outlines = read_layer(one_piece, "roof_outlines")
+    # the buildings' outlines drawn a little inside, as a cadastre draws walls under the eaves, and one
+    # footprint far from the data (status no_points, owned by the nearest tile)
+    polygons = [shapely.force_2d(g).buffer(-0.5, join_style="mitre") for g in outlines.geometries if g is not None]
+    x1, y1 = shapely.total_bounds(polygons)[2:]
+    polygons = [p for p in polygons if not p.is_empty] + [shapely.box(x1 + 200, y1 + 200, x1 + 210, y1 + 210)]
+    prints = tmp_path / "footprints.gpkg"
+    write_layers(prints, {"pand": Layer(polygons, {"identificatie": [f"p{i}" for i in range(len(polygons))]},
+                                        "Polygon")}, read_layer(one_piece, "roof_outlines").crs)
+    common = ["--config", str(block / "config.toml"), "--footprints", str(prints), "-q"]
+    a, b = tmp_path / "one.gpkg", tmp_path / "tiled.gpkg"
+    assert main(["run", str(block / "points.laz"), "-o", str(a), "--classified", str(tmp_path / "one.laz"),
+                 *common]) == 0
+    assert main(["run", str(block / "points.laz"), "-o", str(b), "--classified", str(tmp_path / "tiled.laz"),
+                 *common, *TILED]) == 0
+    assert_same_layers(a, b, tol=0.0)
+    fa, fb = read_layer(a, "roof_outlines"), read_layer(b, "roof_outlines")
+    assert fa.attributes["footprint_id"] == fb.attributes["footprint_id"] == [f"p{i}" for i in range(len(polygons))]
+    assert fb.attributes["footprint_status"][-1] == "no_points" and len(polygons) > 5
+    la, lb = laspy.read(tmp_path / "one.laz"), laspy.read(tmp_path / "tiled.laz")
+    np.testing.assert_array_equal(np.asarray(lb["building_id"]), np.asarray(la["building_id"]))
+    np.testing.assert_array_equal(np.asarray(lb.classification), np.asarray(la.classification))
 
 
 def test_tiled_classified_needs_one_point_format(block, tmp_path, capsys):

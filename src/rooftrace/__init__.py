@@ -7,6 +7,8 @@ its signal handlers before numpy and the stages load).
 ======================  =====================================================
 reading points          :func:`read_points` -> :class:`PointCloud`
 the whole method        :func:`run_pipeline` -> :class:`RunResult`
+... in tiles            :func:`run_tiled` -> :class:`TiledRunResult`
+options of a run        :class:`RunOptions`, :class:`TileOptions`
 building detection      :func:`detect_buildings`
 roof outlines           :func:`outline_buildings`
 roof planes and ridges  :func:`roof_structure`
@@ -39,6 +41,7 @@ __version__ = "0.1.0"
 _ENTRY_POINTS = {
     "read_points": "rooftrace.io.points",
     "run_pipeline": "rooftrace.pipeline",
+    "run_tiled": "rooftrace.tiling",
     "detect_buildings": "rooftrace.lidar.detect",
     "outline_buildings": "rooftrace.contour.outline",
     "roof_structure": "rooftrace.roof.structure",
@@ -53,6 +56,9 @@ _ENTRY_POINTS = {
 _TYPES = {
     "PointCloud": "rooftrace.cloud",
     "RunResult": "rooftrace.pipeline",
+    "RunOptions": "rooftrace.config",
+    "TileOptions": "rooftrace.tiling.split",
+    "TiledRunResult": "rooftrace.tiling",
     "Layer": "rooftrace.io.vector",
     "SceneOptions": "rooftrace.synth.scene",
 }

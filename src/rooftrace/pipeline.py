@@ -1,8 +1,8 @@
 """The method as a flowchart: detect → outline → roof planes and ridges → 3D models → (image refinement).
 
 Each step is one call into a stage package; this module only wires them,
-groups points per building and turns the results into the output layers of
-DESIGN.md (``roof_outlines``, ``ridges``, ``roof_faces``).  It does no I/O:
+groups points per building and turns the results into the output layers
+(``roof_outlines``, ``ridges``, ``roof_faces``, ...).  It does no I/O:
 the CLI reads the inputs and writes what :func:`run_pipeline` returns.
 """
 
@@ -31,10 +31,10 @@ if TYPE_CHECKING:
     from rooftrace.lidar.detect import DerivedParams, Detection
     from rooftrace.model import BuildingModel, ModelOptions
     from rooftrace.parts import PartOptions
-    from rooftrace.refine import RefineOptions, RefineResult
+    from rooftrace.refine import LidarRoofs, RefineResult
     from rooftrace.roof import RoofOptions, RoofStructure
 
-__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "refine_layers"]
+__all__ = ["RunResult", "run_pipeline", "points_by_building", "building_layers", "lidar_roofs", "refined_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,15 @@ class RunResult:
     footprints: Footprints | None = None
     assignment: FootprintAssignment | None = None
     parts: list = field(default_factory=list)
+
+    def point_labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Class and building id of every point, in input order, as the layers number the buildings.
+
+        With footprints the building of a point is its footprint's (the
+        outlines were made from those points); else the detection's.
+        """
+        ids = self.building_id if self.footprints is not None else self.detection.building_id
+        return self.detection.classification, ids
 
     def summary(self) -> dict[str, Any]:
         """A JSON-serialisable summary for ``--json``."""
@@ -216,67 +225,36 @@ def _building_models(cloud: PointCloud, hag: np.ndarray, members: dict[int, np.n
     return models
 
 
-def refine_layers(layers: dict[str, Layer], planes: dict[int, np.ndarray], points_xyz: np.ndarray | None,
-                  image: np.ndarray, camera: FrameCamera | OrthoCamera, *, options: RefineOptions | None = None,
-                  config: dict | None = None, seed: int = 0) -> tuple[RefineResult, dict[str, Layer]]:
-    """Image refinement of the LiDAR layers of a run, every building in one pass.
-
-    The untiled run and the merge of a tiled run both call this on their
-    LiDAR-only layers, so that they refine the same inputs the same way:
-    the exterior-orientation correction (``[refine] orientation``) uses the
-    line matches of all buildings jointly, and the genetic algorithm of
-    building ``i`` (in building-id order) is seeded with ``seed + i``.
+def lidar_roofs(outlines: list[RoofOutline], structures: list[RoofStructure]) -> LidarRoofs:
+    """What the image refinement takes of the LiDAR stages' results: outlines, ridges and roof planes.
 
     Parameters
     ----------
-    layers : dict of str to Layer
-        ``roof_outlines`` (one feature per building, in building-id order,
-        failed ones without geometry), ``ridges`` (with ``building_id`` and
-        ``kind``) and ``roof_faces``, as :func:`building_layers` makes them.
-    planes : dict of int to ndarray of shape (K, 4)
-        Roof planes ``a X + b Y + c Z + d = 0`` per building id; a building
-        without an entry is projected through horizontal planes.
-    points_xyz : ndarray of shape (N, 3), float64, or None
-        LiDAR points of any class (m), in input order: at least every point
-        within ``[refine] context`` of each building (the refinement's
-        ground height, LiDAR precision and terrain-line filter use them).
-    image : ndarray of shape (H, W)
-        Grey image in [0, 1].
-    camera : FrameCamera or OrthoCamera
-        Orientation of ``image``, same CRS as the layers.
-    options : RefineOptions, optional
-        The refinement's options; by default from ``config``.
-    config : dict, optional
-        Parsed TOML config (``[refine]`` and its nested tables), when
-        ``options`` is not given.
-    seed : int, default 0
-        Seed of the genetic algorithm.
+    outlines : list of RoofOutline
+        One per building, in building-id order (failed ones without polygon).
+    structures : list of RoofStructure
+        Roof planes and ridges per building.
 
     Returns
     -------
-    refined : RefineResult
-    layers : dict of str to Layer
-        ``roof_outlines`` with the refined geometries and the refinement's
-        attributes added, ``ridges`` refined (attributes ``building_id``,
-        ``kind``, ``refined``), ``roof_faces`` unchanged.
+    LidarRoofs
     """
-    from rooftrace.refine import RefineOptions, refine_buildings
+    from rooftrace.refine import LidarRoofs
 
-    outlines, ridges = layers["roof_outlines"], layers["ridges"]
-    ids = [int(b) for b in outlines.attributes["building_id"]]
-    refined = refine_buildings(
-        list(outlines.geometries), list(ridges.geometries), image, camera,
-        points_xyz=points_xyz,
-        planes=[planes.get(b) for b in ids],
-        building_ids=ids,
-        ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
-        ridge_kinds=list(ridges.attributes["kind"]),
-        options=options if options is not None else RefineOptions.from_config(config), seed=seed,
-    )
-    return refined, _with_refinement(layers, refined)
+    ridges = [(g, int(st.building_id), k) for st in structures for g, k in zip(st.ridges, st.ridge_kind)]
+    return LidarRoofs(building_ids=[int(o.building_id) for o in outlines], outlines=[o.polygon for o in outlines],
+                      ridges=[g for g, _, _ in ridges], ridge_building_ids=[b for _, b, _ in ridges],
+                      ridge_kinds=[k for _, _, k in ridges],
+                      planes={int(s.building_id): s.planes for s in structures})
 
 
-def _with_refinement(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
+def refined_layers(layers: dict[str, Layer], refined: RefineResult) -> dict[str, Layer]:
+    """The layers of a run with the image refinement's geometries and attributes.
+
+    ``roof_outlines`` gets the refined geometries and the refinement's
+    attributes, ``ridges`` are replaced by the refined ridges (attributes
+    ``building_id``, ``kind``, ``refined``); the other layers stay.
+    """
     outlines = layers["roof_outlines"]
     return {**layers,
             "roof_outlines": Layer(list(refined.outlines), {**outlines.attributes, **refined.attributes}, "PolygonZ"),
@@ -287,7 +265,7 @@ def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure]
                     refined: RefineResult | None = None, models: list[BuildingModel] | None = None, *,
                     parts: Layer | None = None, footprints: Footprints | None = None,
                     assignment: FootprintAssignment | None = None) -> dict[str, Layer]:
-    """The output layers of DESIGN.md from the stage results, plus ``building_parts``.
+    """The output layers (docs/models.md) from the stage results, plus ``building_parts``.
 
     The 3D ``lodXX`` layers come when ``models`` is given.
 
@@ -313,7 +291,7 @@ def building_layers(outlines: list[RoofOutline], structures: list[RoofStructure]
             layer = layers[name]
             ids = [footprints.ids[int(b) - 1] for b in layer.attributes["building_id"]]
             layers[name] = Layer(layer.geometries, {**layer.attributes, "footprint_id": ids}, layer.geometry_type)
-    return layers if refined is None else _with_refinement(layers, refined)
+    return layers if refined is None else refined_layers(layers, refined)
 
 
 def run_pipeline(
@@ -395,6 +373,7 @@ def run_pipeline(
     from rooftrace.footprints import assign_footprints, footprint_outlines
     from rooftrace.lidar.detect import detect_buildings
     from rooftrace.parts import parts_layer
+    from rooftrace.refine import refine_roofs
 
     if options is None:
         options = RunOptions.from_config(config, alpha=alpha, planes=planes)
@@ -445,15 +424,15 @@ def run_pipeline(
         timings["models"] = time.perf_counter() - t0
 
     refined = None
-    layers = building_layers(outlines, structures, models=building_models, parts=parts_layer(parts, {
-        p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
-        footprints=footprints, assignment=assignment)
     if image is not None and camera is not None and outlines:
         t0 = time.perf_counter()
         with reporter.stage("image refinement", total=None):
-            refined, layers = refine_layers(layers, {s.building_id: s.planes for s in structures}, cloud.xyz,
-                                            image, camera, options=options.refine, seed=seed)
+            refined = refine_roofs(lidar_roofs(outlines, structures), image, camera, points_xyz=cloud.xyz,
+                                   options=options.refine, seed=seed)
         timings["refine"] = time.perf_counter() - t0
+    layers = building_layers(outlines, structures, refined, models=building_models, parts=parts_layer(parts, {
+        p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
+        footprints=footprints, assignment=assignment)
 
     return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [],
                      building_id=building_id, footprints=footprints, assignment=assignment, parts=parts)

@@ -10,7 +10,7 @@ import shapely
 from shapely import Polygon, box
 from shapely.affinity import translate
 
-from rooftrace.evaluate._geometry import _closest_on_segments
+from rooftrace.evaluate.geometry import closest_on_segments
 from rooftrace.evaluate.metrics import (
     area_scores,
     hausdorff,
@@ -184,7 +184,7 @@ _STEP = [(0, 0, 3), (4, 0, 3), (4, 0, 8), (10, 0, 8), (10, 5, 8), (4, 5, 8), (4,
 def _first_segment_residuals(ref, ext):
     """The choice before the step rule: z on the first plan-closest segment."""
     verts = ring_vertices(ref)
-    return _closest_on_segments(verts, *ring_segments(ext), 2) - verts
+    return closest_on_segments(verts, *ring_segments(ext), 2) - verts
 
 
 def test_vertical_step_takes_the_height_of_its_own_side():

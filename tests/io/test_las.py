@@ -79,7 +79,7 @@ def test_refuses_overwrite_and_writes_atomically(tmp_path):
     out = tmp_path / "out.laz"
     write_las(out, cloud)
     before = out.read_bytes()
-    with pytest.raises(OutputExistsError, match="--overwrite"):
+    with pytest.raises(OutputExistsError, match="pass overwrite"):
         write_las(out, cloud)
     assert out.read_bytes() == before
     write_las(out, cloud, overwrite=True)

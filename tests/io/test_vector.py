@@ -40,7 +40,7 @@ def test_empty_layers_keep_their_schema_and_existing_files_need_overwrite(tmp_pa
     layer = read_layer(path, "roof_outlines")
     assert len(layer) == 0 and set(layer.attributes) == {"building_id", "status"}
     before = path.read_bytes()
-    with pytest.raises(OutputExistsError, match="--overwrite"):
+    with pytest.raises(OutputExistsError, match="pass overwrite"):
         write_layers(path, {"roof_outlines": Layer([ROOF], {}, "PolygonZ")}, RD)
     assert path.read_bytes() == before
     write_layers(path, {"roof_outlines": Layer([ROOF], {}, "PolygonZ")}, RD, overwrite=True)

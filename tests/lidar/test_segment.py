@@ -1,7 +1,14 @@
 import numpy as np
 import pytest
 
-from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching, order_labels, region_growing
+from rooftrace.lidar.segment import (
+    SegmentOptions,
+    link_pairs,
+    merge_touching,
+    order_labels,
+    region_growing,
+    sector_pairs,
+)
 
 
 def _roof(x0, y0, w, d, z, step=0.4, slope=0.0):
@@ -84,6 +91,8 @@ def test_options_are_checked():
     with pytest.raises(ValueError, match="max_normal_angle"):
         SegmentOptions(max_normal_angle=0)
     assert SegmentOptions().max_normal_angle is None  # the thesis' linking by default
+    with pytest.raises(ValueError, match="link_sectors"):
+        SegmentOptions(link_sectors=2)
 
 
 
@@ -113,3 +122,29 @@ def test_join_strips_joins_a_row_from_beside_not_from_below():
     got = join_strips(labels, pairs, z, strips, members, max_drop=1.2)
     assert got.tolist() == [True, True, True, False]
     assert members.tolist() == [True, False, False, False]  # not changed in place
+
+
+def test_sector_pairs_cross_a_wide_line_gap_but_not_ground():
+    # roof lines 2.5 m apart (points 0.25 m along them), then ground, then a crown line
+    x = np.arange(0.0, 6.0, 0.25)
+    roof = [np.column_stack([x, np.full_like(x, y)]) for y in (0.0, 2.5)]
+    ground = np.column_stack([x, np.full_like(x, 3.5)])
+    crown = np.column_stack([x, np.full_like(x, 4.5)])
+    xy = np.vstack(roof + [ground, crown])
+    line = np.repeat(np.arange(4), len(x))
+    sources = np.flatnonzero(line != 2)
+    pairs = sector_pairs(xy, sources, 3.0)
+    kinds = {tuple(sorted((int(line[sources[i]]), int(line[sources[j]])))) for i, j in pairs}
+    assert kinds == {(0, 0), (0, 1), (1, 1), (3, 3)}
+    assert (pairs[:, 0] < pairs[:, 1]).all()
+    # a radius wide enough for that gap links the roof to the crown over the ground
+    wide = link_pairs(xy[sources], 2.5)
+    assert (1, 3) in {tuple(sorted((int(line[sources[i]]), int(line[sources[j]])))) for i, j in wide}
+    # the long links need coherent normals: a roof line tilted 60 deg from the other is not linked to it
+    normals = np.tile([0.0, 0.0, 1.0], (len(sources), 1))
+    normals[line[sources] == 1] = [0.0, np.sin(np.radians(60)), np.cos(np.radians(60))]
+    tilted = sector_pairs(xy, sources, 3.0, normals=normals)
+    assert {tuple(sorted((int(line[sources[i]]), int(line[sources[j]])))) for i, j in tilted} == {(0, 0), (1, 1), (3, 3)}
+    # nothing within the limit: no pairs across the gap
+    short = sector_pairs(xy, sources, 2.0)
+    assert {tuple(sorted((int(line[sources[i]]), int(line[sources[j]])))) for i, j in short} == {(0, 0), (1, 1), (3, 3)}

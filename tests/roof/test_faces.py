@@ -113,7 +113,7 @@ def test_outline_away_from_points_gives_no_faces():
 def test_cell_choice_equals_the_pairwise_vote():
     """The compiled candidate choice of partition_outline equals the (cells, k, k)
     numpy form it replaced: fewest line violations, then most votes, then nearest."""
-    from rooftrace.roof._candidates import _cell_choice, _cell_lines
+    from rooftrace.roof.face_kernels import cell_choice, cell_lines
 
     rng = np.random.default_rng(4)
     K, k, n = 9, 8, 3000
@@ -124,7 +124,7 @@ def test_cell_choice_equals_the_pairwise_vote():
     cm = rng.integers(0, K, (n, k)).astype(np.int64)
     heights = rng.normal(size=(n, K))
     z = np.take_along_axis(heights, cm, axis=1)  # one height per cell and plane, as plane_height gives
-    ptr, line = _cell_lines(cm, segidx)
+    ptr, line = cell_lines(cm, segidx)
     near_cell_line = rng.random((n, 6)) < 0.6
     near = near_cell_line[np.repeat(np.arange(n), np.diff(ptr)), line]
 
@@ -139,9 +139,9 @@ def test_cell_choice_equals_the_pairwise_vote():
     viol = np.zeros(cm.shape, dtype=np.int64)
     np.add.at(viol, (m[wrong], i[wrong]), 1)
     score = viol * (k + 1) ** 2 - votes * (k + 1) + np.arange(k)
-    assert np.array_equal(_cell_choice(cm, segidx, ptr, line, near, sign, z), np.argmin(score, axis=1))
+    assert np.array_equal(cell_choice(cm, segidx, ptr, line, near, sign, z), np.argmin(score, axis=1))
     nearest = viol * (k + 1) ** 2 + np.arange(k)  # without the vote: fewest violations, then the nearest
-    assert np.array_equal(_cell_choice(cm, segidx, ptr, line, near, sign, z, False), np.argmin(nearest, axis=1))
+    assert np.array_equal(cell_choice(cm, segidx, ptr, line, near, sign, z, False), np.argmin(nearest, axis=1))
 
 
 def test_labelled_points_lie_under_their_own_plane_at_steps():

@@ -12,6 +12,7 @@ import shapely
 
 from rooftrace.cli.main import main
 from rooftrace.io.vector import read_layer
+from rooftrace.tiling import TileResult
 from rooftrace.tiling.image import cut_neighbourhoods, image_fingerprint, join_neighbourhoods, neighbourhood_points
 
 LAYERS = ("roof_outlines", "ridges", "roof_faces")
@@ -151,6 +152,7 @@ def test_bad_image_input_fails_before_any_tile_work(scene, tmp_path, capsys, mon
 
 def test_resume_refuses_another_image_or_camera(scene, untiled, tmp_path, capsys, monkeypatch):
     import rooftrace.tiling
+    from rooftrace.config import RunOptions
     from rooftrace.tiling import TileOptions, run_tiled
 
     class Killed(Exception):
@@ -165,8 +167,9 @@ def test_resume_refuses_another_image_or_camera(scene, untiled, tmp_path, capsys
     with monkeypatch.context() as m:  # a run stopped after the split and the parameters
         m.setattr(rooftrace.tiling, "_execute", killed)
         with pytest.raises(Killed):
-            run_tiled([scene / "points.laz"], out, TileOptions(tile_size=30.0, buffer=15.0),
-                      config={"outliers": {"cell": 15.0}}, image=scene / "image.tif", camera=camera)
+            run_tiled([scene / "points.laz"], RunOptions.from_config({"outliers": {"cell": 15.0}}),
+                      TileOptions(tile_size=30.0, buffer=15.0), run_dir=Path(str(out) + ".parts"),
+                      image=scene / "image.tif", camera=camera)
     assert (Path(str(out) + ".parts") / "run.json").exists()
 
     other = tmp_path / "other.tif"
@@ -204,7 +207,7 @@ def test_neighbourhoods_of_tiles_join_into_the_points_of_the_whole_cloud(rng):
         sel = rng.permutation(np.flatnonzero((xyz[:, 0] >= lo) & (xyz[:, 0] < hi)))
         pts, discs = neighbourhood_points(xyz[sel], gidx[sel], [square, None], context=10.0)
         assert np.all(np.diff(pts["gidx"]) > 0)
-        parts.append({"refine_points": pts})
+        parts.append(TileResult("0_0", refine_points=pts))
     np.testing.assert_allclose(discs, [[45, 45, np.hypot(10, 10) / 2 + 10]])
     joined = join_neighbourhoods(parts)
     np.testing.assert_array_equal(joined, join_neighbourhoods(parts[::-1]))  # whatever the tile order
@@ -212,7 +215,7 @@ def test_neighbourhoods_of_tiles_join_into_the_points_of_the_whole_cloud(rng):
     d = np.hypot(xyz[:, 0] - 45, xyz[:, 1] - 45)
     inside = joined[np.hypot(joined[:, 0] - 45, joined[:, 1] - 45) <= discs[0, 2]]
     np.testing.assert_array_equal(inside, xyz[d <= discs[0, 2]])
-    assert join_neighbourhoods([{}, {"refine_points": {"gidx": np.zeros(0)}}]) is None
+    assert join_neighbourhoods([TileResult("0_0"), TileResult("0_1", refine_points={"gidx": np.zeros(0)})]) is None
 
 
 def test_a_neighbourhood_past_the_buffer_is_cut_only_where_the_data_goes_on():

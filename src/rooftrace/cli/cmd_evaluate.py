@@ -224,7 +224,7 @@ def evaluate_cmd(
         raise InputError(f"{output} is a file; -o takes a folder")
     metrics_path = output / "metrics.json"
     if metrics_path.exists() and not overwrite:
-        raise OutputExistsError(f"{metrics_path} exists; pass --overwrite to replace the evaluation in {output}")
+        raise OutputExistsError(f"{metrics_path} exists; pass {{overwrite}} to replace the evaluation in {output}", "overwrite")
 
     ext, ext_ids, ext_crs, ext_layer = _read_polygons(extracted, layer, "extracted outlines", crs)
     ref, ref_ids, ref_crs, ref_layer = _read_polygons(reference, reference_layer, "reference outlines", crs)

@@ -1,4 +1,4 @@
-"""``rooftrace refine``: sharpen existing 3D roof outlines and ridges with an aerial image (seed 000)."""
+"""``rooftrace refine``: sharpen existing 3D roof outlines and ridges with an aerial image (Marcato & Dal Poz)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Reads the interior orientation (and a starting exterior orientation) from
 ``--camera-in``, the GCPs from a CSV with the columns ``id,X,Y,Z,col,row``
-(DESIGN.md), solves the space resection and writes the oriented
+(docs/image.md), solves the space resection and writes the oriented
 ``camera.json`` with its 6 x 6 exterior covariance.
 """
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import typer
 
 from rooftrace.cli import options as opt
@@ -55,7 +57,7 @@ def run(
     from rooftrace.config import RunOptions, load_config
     from rooftrace.contour.buildings import warn_failed_outlines
     from rooftrace.errors import InputError
-    from rooftrace.io.atomic import check_output, commit_together
+    from rooftrace.io.atomic import check_output
     from rooftrace.io.checks import (
         check_camera_has_image,
         check_image_covers,
@@ -64,9 +66,8 @@ def run(
         check_same_crs,
         require_metric_crs,
     )
-    from rooftrace.io.models import output_format, write_models
+    from rooftrace.io.models import output_format
     from rooftrace.io.points import read_points
-    from rooftrace.io.vector import write_layers
     from rooftrace.options import make_options
     from rooftrace.pipeline import run_pipeline
     from rooftrace.tiling import TileOptions
@@ -105,29 +106,39 @@ def run(
         tiled = True
     # an input whose headers announce no points fits in memory whatever the options: the untiled
     # path writes empty layers and a warning (an empty tile of a batch is data, not a mistake)
-    if tiled and announced != 0 and footprints is not None:
-        raise InputError("--footprints runs untiled for now; drop --tile-size/--workers/--scheduler/--resume, "
-                         "or cut the footprints and the cloud into blocks that fit in memory")
+    where = ", ".join(map(str, inputs))
     if tiled and announced != 0:
+        from rooftrace.io.points import parse_crs
         from rooftrace.tiling import run_tiled
+        from rooftrace.tiling.split import scan_headers
 
+        prints = None
+        if footprints is not None:  # over the headers' box: the tiled run reads no point before the tiles
+            head = scan_headers(inputs)
+            b = head["bounds"]
+            prints = _read_footprints(footprints, footprint_id, parse_crs(crs) if crs else head["crs"][0],
+                                      np.array([[b[0], b[1], 0.0], [b[2], b[3], 0.0]]), where)
+
+        first = gpkg if gpkg is not None else model_files[0]
+        run_dir = Path(str(first) + ".parts")  # the tiles and their results, kept for --resume until written
         reporter = reporter_for(quiet)
         try:
-            summary = run_tiled(inputs, gpkg, tile_options, crs=crs, config=cfg, alpha=run_options.alpha,
-                                planes=run_options.planes, image=image, camera=camera, seed=seed,
-                                overwrite=overwrite, reporter=reporter, classified=classified,
-                                model_outputs=model_files)
+            result = run_tiled(inputs, run_options, tile_options, run_dir=run_dir, crs=crs, image=image,
+                               camera=camera, seed=seed, reporter=reporter, classified=classified is not None,
+                               footprints=prints)
         finally:
             reporter.close()
-        if not summary.get("buildings"):
-            log.warning("%s: no buildings found; %s %s empty", ", ".join(map(str, inputs)),
-                        ", ".join(map(str, outputs)), "is" if len(outputs) == 1 else "are")
+        _write_outputs(result, gpkg, model_files, classified, result.crs, overwrite, inputs=inputs)
+        shutil.rmtree(run_dir, ignore_errors=True)
+        summary = {"output": str(first), **result.summary()}
+        if not summary["buildings"]:
+            log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
+                        "is" if len(outputs) == 1 else "are")
         if json_:
             emit_json(summary)
         return
 
     cloud = read_points(inputs, crs, require_points=False)
-    where = ", ".join(map(str, inputs))
     require_metric_crs(cloud.crs, where, cloud.xyz[:, :2])
     check_points(cloud.xyz, where)
     grey = cam = None
@@ -143,11 +154,7 @@ def run(
 
     prints = None
     if footprints is not None:
-        from rooftrace.io.checks import check_footprints_overlap
-        from rooftrace.io.footprints import read_footprints
-
-        prints = read_footprints(footprints, cloud.crs, id_field=footprint_id)
-        check_footprints_overlap(prints, cloud.xyz, str(footprints), where)
+        prints = _read_footprints(footprints, footprint_id, cloud.crs, cloud.xyz, where)
 
     if len(cloud) == 0:
         _write_empty(gpkg, model_files, classified, cloud, overwrite, json_, where)
@@ -158,18 +165,7 @@ def run(
                               footprints=prints)
     finally:
         reporter.close()
-    with commit_together():  # every output new, or all as they were
-        if model_files:
-            write_models(model_files, result.models, cloud.crs, overwrite=overwrite)
-        if gpkg is not None:
-            write_layers(gpkg, result.layers, cloud.crs, overwrite=overwrite)
-        if classified is not None:
-            from rooftrace.io.las import write_las
-
-            # with footprints, the footprint building of each point (the ids of the layers)
-            ids = result.building_id if result.footprints is not None else result.detection.building_id
-            write_las(classified, cloud, classification=result.detection.classification, building_id=ids,
-                      overwrite=overwrite)
+    _write_outputs(result, gpkg, model_files, classified, cloud.crs, overwrite, cloud=cloud)
     summary = {"output": str(outputs[0]), "outputs": [str(o) for o in outputs], **result.summary()}
     if not result.outlines:
         log.warning("%s: no buildings found; %s %s empty", where, ", ".join(map(str, outputs)),
@@ -181,6 +177,41 @@ def run(
     else:
         log.info("%d buildings, %d ridges, %d roof faces, %d 3D models -> %s", summary["buildings"], summary["ridges"],
                  summary["roof_faces"], len(result.models), ", ".join(map(str, outputs)))
+
+
+def _read_footprints(path: Path, id_field: str | None, crs, xyz: np.ndarray, where: str):
+    """The footprints in the points' CRS, refused when none lies over the points' box."""
+    from rooftrace.io.checks import check_footprints_overlap
+    from rooftrace.io.footprints import read_footprints
+
+    prints = read_footprints(path, crs, id_field=id_field)
+    check_footprints_overlap(prints, xyz, str(path), where)
+    return prints
+
+
+def _write_outputs(result, gpkg: Path | None, model_files: list[Path], classified: Path | None, crs,
+                   overwrite: bool, *, cloud=None, inputs: list[Path] | None = None) -> None:
+    """Write a run's outputs, every one new or all as they were (:func:`rooftrace.io.atomic.commit_together`).
+
+    The classified points come from ``cloud`` (an untiled run holds it) or
+    are streamed again from the ``inputs`` (a tiled run does not).
+    """
+    from rooftrace.io.atomic import commit_together
+    from rooftrace.io.las import write_las, write_las_labels
+    from rooftrace.io.models import write_models
+    from rooftrace.io.vector import write_layers
+
+    with commit_together():
+        if model_files:
+            write_models(model_files, result.models, crs, overwrite=overwrite)
+        if gpkg is not None:
+            write_layers(gpkg, result.layers, crs, overwrite=overwrite)
+        if classified is not None:
+            classes, building_id = result.point_labels()
+            if cloud is not None:
+                write_las(classified, cloud, classification=classes, building_id=building_id, overwrite=overwrite)
+            else:
+                write_las_labels(inputs, classified, classes, building_id, crs=crs, overwrite=overwrite)
 
 
 def _write_empty(gpkg, model_files, classified, cloud, overwrite: bool, json_: bool, where: str) -> None:

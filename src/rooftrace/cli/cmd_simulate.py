@@ -66,7 +66,7 @@ def simulate(
     if out.is_dir() and not overwrite:
         clash = [n for n in SCENE_FILES.values() if (out / n).exists()]
         if clash:
-            raise OutputExistsError(f"{out} already holds {', '.join(clash)}; pass --overwrite to replace")
+            raise OutputExistsError(f"{out} already holds {', '.join(clash)}; pass {{overwrite}} to replace", "overwrite")
     reporter = reporter_for(quiet or json_)
     try:
         with reporter.stage("simulate"):

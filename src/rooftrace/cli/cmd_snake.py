@@ -1,4 +1,4 @@
-"""``rooftrace snake``: semi-automatic 3D roof outline from seed points (DESIGN.md stage 10, seed 004)."""
+"""``rooftrace snake``: semi-automatic 3D roof outline from seed points (Dal Poz & Fazan)."""
 
 from __future__ import annotations
 

@@ -33,7 +33,8 @@ from rooftrace.cli import (
 )
 from rooftrace.cli.app import STATE, app
 from rooftrace.cli.interrupt import ignore_from_now, interrupt_handlers
-from rooftrace.errors import InputError
+from rooftrace.cli.options import flag_for
+from rooftrace.errors import InputError, OptionError
 
 __all__ = ["main"]
 
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         _error(exc.format_message())
         code = 2
     except InputError as exc:
-        _error(str(exc))
+        _error(exc.render(flag_for) if isinstance(exc, OptionError) else str(exc))
         code = 2
     except KeyboardInterrupt:
         _error("interrupted")

@@ -46,3 +46,12 @@ def _alpha_strategy(value: str | None) -> str | None:
 
 Alpha = Annotated[str | None, typer.Option(
     "--alpha", callback=_alpha_strategy, help="Alpha-shape strategy: global (S1), building (S2) or point (S3).")]
+
+
+def flag_for(option: str) -> str:
+    """The command-line flag of a library option (``tile_size`` -> ``--tile-size``).
+
+    Library errors name options by field (:class:`rooftrace.errors.OptionError`);
+    every flag is the field's name in kebab case, so one rule spells them all.
+    """
+    return "--" + option.replace("_", "-")

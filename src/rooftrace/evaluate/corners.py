@@ -39,7 +39,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from rooftrace.evaluate._geometry import _polygonal
+from rooftrace.evaluate.geometry import polygonal
 
 __all__ = ["outline_corners", "match_corners", "COLLINEAR_TOLERANCE", "CURVE_TURN"]
 
@@ -156,7 +156,7 @@ def outline_corners(geom, *, collinear_tolerance: float = COLLINEAR_TOLERANCE,
         raise ValueError(f"collinear_tolerance must be >= 0, not {collinear_tolerance}")
     if not 0 <= curve_turn < 180:
         raise ValueError(f"curve_turn must be in [0, 180) degrees, not {curve_turn}")
-    geom = _polygonal(geom, "geom")
+    geom = polygonal(geom, "geom")
     if geom is None:
         return np.empty((0, 2))
     rings = shapely.get_rings(shapely.get_parts(geom))

@@ -13,7 +13,7 @@ Conventions shared by every function:
 * a ``None`` or empty geometry gives NaN (shapely's convention), never an error.
 
 Rings, segments and the closest-point search live in
-:mod:`rooftrace.evaluate._geometry`; what a corner is, in
+:mod:`rooftrace.evaluate.geometry`; what a corner is, in
 :mod:`rooftrace.evaluate.corners`.
 """
 
@@ -27,8 +27,8 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from rooftrace.evaluate._geometry import _closest_on_segments, _polygonal, ring_segments, ring_vertices
 from rooftrace.evaluate.corners import COLLINEAR_TOLERANCE, CURVE_TURN, match_corners, outline_corners
+from rooftrace.evaluate.geometry import closest_on_segments, polygonal, ring_segments, ring_vertices
 
 __all__ = [
     "polis",
@@ -52,7 +52,7 @@ def _directed_mean(a: BaseGeometry, b: BaseGeometry, dim: int) -> float:
     if dim == 2:
         return float(shapely.distance(shapely.points(verts[:, :2]), b.boundary).mean())
     p0, p1 = ring_segments(b)
-    foot = _closest_on_segments(verts, p0, p1, 3)
+    foot = closest_on_segments(verts, p0, p1, 3)
     return float(np.linalg.norm(verts - foot, axis=1).mean())
 
 
@@ -103,7 +103,7 @@ def polis(a, b, *, dim: int = 2) -> float:
     1.0
     """
     dim = _check_dim(dim)
-    a, b = _polygonal(a, "a"), _polygonal(b, "b")
+    a, b = polygonal(a, "a"), polygonal(b, "b")
     if a is None or b is None:
         return math.nan
     if dim == 3 and not (shapely.has_z(a) and shapely.has_z(b)):
@@ -136,7 +136,7 @@ def hausdorff(a, b, *, densify: float | None = None) -> float:
     >>> hausdorff(box(0, 0, 10, 10), box(2, 0, 12, 10))
     2.0
     """
-    a, b = _polygonal(a, "a"), _polygonal(b, "b")
+    a, b = polygonal(a, "a"), polygonal(b, "b")
     if a is None or b is None:
         return math.nan
     if densify is None:
@@ -193,12 +193,12 @@ def vertex_residuals(reference, extracted, *, step_tolerance: float = 0.005) -> 
         raise TypeError(f"step_tolerance must be a number, not {step_tolerance!r}")
     if not step_tolerance >= 0:
         raise ValueError(f"step_tolerance must be >= 0, not {step_tolerance}")
-    ref, ext = _polygonal(reference, "reference"), _polygonal(extracted, "extracted")
+    ref, ext = polygonal(reference, "reference"), polygonal(extracted, "extracted")
     if ref is None or ext is None:
         return np.empty((0, 3))
     verts = ring_vertices(ref)
     p0, p1 = ring_segments(ext)
-    return _closest_on_segments(verts, p0, p1, 2, z_tie=float(step_tolerance)) - verts
+    return closest_on_segments(verts, p0, p1, 2, z_tie=float(step_tolerance)) - verts
 
 
 def rmse_xyz(reference, extracted, *, step_tolerance: float = 0.005) -> tuple[float, float, float]:
@@ -259,7 +259,7 @@ def area_scores(extracted, reference) -> dict[str, float]:
     >>> s["completeness"], s["correctness"], s["quality"]
     (0.5, 0.5, 0.3333333333333333)
     """
-    ext, ref = _polygonal(extracted, "extracted"), _polygonal(reference, "reference")
+    ext, ref = polygonal(extracted, "extracted"), polygonal(reference, "reference")
     area_e = float(ext.area) if ext is not None else 0.0
     area_r = float(ref.area) if ref is not None else 0.0
     tp = float(shapely.intersection(ext, ref).area) if ext is not None and ref is not None else 0.0
@@ -322,8 +322,8 @@ def corner_metrics(extracted, reference, tolerance: float = 0.5, *,
     if not tolerance > 0:
         raise ValueError(f"tolerance must be > 0, not {tolerance}")
     opts = {"collinear_tolerance": collinear_tolerance, "curve_turn": curve_turn}
-    ce = outline_corners(_polygonal(extracted, "extracted"), **opts)
-    cr = outline_corners(_polygonal(reference, "reference"), **opts)
+    ce = outline_corners(polygonal(extracted, "extracted"), **opts)
+    cr = outline_corners(polygonal(reference, "reference"), **opts)
     pairs, dist = match_corners(ce, cr, float(tolerance))
     ne, nr, nm = len(ce), len(cr), len(pairs)
     return {
@@ -370,7 +370,7 @@ def boundary_errors(extracted, reference, band: float = 1.0, *, boundary=None) -
     """
     if not band > 0:
         raise ValueError(f"band must be > 0, not {band}")
-    ext, ref = _polygonal(extracted, "extracted"), _polygonal(reference, "reference")
+    ext, ref = polygonal(extracted, "extracted"), polygonal(reference, "reference")
     if ext is None or ref is None:
         return {"fp_boundary": 0.0, "fn_boundary": 0.0}
     near = shapely.buffer(ref.boundary if boundary is None else boundary, band)

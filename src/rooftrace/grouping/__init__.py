@@ -1,4 +1,4 @@
-"""Line grouping (seed 000): roof topology, MRF energy, genetic algorithm, exact check, reconstruction."""
+"""Line grouping (Marcato & Dal Poz): roof topology, MRF energy, genetic algorithm, exact check, reconstruction."""
 
 from rooftrace.grouping.exact import ExactResult, brute_force_minimise, exact_minimise
 from rooftrace.grouping.ga import GAOptions, GAResult, genetic_minimise

@@ -1,4 +1,4 @@
-"""The genetic algorithm of seed 000 (§2.3) that minimises the grouping energy.
+"""The genetic algorithm of Marcato & Dal Poz (§2.3) that minimises the grouping energy.
 
 A chromosome holds one gene group per side/ridge; the uniqueness rule (one
 candidate per side) makes each group a one-hot block, stored here as the
@@ -41,24 +41,24 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class GAOptions:
-    """Parameters of the genetic algorithm (seed 000 §2.3 and §3).
+    """Parameters of the genetic algorithm (Marcato & Dal Poz §2.3 and §3).
 
     Attributes
     ----------
     population : int or None, default None
         Individuals per generation. None: 15 for up to 12 sides, 25 beyond
-        (seed 000 §3: 15 for its 9- and 11-line roofs, 25 for 39 lines),
+        (Marcato & Dal Poz §3: 15 for its 9- and 11-line roofs, 25 for 39 lines),
         raised to ``4 · Σ_s (K_s - 1)`` for roofs with many ambiguous sides
         (ours: the paper's roofs had 1-3 candidates per side).
     generations : int or None, default None
-        Generations. None: 20 for up to 12 sides, 40 beyond (seed 000 §3),
+        Generations. None: 20 for up to 12 sides, 40 beyond (Marcato & Dal Poz §3),
         raised likewise to ``2 · Σ_s (K_s - 1)``.
     crossover_probability : float, default 0.7
-        p_c (seed 000 §3).
+        p_c (Marcato & Dal Poz §3).
     mutation_probability : float, default 0.01
-        p_m per side (seed 000 §3).
+        p_m per side (Marcato & Dal Poz §3).
     elitism : bool, default True
-        Copy the best individual into the next generation (seed 000 §2.3).
+        Copy the best individual into the next generation (Marcato & Dal Poz §2.3).
     """
 
     section = "ga"
@@ -141,7 +141,7 @@ def _fitness(energy: np.ndarray) -> np.ndarray:
 
 def genetic_minimise(problem: GroupingProblem, options: GAOptions | None = None, seed: int = 0,
                      initial: np.ndarray | None = None) -> GAResult:
-    """Minimise the grouping energy with the genetic algorithm of seed 000 §2.3.
+    """Minimise the grouping energy with the genetic algorithm of Marcato & Dal Poz §2.3.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""The MRF energy of seed 000 (eq. 6-13) for grouping image lines into a roof.
+"""The MRF energy of Marcato & Dal Poz (eq. 6-13) for grouping image lines into a roof.
 
 Every side or ridge ``s`` of the projected roof has candidate image lines
 (``K_s >= 1``); a labelling picks exactly one per side (the uniqueness rule
@@ -53,14 +53,14 @@ TERMS = ("length", "proximity", "orientation", "rectangularity", "corner")
 
 @dataclass(frozen=True)
 class MRFOptions:
-    """Weights and constants of the energy (seed 000, eq. 6-13 and §3).
+    """Weights and constants of the energy (Marcato & Dal Poz, eq. 6-13 and §3).
 
     Attributes
     ----------
     w_length, w_proximity, w_orientation, w_rectangularity, w_corner : float, default 0.2
-        α1..α5 of eq. 13; seed 000 §3 uses equal weights 0.2 (summing to 1).
+        α1..α5 of eq. 13; Marcato & Dal Poz §3 uses equal weights 0.2 (summing to 1).
     beta : float, default 20
-        Shape of the orientation sigmoid, eq. 10 (seed 000 §3), θ in radians.
+        Shape of the orientation sigmoid, eq. 10 (Marcato & Dal Poz §3), θ in radians.
     theta0_deg : float, default 0
         Optimum of θ = θ_i + θ_j (degrees), eq. 10.
     corner_max_distance_px : float, default 10

@@ -1,6 +1,6 @@
 """Put the selected image lines back together, then back into object space.
 
-Image space (seed 000 §2.4): along the topology of the projected roof, two
+Image space (Marcato & Dal Poz §2.4): along the topology of the projected roof, two
 lines meet at their intersection; three or more (ridge junctions, a hip at an
 outline corner) at the least-squares point minimising the squared
 perpendicular distances to all of them (the paper's parametric adjustment,

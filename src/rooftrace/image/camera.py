@@ -1,6 +1,6 @@
 """Camera models: a frame camera (collinearity) and an orthophoto (affine).
 
-Conventions (DESIGN.md, "Camera file"): M = R_kappa R_phi R_omega;
+Conventions (the camera file, docs/image.md): M = R_kappa R_phi R_omega;
 [u, v, w]^T = M [X - X0, Y - Y0, Z - Z0]^T; photo coordinates
 x = x0 - f u / w, y = y0 - f v / w in mm (x right, y up), then Brown
 distortion; pixel column C = (W - 1)/2 + x / ps, row L = (H - 1)/2 - y / ps,
@@ -170,7 +170,7 @@ class FrameCamera:
     def pixel_covariance(self, xyz: np.ndarray, sigma_xy: float = 0.48, sigma_z: float = 0.15) -> np.ndarray:
         """Covariance (N, 2, 2) of projected pixels from the EO covariance and the point precision.
 
-        Defaults are seed 000's LiDAR precisions: 0.48 m planimetric, 0.15 m altimetric.
+        Defaults are Marcato & Dal Poz's LiDAR precisions: 0.48 m planimetric, 0.15 m altimetric.
         """
         j_eo, j_x = self.jacobians(xyz)
         sx = np.diag([sigma_xy**2, sigma_xy**2, sigma_z**2])
@@ -181,7 +181,7 @@ class FrameCamera:
         return cov
 
     def registration_error(self, xyz: np.ndarray, sigma_xy: float = 0.48, sigma_z: float = 0.15) -> np.ndarray:
-        """Registration error e = sqrt(sigma_L^2 + sigma_C^2) in pixels for each point (seed 000)."""
+        """Registration error e = sqrt(sigma_L^2 + sigma_C^2) in pixels for each point (Marcato & Dal Poz)."""
         cov = self.pixel_covariance(xyz, sigma_xy, sigma_z)
         return np.sqrt(cov[:, 0, 0] + cov[:, 1, 1])
 

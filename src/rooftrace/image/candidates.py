@@ -1,4 +1,4 @@
-"""Candidate image lines for every projected roof outline side and ridge (seed 000 §2.1, seed 003).
+"""Candidate image lines for every projected roof outline side and ridge (Marcato & Dal Poz §2.1, Marcato & Dal Poz 2011).
 
 For each 3D line:
 
@@ -7,9 +7,9 @@ For each 3D line:
 2. open a window around it (:func:`~rooftrace.image.projection.line_windows`);
 3. detect Canny step edges and Steger lines in the window, link them into
    chains and split the chains into straight, sub-pixel segments;
-4. choose between Canny and Steger (seed 003: 3 deg, 4 px, 1 px; by
+4. choose between Canny and Steger (Marcato & Dal Poz 2011: 3 deg, 4 px, 1 px; by
    default the rule's Steger lines are added and the Canny lines kept);
-5. remove terrain lines when LiDAR points are given (seed 000);
+5. remove terrain lines when LiDAR points are given (Marcato & Dal Poz);
 6. merge collinear fragments (9 deg, 3 px);
 6b. re-locate each candidate at the sub-pixel gradient maxima across it,
    with a robust line fit (:func:`~rooftrace.image.refit.refit_lines`, ours);
@@ -17,7 +17,7 @@ For each 3D line:
    mark the outer line of each roof-edge/wall-foot pair
    (:func:`~rooftrace.image.walls.mark_wall_lines`, ours);
 7. keep candidates of at least 15 % of the projected length within 20 deg
-   of its direction (seed 000); a line left without candidates keeps its
+   of its direction (Marcato & Dal Poz); a line left without candidates keeps its
    projection as the only one (source ``'projected'``).
 
 Pixel coordinates are ``(col, row)`` with pixel centres at integers.
@@ -61,7 +61,7 @@ class CandidateOptions:
     Attributes
     ----------
     sigma_xy, sigma_z : float, default 0.48, 0.15
-        LiDAR planimetric / altimetric precision (m), seed 000 §3.
+        LiDAR planimetric / altimetric precision (m), Marcato & Dal Poz §3.
     window_k : float, default 3.0
         Window half-width and end extension in registration errors (ours).
     window_margin : float, default 3.0
@@ -74,14 +74,14 @@ class CandidateOptions:
         :func:`~rooftrace.image.edges.canny_edges`).
     steger_sigma : float or None
         Steger's scale (px); ``None``: ``max(line_width / (2 sqrt 3), 1)``
-        (Steger's condition sigma >= w / sqrt 3, seed 003).
+        (Steger's condition sigma >= w / sqrt 3, Marcato & Dal Poz 2011).
     steger_low, steger_high : float or None
         Steger hysteresis thresholds (grey / px^2); ``None``: derived (see
         :func:`~rooftrace.image.steger.steger_lines`).
     line_width : float, default 4.0
         Expected full width of ridge lines (px).
     steger_bias_correction : bool, default False
-        Remove the asymmetric-contrast bias of Steger's line centres (seed 003
+        Remove the asymmetric-contrast bias of Steger's line centres (Marcato & Dal Poz 2011
         eq. 11) with the bar model fitted to each point's two edges.
     min_contrast : float, default 0.05
         Weakest step or bar (grey levels in [0, 1]) that may seed a detection.
@@ -98,13 +98,13 @@ class CandidateOptions:
         and refined outlines with PoLiS 0.116 m against 0.130 m for the
         seed's rule in ``bench_refine.py``.
     select_angle, select_separation, select_equidistance : float, default 3.0, 4.0, 1.0
-        Canny/Steger selection tolerances (deg, px, px), seed 003 §3.
+        Canny/Steger selection tolerances (deg, px, px), Marcato & Dal Poz 2011 §3.
     merge_angle, merge_distance : float, default 9.0, 3.0
         Collinear merging tolerances (deg, px), issue 7.
     min_length_fraction : float, default 0.15
-        Shortest candidate as a fraction of the projected length, seed 000 §2.1.
+        Shortest candidate as a fraction of the projected length, Marcato & Dal Poz §2.1.
     max_angle : float, default 20.0
-        Largest angle to the projected line (deg), seed 000 §2.1.
+        Largest angle to the projected line (deg), Marcato & Dal Poz §2.1.
     terrain_height_tolerance : float, default 1.0
         Metres below the lowest roof edge that make a line terrain-compatible (ours).
     refit : bool, default True
@@ -271,7 +271,7 @@ def extract_candidates(
 
     Notes
     -----
-    The seed 003 test runs in every window: outline sides are usually step
+    The Marcato & Dal Poz 2011 test runs in every window: outline sides are usually step
     edges (Canny keeps them), ridges usually lines (a Steger line flanked by
     Canny's double response); each kind can show either profile.  With
     ``selection='seed003'`` the Steger line replaces the flanking pair, as in

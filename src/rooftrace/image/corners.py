@@ -1,4 +1,4 @@
-"""Harris corners with sub-pixel positions (the corner term U5 of seed 000's MRF energy).
+"""Harris corners with sub-pixel positions (the corner term U5 of Marcato & Dal Poz's MRF energy).
 
 Response ``R = det(A) - k trace(A)^2`` of the structure tensor ``A`` (Gaussian
 derivatives at ``sigma_d``, products smoothed at ``sigma_i``).  Corners are

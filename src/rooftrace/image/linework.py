@@ -10,10 +10,10 @@ References
 ----------
 .. [1] Marcato, V. J., Dal Poz, A. P. (2011). Seleção automática dos
    detectores de Canny e Steger para a extração de contornos e cumeeiras de
-   telhados. Anais XV SBSR, 7869-7872 (seed 003).
+   telhados. Anais XV SBSR, 7869-7872.
 .. [2] Marcato, V. J., Dal Poz, A. P. Refinamento geométrico de contornos e
    cumeeiras de telhados de edifícios extraídos de dados laser com uso de
-   imagem aérea (seed 000), section 2.1.
+   imagem aérea, section 2.1.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def fit_segments(
         Ordered sub-pixel points (col, row) along each linked edge or line.
     tolerance : float, default 1.0
         Largest distance (px) of a chain point from the chord of its piece
-        (Douglas-Peucker splitting, the "polygonisation" of seed 003).
+        (Douglas-Peucker splitting, the "polygonisation" of Marcato & Dal Poz 2011).
     min_length : float, default 5.0
         Shortest segment kept (px).
     min_points : int, default 4
@@ -208,11 +208,11 @@ def select_canny_steger(
     canny, steger : ndarray of shape (A, 2, 2) and (B, 2, 2)
         Segments (col, row) from the two detectors in one window.
     angle_tol : float, default 3.0
-        Parallelism tolerance (degrees, seed 003).
+        Parallelism tolerance (degrees, Marcato & Dal Poz 2011).
     max_separation : float, default 4.0
-        Largest distance between the two Canny lines (px, seed 003).
+        Largest distance between the two Canny lines (px, Marcato & Dal Poz 2011).
     equidistance_tol : float, default 1.0
-        Largest difference of their distances to the Steger line (px, seed 003).
+        Largest difference of their distances to the Steger line (px, Marcato & Dal Poz 2011).
     min_overlap : float, default 0.5
         Fraction of the shorter of a Canny and the Steger segment that must
         overlap along the Steger line (ours: the seed's "contain" made
@@ -319,7 +319,7 @@ def merge_collinear(
     sources : sequence of str, optional
         Provenance per segment; merged segments become ``'merged'``.
     angle_tol : float, default 9.0
-        Degrees (seed 000/003 grouping; value from the issue).
+        Degrees (the grouping of Marcato & Dal Poz and Marcato & Dal Poz 2011).
     distance_tol : float, default 3.0
         Pixels.
     max_gap : float or None, default None

@@ -2,8 +2,8 @@
 the search window around each projected line.
 
 Pixel coordinates are ``(col, row)`` with pixel centres at integers.  A
-window is a rectangle whose symmetry axis is the projected line (seed 000
-§2.1, seed 003 §3)::
+window is a rectangle whose symmetry axis is the projected line (Marcato & Dal Poz
+§2.1, Marcato & Dal Poz 2011 §3)::
 
     half_width = k * e + margin          (across the line)
     extension  = k * e                   (beyond each end, along the line)
@@ -39,7 +39,7 @@ def project_lines(
         Object-space segments (CRS units, metres).
     sigma_xy, sigma_z : float, default 0.48 and 0.15
         Planimetric and altimetric precision of the LiDAR-derived vertices
-        (m, seed 000).
+        (m, Marcato & Dal Poz).
 
     Returns
     -------
@@ -48,7 +48,7 @@ def project_lines(
     error : ndarray of shape (M,)
         Registration error per line (px): the larger of its two endpoints'
         ``sqrt(sigma_C^2 + sigma_L^2)``, propagated from the exterior
-        orientation covariance and the point precision (seed 000 eq. 1).
+        orientation covariance and the point precision (Marcato & Dal Poz eq. 1).
 
     Examples
     --------

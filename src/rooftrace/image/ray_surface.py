@@ -5,7 +5,7 @@ interpolation of Z (scipy / Qhull).  A ray from the camera is marched
 downwards from above the highest point; the first sample below the surface
 brackets the visible intersection (so a ray meets the roof, not the ground
 hidden under it), and bisection refines it.  This is how image positions go
-back to object space over a surface model (seed 004, and the back-projection
+back to object space over a surface model (Dal Poz & Fazan, and the back-projection
 of refined lines).
 """
 

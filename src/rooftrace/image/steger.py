@@ -15,7 +15,7 @@ References
 ----------
 .. [1] Steger, C. (1998). An unbiased detector of curvilinear structures.
    IEEE TPAMI 20(2), 113-125. :doi:`10.1109/34.659930`
-.. [2] Marcato, V. J., Dal Poz, A. P. (2011), SBSR (seed 003), eq. 5-12.
+.. [2] Marcato, V. J., Dal Poz, A. P. (2011), SBSR, eq. 5-12.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def steger_sigma(line_width: float) -> float:
     """Smallest Gaussian scale that keeps a bar of full width ``line_width`` px a single line.
 
     Steger's condition ``sigma >= w / sqrt(3)`` for half-width ``w``
-    (seed 003, after eq. 10), floored at 1 px so that noise is smoothed.
+    (Marcato & Dal Poz 2011, after eq. 10), floored at 1 px so that noise is smoothed.
     """
     if line_width <= 0:
         raise ValueError(f"line_width must be positive, got {line_width}")
@@ -50,14 +50,14 @@ def steger_sigma(line_width: float) -> float:
 def line_response(contrast: float, line_width: float, sigma: float) -> float:
     """|r''| at the centre of a symmetric bar of ``contrast`` and full width ``line_width``.
 
-    ``r''(0) = h (g'_s(w) - g'_s(-w)) = 2 h w exp(-w^2 / 2 s^2) / (sqrt(2 pi) s^3)`` (seed 003 eq. 9).
+    ``r''(0) = h (g'_s(w) - g'_s(-w)) = 2 h w exp(-w^2 / 2 s^2) / (sqrt(2 pi) s^3)`` (Marcato & Dal Poz 2011 eq. 9).
     """
     w = 0.5 * line_width
     return float(2 * contrast * w * np.exp(-(w * w) / (2 * sigma * sigma)) / (np.sqrt(2 * np.pi) * sigma**3))
 
 
 def line_position_bias(sigma: float, half_width: float, asymmetry: float) -> float:
-    """Shift of the detected line centre for an asymmetric bar (seed 003 eq. 11).
+    """Shift of the detected line centre for an asymmetric bar (Marcato & Dal Poz 2011 eq. 11).
 
     For the profile ``0`` left of the bar, ``1`` on it (``|x| <= w``) and
     ``a`` right of it, the smoothed profile's extremum lies at
@@ -203,7 +203,7 @@ _BIAS_TABLE = None
 
 
 def _bias_table():
-    """Model of seed 003 eq. 7-11 in units of sigma: for a bar 0 | 1 (|x| <= w) | a,
+    """Model of Marcato & Dal Poz 2011 eq. 7-11 in units of sigma: for a bar 0 | 1 (|x| <= w) | a,
     the detected centre's offset, the half distance between the two edge
     maxima seen from it, and the ratio of the edge gradients, over a grid of
     (w, a).  Returns a KD-tree on (half distance, 4 x ratio) and the offsets."""
@@ -235,7 +235,7 @@ def _bias_table():
 
 
 def _correct_bias(img, sigma, points, normals, lines, line_width):
-    """Move line points back by the asymmetric-contrast bias (seed 003 eq. 11).
+    """Move line points back by the asymmetric-contrast bias (Marcato & Dal Poz 2011 eq. 11).
 
     Along each point's normal the gradient magnitude of the smoothed image
     has a maximum at each edge of the bar; their half distance and the ratio

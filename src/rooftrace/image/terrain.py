@@ -1,4 +1,4 @@
-"""Terrain-line filter (seed 000 §2.1): remove image lines that lie on the ground
+"""Terrain-line filter (Marcato & Dal Poz §2.1): remove image lines that lie on the ground
 away from the building.
 
 Every LiDAR point projected into the image lends its height and its
@@ -51,7 +51,7 @@ class PixelHeights:
         Keep only points projecting inside this pixel box (saves the error
         propagation for points far from any window).
     sigma_xy, sigma_z : float, default 0.48 and 0.15
-        LiDAR precision (m, seed 000).
+        LiDAR precision (m, Marcato & Dal Poz).
     """
 
     def __init__(self, camera, points_xyz, bounds=None, *, sigma_xy: float = 0.48, sigma_z: float = 0.15):

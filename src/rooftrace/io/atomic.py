@@ -41,7 +41,7 @@ def check_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
     if path.is_dir():  # even with --overwrite: a file never replaces a folder
         raise InputError(f"{path} is a folder; give a file name for the output")
     if path.exists() and not overwrite:
-        raise OutputExistsError(f"{path} exists; pass --overwrite to replace it")
+        raise OutputExistsError(f"{path} exists; pass {{overwrite}} to replace it", "overwrite")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.exists():
         raise InputError(f"folder {parent} does not exist; create it or choose another output path")

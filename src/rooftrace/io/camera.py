@@ -1,4 +1,4 @@
-"""The camera file (``camera.json``, DESIGN.md "Camera file") read and written.
+"""The camera file (``camera.json``, docs/image.md) read and written.
 
 ``"type": "frame"`` gives a :class:`~rooftrace.image.camera.FrameCamera`;
 ``"type": "orthophoto"`` gives an :class:`~rooftrace.image.camera.OrthoCamera`
@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.image.camera import FrameCamera, OrthoCamera
 from rooftrace.io.atomic import atomic_path
 
@@ -53,7 +53,7 @@ def camera_from_dict(data: dict, where: str = "camera", image: str | os.PathLike
             raise InputError(f"{where}: 'crs' {data['crs']!r} is not a valid CRS") from None
     if kind == "orthophoto":
         if image is None:
-            raise InputError(f"{where}: an orthophoto camera needs its GeoTIFF (--image)")
+            raise OptionError(f"{where}: an orthophoto camera needs its GeoTIFF ({{image}})", "image")
         from rooftrace.io.raster import read_raster_meta
 
         meta = read_raster_meta(image)
@@ -159,9 +159,9 @@ def image_camera(image: str | os.PathLike, camera: str | os.PathLike | None = No
 
     meta = read_raster_meta(image)
     if meta.transform is None:
-        raise InputError(f"{image}: no georeference, so the image needs its orientation: give --camera camera.json "
+        raise OptionError(f"{image}: no georeference, so the image needs its orientation: give {{camera}} camera.json "
                          "(a frame camera, see docs/image.md), or give a georeferenced orthophoto (GeoTIFF), "
-                         "which needs no camera file")
+                         "which needs no camera file", "camera")
     return OrthoCamera(meta.size, meta.transform, meta.crs, 0.0)
 
 

@@ -11,7 +11,7 @@ import logging
 
 import numpy as np
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 
 __all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
            "check_camera_has_image",
@@ -65,17 +65,17 @@ def require_metric_crs(crs, where: str, xy: np.ndarray | None = None) -> None:
         if xy is not None and len(xy):
             lo, hi = xy.min(axis=0), xy.max(axis=0)
             if (np.abs(lo) <= [180, 90]).all() and (np.abs(hi) <= [180, 90]).all() and (hi - lo < 1.0).all():
-                raise InputError(f"{where}: no CRS, and the coordinates look like degrees (longitude/latitude, "
-                                 f"{lo[0]:.6g}..{hi[0]:.6g}, {lo[1]:.6g}..{hi[1]:.6g}); reproject to a projected CRS "
-                                 "in metres, or assign the right one with --crs if they are metres")
+                raise OptionError(f"{where}: no CRS, and the coordinates look like degrees (longitude/latitude, "
+                                  f"{lo[0]:.6g}..{hi[0]:.6g}, {lo[1]:.6g}..{hi[1]:.6g}); reproject to a projected "
+                                  "CRS in metres, or assign the right one with {crs} if they are metres", "crs")
         log.warning("%s: no CRS; outputs will have none (assign one with --crs)", where)
         return
     if crs.is_vertical and not crs.is_compound:
-        raise InputError(f"{where}: CRS {crs.name} is a height system only; give the horizontal CRS with it, "
-                         "e.g. --crs EPSG:28992+5709 (or EPSG:7415) for RD New + NAP height")
+        raise OptionError(f"{where}: CRS {crs.name} is a height system only; give the horizontal CRS with it, "
+                          "e.g. {crs} EPSG:28992+5709 (or EPSG:7415) for RD New + NAP height", "crs")
     if horizontal_crs(crs).is_geographic:
-        raise InputError(f"{where}: CRS {crs.name} is geographic (degrees); reproject to a projected CRS in metres "
-                         "or assign the right one with --crs")
+        raise OptionError(f"{where}: CRS {crs.name} is geographic (degrees); reproject to a projected CRS in "
+                          "metres or assign the right one with {crs}", "crs")
 
 
 def check_same_crs(a, b, what_a: str, what_b: str) -> None:
@@ -143,7 +143,7 @@ def check_image_covers(camera, xyz: np.ndarray, where: str, min_fraction: float 
 def check_camera_has_image(image, camera) -> None:
     """Refuse a camera file given without the image it describes (an orthophoto alone needs no camera file)."""
     if camera is not None and image is None:
-        raise InputError("--camera needs --image: give the image the camera file describes")
+        raise OptionError("{camera} needs {image}: give the image the camera file describes", "camera", "image")
 
 
 def check_image_size(size: tuple[int, int], camera, image: str, camera_file: str) -> None:

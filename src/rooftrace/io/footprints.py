@@ -17,7 +17,7 @@ import pyogrio
 import pyproj
 import shapely
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.footprints import Footprints
 from rooftrace.io.checks import horizontal_crs
 from rooftrace.io.vector import list_layers
@@ -78,8 +78,8 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *,
     unknown = [str(name) for name, kind in layers if not kind or str(kind).lower() in ("unknown", "geometry", "none")]
     candidates = polygonal or unknown
     if not candidates:
-        raise InputError(f"{path}: no polygon layer (layers: {', '.join(names) or 'none'}); --footprints needs "
-                         "building footprints as polygons")
+        raise OptionError(f"{path}: no polygon layer (layers: {', '.join(names) or 'none'}); {{footprints}} needs "
+                          "building footprints as polygons", "footprints")
     layer = candidates[0]
     if len(candidates) > 1:
         log.warning("%s: reading footprints from layer %r (also there: %s)", path, layer, ", ".join(candidates[1:]))
@@ -92,8 +92,8 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *,
     if id_field is not None:
         lower = {f.lower(): f for f in fields}
         if id_field not in fields and id_field.lower() not in lower and id_field.lower() != "fid":
-            raise InputError(f"{path}: no attribute {id_field!r} for --footprint-id (attributes: "
-                             f"{', '.join(fields) or 'none'}; 'fid' is the feature id)")
+            raise OptionError(f"{path}: no attribute {id_field!r} for {{footprint_id}} (attributes: "
+                              f"{', '.join(fields) or 'none'}; 'fid' is the feature id)", "footprint_id")
         chosen = id_field if id_field in fields else lower.get(id_field.lower())
     else:
         lower = {f.lower(): f for f in fields}
@@ -106,8 +106,8 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *,
     kinds = shapely.get_type_id(geoms) if len(geoms) else np.zeros(0, int)
     keep = np.isin(kinds, (3, 6)) & ~shapely.is_empty(geoms)
     if not keep.any():
-        raise InputError(f"{path}: layer {layer!r} holds no polygons ({len(geoms)} features); --footprints needs "
-                         "building footprints as polygons")
+        raise OptionError(f"{path}: layer {layer!r} holds no polygons ({len(geoms)} features); {{footprints}} needs "
+                          "building footprints as polygons", "footprints")
     if not keep.all():
         log.warning("%s: %d of %d features are not polygons (or empty) and are skipped", path,
                     int((~keep).sum()), len(geoms))

@@ -24,7 +24,7 @@ import laspy
 import numpy as np
 
 from rooftrace.cloud import PointCloud
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.io.atomic import atomic_path
 
 if TYPE_CHECKING:
@@ -319,9 +319,9 @@ def check_point_formats(paths: Sequence[Path]) -> None:
             formats[p] = reader.header.point_format.id
     if len(set(formats.values())) > 1:
         listing = ", ".join(f"{p.name}: {f}" for p, f in formats.items())
-        raise InputError(f"--classified with tiles needs inputs of one LAS point format ({listing}); convert them "
+        raise OptionError(f"{{classified}} with tiles needs inputs of one LAS point format ({listing}); convert them "
                          "to one format (e.g. las2las -set_point_type) or write the classified points per file "
-                         "with 'rooftrace detect'")
+                         "with 'rooftrace detect'", "classified")
 
 
 def write_las_labels(paths: Sequence[Path], output: str | os.PathLike, classification: np.ndarray,

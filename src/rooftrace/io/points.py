@@ -15,7 +15,7 @@ import numpy as np
 import pyproj
 
 from rooftrace.cloud import PointCloud
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.io.checks import horizontal_crs
 from rooftrace.io.las import (
     LAS_SUFFIXES,
@@ -42,7 +42,7 @@ def parse_crs(text: str | None) -> pyproj.CRS | None:
     try:
         return pyproj.CRS.from_user_input(text)
     except pyproj.exceptions.CRSError:
-        raise InputError(f"--crs {text!r} is not a CRS pyproj understands; use e.g. EPSG:28992") from None
+        raise OptionError(f"{{crs}} {text!r} is not a CRS pyproj understands; use e.g. EPSG:28992", "crs") from None
 
 
 def read_ply(path: str | os.PathLike) -> PointCloud:
@@ -234,9 +234,9 @@ def common_crs(paths: list[Path], crss: list) -> pyproj.CRS | None:
     first = crss[0]
     for p, c in zip(paths[1:], crss[1:]):
         if (first is None) != (c is None) or (first is not None and not first.equals(c, ignore_axis_order=True)):
-            raise InputError(
+            raise OptionError(
                 f"{p}: CRS ({_crs_name(c)}) differs from {paths[0]} ({_crs_name(first)}); "
-                "reproject one of them or assign one with --crs"
+                "reproject one of them or assign one with {crs}", "crs"
             )
     return first
 

@@ -164,7 +164,7 @@ def vector_driver(path: str | os.PathLike) -> str:
 
 
 def _ogr_type(name: str) -> str:
-    # DESIGN.md spells types as OGC does ("PolygonZ"); pyogrio wants "Polygon Z"
+    # the layers spell types as OGC does ("PolygonZ"); pyogrio wants "Polygon Z"
     if name.endswith("Z") and not name.endswith(" Z"):
         return name[:-1] + " Z"
     return name

@@ -14,7 +14,10 @@ Stages and where they follow the thesis (Santos 2019, ch. 3):
    default the size up to N of lowest entropy, :mod:`rooftrace.lidar.features`)
    and a surface normal for every non-ground point (§3.4);
 5. region growing of the points above ``segment.min_height`` into roof-level
-   clusters (§3.3; the height test is measured along the normals);
+   clusters (§3.3; the height test is measured along the normals; beyond
+   the thesis each point is also linked to its nearest point per direction,
+   so roofs hold together across scan lines farther apart than L_Dxy,
+   :func:`rooftrace.lidar.segment.sector_pairs`);
 6. k-means on the mean entropy of the clusters of at least T_Np points
    (§3.4) with the guards of :mod:`rooftrace.lidar.classify`, and by
    default (``classify.decision``) the plane residual of each cluster
@@ -60,13 +63,14 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
+from rooftrace.lidar._kernels import unique_pairs
 from rooftrace.lidar.buildings import assemble_buildings, group_widths
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
 from rooftrace.lidar.ground import GroundOptions, progressive_tin
 from rooftrace.lidar.outliers import OutlierOptions, histogram_outliers
-from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing
+from rooftrace.lidar.segment import SegmentOptions, join_strips, link_pairs, order_labels, region_growing, sector_pairs
 from rooftrace.lidar.spacing import edge_spacing, height_precision, point_density, spanning_neighbours
 from rooftrace.options import make_options, options_dict
 from rooftrace.progress import Reporter
@@ -74,6 +78,9 @@ from rooftrace.progress import Reporter
 __all__ = ["DetectOptions", "DerivedParams", "Detection", "detect_buildings"]
 
 log = logging.getLogger(__name__)
+
+#: mean Delaunay edge of random (Poisson) points of unit density, 32/(9 pi) (Miles 1970)
+POISSON_EDGE = 32.0 / (9.0 * np.pi)
 
 
 
@@ -274,13 +281,20 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         params["ground"] = {**options_dict(opt.ground), **gparams}
 
     so = opt.segment
-    link_d = so.link_distance or so.link_factor * s_avg
+    # s_avg, the mean Delaunay edge, grows with the gaps between scan lines
+    # (1.15-1.35 times that of random points of the same density, 1.132/sqrt(d_avg),
+    # where the lines lie far apart); where the sector links bridge those gaps
+    # L_Dxy follows the density, or it links crowns into roofs over 1.5 m
+    spacing = min(s_avg, POISSON_EDGE / np.sqrt(d_avg)) if so.link_sectors else s_avg
+    link_d = so.link_distance or so.link_factor * spacing
     # roof levels split by a gap between scan lines are one building
     merge_d = so.merge_distance or max(link_d, gap)
     # along the normals the pair test must also absorb the normals' own
     # error (about 17 deg over L_Dxy), more than sigma_H on tiled roofs
     link_h = so.link_height or (max(2.0 * sigma_h, 0.3 * link_d) if so.height_test == "normal" else 2.0 * sigma_h)
     min_pts = so.min_points or max(1, int(round(so.min_area * d_avg)))
+    # paired scan lines lie up to twice the widest common gap apart
+    reach = max(link_d, 2.0 * gap) if so.link_sectors else None
     co = opt.classify
     k_nb = co.neighbours or int(np.clip(round(so.min_area * d_avg), co.min_neighbours, co.max_neighbours))
     # the plane of a normal must rest on more than one scan line (lines far
@@ -300,12 +314,23 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                                       neighbour_step=co.neighbour_step, return_linearity=True)
     with clock("segment"):
         pairs = link_pairs(pts[high, :2], link_d)
+        if so.link_sectors:
+            # every other point blocks a link: ground between a roof and a crown
+            clean_idx = np.flatnonzero(~noise)
+            where = np.full(n, -1, np.int64)
+            where[clean_idx] = np.arange(len(clean_idx))
+            across = sector_pairs(xyz[clean_idx, :2] - shift[:2], where[above[high]], reach, so.link_sectors,
+                                  normals=feats[high, 4:7], max_angle=so.sector_max_angle,
+                                  smooth=feats[high, 7] <= so.sector_max_residual * sigma_h)
+            both = np.concatenate([pairs, across])
+            pairs = unique_pairs(both[:, 0], both[:, 1], len(high))
         normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
-            **options_dict(so), "link_distance": link_d, "link_height": link_h, "merge_distance": merge_d,
+            **options_dict(so), "link_distance": link_d, "sector_reach": reach, "link_height": link_h,
+            "merge_distance": merge_d,
             "normal_neighbours": k_normal, "min_points": min_pts,
             "n_clusters": int(len(sizes)), "n_kept": int((sizes >= min_pts).sum()),
         }

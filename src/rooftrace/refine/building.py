@@ -1,4 +1,4 @@
-"""One roof refined with the image: :func:`refine_building` (seed 000).
+"""One roof refined with the image: :func:`refine_building` (Marcato & Dal Poz).
 
 The steps (see :mod:`rooftrace.refine` for the many-building entry point):
 topology of the LiDAR roof; candidate image lines and Harris corners in

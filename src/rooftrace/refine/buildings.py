@@ -1,11 +1,11 @@
-"""Image refinement of LiDAR roofs (seed 000): candidates -> MRF grouping -> reconstruction -> 3D.
+"""Image refinement of LiDAR roofs (Marcato & Dal Poz): candidates -> MRF grouping -> reconstruction -> 3D.
 
 For each building:
 
 1. the roof's line topology (outline sides + ridges, :func:`roof_topology`);
 2. candidate image lines per side/ridge in windows around their projections
-   (:func:`rooftrace.image.candidates.extract_candidates`, seed 000 §2.1 and
-   seed 003) and Harris corners in those windows;
+   (:func:`rooftrace.image.candidates.extract_candidates`, Marcato & Dal Poz §2.1 and
+   Marcato & Dal Poz 2011) and Harris corners in those windows;
 3. the MRF energy (eq. 6-13) minimised by the genetic algorithm (§2.3); the
    exact minimiser runs too when the problem is small enough and the gap
    between the two is reported (``ga_exact_gap``);
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,6 +106,84 @@ def assign_ridges(outlines: Sequence, ridges: Sequence) -> list[int]:
         dist = [p.distance(mid) if p is not None and not p.is_empty else np.inf for p in polys]
         out.append(int(np.argmin(dist)) if np.isfinite(min(dist)) and min(dist) < 1.0 else -1)
     return out
+
+
+@dataclass(frozen=True)
+class LidarRoofs:
+    """The LiDAR roofs an image refines, as the LiDAR stages made them.
+
+    Attributes
+    ----------
+    building_ids : sequence of int
+        Id of each building, in building-id order.
+    outlines : sequence of Polygon with Z or None
+        Roof outline of each building (map CRS, m); None for a building
+        whose outline failed (it stays as it is).
+    ridges : sequence of LineString with Z
+        Every ridge, hip, valley and step edge of every building.
+    ridge_building_ids : sequence of int
+        Building of each ridge.
+    ridge_kinds : sequence of str
+        Kind of each ridge (``ridge``, ``hip``, ``valley``, ``step``).
+    planes : mapping of int to ndarray of shape (K, 4)
+        Roof planes ``a X + b Y + c Z + d = 0`` per building id; a building
+        without an entry is projected through horizontal planes.
+    """
+
+    building_ids: Sequence[int]
+    outlines: Sequence
+    ridges: Sequence = ()
+    ridge_building_ids: Sequence[int] = ()
+    ridge_kinds: Sequence[str] = ()
+    planes: Mapping[int, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+def refine_roofs(roofs: LidarRoofs, image: np.ndarray, camera, *, points_xyz: np.ndarray | None = None,
+                 options: RefineOptions | None = None, seed: int = 0) -> RefineResult:
+    """Refine the LiDAR roofs of a run with one image, every building in one pass.
+
+    An untiled run and the merge of a tiled run both call this, so that they
+    refine the same inputs the same way: the exterior-orientation correction
+    (``[refine] orientation``) uses the line matches of all buildings
+    jointly, and the genetic algorithm of building ``i`` (in building-id
+    order) is seeded with ``seed + i``.
+
+    Parameters
+    ----------
+    roofs : LidarRoofs
+        Outlines, ridges and roof planes of every building.
+    image : ndarray of shape (H, W)
+        Grey image in [0, 1].
+    camera : FrameCamera or OrthoCamera
+        Orientation of ``image``, same CRS as the roofs.
+    points_xyz : ndarray of shape (N, 3), float64, optional
+        LiDAR points of any class (m), in input order: at least every point
+        within ``options.context`` of each building (the refinement's ground
+        height, LiDAR precision and terrain-line filter use them).
+    options : RefineOptions, optional
+    seed : int, default 0
+        Seed of the genetic algorithm.
+
+    Returns
+    -------
+    RefineResult
+
+    Examples
+    --------
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, trees=False))
+    >>> truth = scene.truth
+    >>> roofs = LidarRoofs([1], truth["roof_outlines"].geometries, truth["ridges"].geometries,
+    ...                    [1] * len(truth["ridges"]), ["ridge"] * len(truth["ridges"]))
+    >>> refined = refine_roofs(roofs, scene.image.mean(axis=0) / 255.0, scene.camera, points_xyz=scene.cloud.xyz)
+    >>> len(refined.outlines)
+    1
+    """
+    ids = [int(b) for b in roofs.building_ids]
+    return refine_buildings(list(roofs.outlines), list(roofs.ridges), image, camera, points_xyz=points_xyz,
+                            planes=[roofs.planes.get(b) for b in ids], building_ids=ids,
+                            ridge_building_ids=[int(b) for b in roofs.ridge_building_ids],
+                            ridge_kinds=list(roofs.ridge_kinds), options=options, seed=seed)
 
 
 def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, camera, *,
@@ -195,7 +273,7 @@ def refine_buildings(outlines: Sequence, ridges: Sequence, image: np.ndarray, ca
             sigma = opt.lidar_sigma_spacing / np.sqrt(n_in / poly.area) if n_in >= 10 and poly.area > 0 else None
         b_opt = opt
         if sigma is not None and opt.derive_sigma:
-            # windows and registration errors follow this roof's LiDAR precision, not seed 000's 0.48 m
+            # windows and registration errors follow this roof's LiDAR precision, not Marcato & Dal Poz's 0.48 m
             from rooftrace.image.candidates import CandidateOptions
 
             b_opt = dataclasses.replace(opt, candidates=dataclasses.replace(opt.candidates or CandidateOptions(),

@@ -1,4 +1,4 @@
-"""Options and result of the image refinement of one roof (section ``[refine]``; seed 000).
+"""Options and result of the image refinement of one roof (section ``[refine]``; Marcato & Dal Poz).
 
 :class:`RefineOptions` holds every option of the refinement (``[mrf]``,
 ``[ga]``, ``[candidates]`` and ``[harris]`` nest in it);
@@ -45,7 +45,7 @@ class RefineOptions:
     fuse : bool, default True
         Fuse each refined vertex with its projected LiDAR vertex by least
         squares (:func:`fuse_positions`; ours).  False: the image alone, as
-        in seed 000.
+        in Marcato & Dal Poz.
     derive_sigma : bool, default True
         With LiDAR points, take each roof's planimetric precision as half
         its mean point spacing (for the candidate windows, registration
@@ -62,7 +62,7 @@ class RefineOptions:
         image support move by it too.
     lidar_sigma : float, default 0.48
         Planimetric precision (m) of LiDAR outline vertices when it cannot
-        be derived (seed 000 §3); :func:`rooftrace.refine.refine_buildings`
+        be derived (Marcato & Dal Poz §3); :func:`rooftrace.refine.refine_buildings`
         derives half the mean point spacing of each roof from its points.
     plane_tolerance : float, default 0.5
         Largest vertical distance (m) of a LiDAR vertex to the roof plane it
@@ -85,11 +85,11 @@ class RefineOptions:
         Energy added to a candidate marked as the foot of a visible wall
         with the roof edge inward of it (ours; needs ``ground_z``, see
         :func:`rooftrace.image.walls.wall_strips`); 0 switches it off.
-        Five times the largest unary term of seed 000 (``w_length`` · 1 for
+        Five times the largest unary term of Marcato & Dal Poz (``w_length`` · 1 for
         a candidate as long as its side): the roof edge wins unless the
         pairwise terms strongly disagree.
     register : bool, default True
-        Measure the proximity term (seed 000 eq. 7-8) against the projected
+        Measure the proximity term (Marcato & Dal Poz eq. 7-8) against the projected
         lines moved by the roof's common image shift, estimated from the
         candidates (:func:`rooftrace.grouping.registration.estimate_shift`;
         ours) and weighed against the camera's orientation error (its EO
@@ -125,7 +125,7 @@ class RefineOptions:
         Largest shift searched (px); the search radius is otherwise
         ``max_shift_k · e + 1`` with ``e`` the largest registration error.
     terrain_filter : bool, default False
-        Remove candidate lines lying on the terrain (seed 000 §2.1) when
+        Remove candidate lines lying on the terrain (Marcato & Dal Poz §2.1) when
         LiDAR points are given.  Off by default: on the simulated scenes of
         benchmarks/bench_refine.py it removed true roof edges next to the
         ground (mean PoLiS 0.160 m with it, 0.139 m without, at 2 pts/m²;

@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
 from rooftrace.graph import components
-from rooftrace.roof._candidates import _cell_choice, _cell_lines
+from rooftrace.roof.face_kernels import cell_choice, cell_lines
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
@@ -269,13 +269,13 @@ def partition_outline(
         seg, sign = np.asarray(seg, dtype=np.float64).reshape(-1, 2, 2), np.asarray(sign, dtype=np.int64)
     # Only candidate pairs joined by a line matter, and only near the line:
     # each cell's distance to each such line, then fewest violations first,
-    # then the vote (compiled, see rooftrace.roof._candidates).
-    ptr, line = _cell_lines(cm, segidx)
+    # then the vote (compiled, see rooftrace.roof.face_kernels).
+    ptr, line = cell_lines(cm, segidx)
     at = np.repeat(np.arange(len(rows)), np.diff(ptr))
     near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
     z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
     if len(rows):
-        choice[rows] = cm[np.arange(len(rows)), _cell_choice(cm, segidx, ptr, line, near, sign, z, vote)]
+        choice[rows] = cm[np.arange(len(rows)), cell_choice(cm, segidx, ptr, line, near, sign, z, vote)]
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)

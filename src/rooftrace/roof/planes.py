@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.roof._planefit import _normal_sums, _residual_sums
+from rooftrace.roof.plane_kernels import normal_sums, residual_sums
 
 __all__ = [
     "PlaneFit",
@@ -139,8 +139,8 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
     if len(lab) and lab.max() >= K:
         raise ValueError(f"fit_planes: labels up to {int(lab.max())} but n_planes={K}")
     # Centred design [x', y', 1]: well conditioned whatever the CRS offsets.
-    # The sums per label are compiled (rooftrace.roof._planefit), in point order.
-    n, centre, N, u = _normal_sums(xyz, lab, K)
+    # The sums per label are compiled (rooftrace.roof.plane_kernels), in point order.
+    n, centre, N, u = normal_sums(xyz, lab, K)
     good = n >= 3
     # A singular N means collinear points: no plane.
     good &= np.abs(np.linalg.det(N[:, :2, :2])) > 1e-9 * np.maximum(N[:, 0, 0] * N[:, 1, 1], 1e-30)
@@ -148,7 +148,7 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
     pqr = np.einsum("kij,kj->ki", Ninv, u)
-    rss = _residual_sums(xyz, lab, centre, pqr)
+    rss = residual_sums(xyz, lab, centre, pqr)
     dof = np.maximum(n - 3, 1)
     sigma = np.sqrt(rss / dof)
     sigma[~good] = np.nan

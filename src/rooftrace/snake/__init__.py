@@ -1,5 +1,5 @@
 """Semi-automatic roof outline from seed points: an object-space polygon snake
-minimised by dynamic programming (DESIGN.md stage 10, seed 004)."""
+minimised by dynamic programming (Dal Poz & Fazan)."""
 
 from rooftrace.snake.dp import brute_force_cycle, cycle_dp, cycle_energy
 from rooftrace.snake.energy import EdgeField, angle_energy, edge_field, height_energy, side_energy, spacing_energy

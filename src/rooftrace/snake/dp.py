@@ -1,7 +1,7 @@
 """Exact minimisation of a closed polygon snake by dynamic programming.
 
 Why our own: Amini et al.'s DP for snakes is textbook but not in any library,
-and the snake of seed 004 is a *closed* polygon with a *second-order*
+and the snake of Dal Poz & Fazan is a *closed* polygon with a *second-order*
 (triplet) right-angle term.  With the energy
 
     E = sum_i U_i(v_i) + sum_i P_i(v_i, v_{i+1}) + sum_i T_i(v_{i-1}, v_i, v_{i+1})

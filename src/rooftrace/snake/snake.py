@@ -1,4 +1,4 @@
-"""Object-space polygon snake from seed points (DESIGN.md stage 10, seed 004).
+"""Object-space polygon snake from seed points (Dal Poz & Fazan).
 
 Why our own: no library moves a polygon's vertices in object space (X, Y),
 takes Z from a LiDAR TIN, reads the image through the collinearity equations

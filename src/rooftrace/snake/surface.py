@@ -6,7 +6,7 @@ Z for millions of object-space samples (done once on a raster, then looked up
 bilinearly), and a *roof* height at an eave.  The TIN of all points blends
 roof and ground across the eave: every triangle that straddles the outline
 has roof and ground vertices, so Z on the true outline is some mid value.
-Two choices follow from that (DESIGN.md stage 10, seed 004):
+Two choices follow from that (Dal Poz & Fazan):
 
 * for projecting snake sides into the image (relief displacement), the
   surface is the TIN dilated by a grey-scale maximum over ``radius`` m
@@ -91,7 +91,7 @@ class Tin:
     def spacing(self) -> float:
         """Typical point spacing (m): the median TIN edge length.
 
-        The median, not the mean (DESIGN.md's s_avg), because hull slivers
+        The median, not the mean (the detection's s_avg), because hull slivers
         and gaps in the local cloud would pull the mean up.
         """
         s = self._tri.simplices

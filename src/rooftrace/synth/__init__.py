@@ -1,4 +1,4 @@
-"""Synthetic scenes with exact ground truth (DESIGN.md stage 12).
+"""Synthetic scenes with exact ground truth .
 
 Terrain, buildings of many kinds (flat, gable, hip, shed, split-level;
 rectangles, L/T/U, courtyards, round, semicircular ends, arcs; overhangs,

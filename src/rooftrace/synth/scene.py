@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 from rooftrace.synth.buildings import Building
 from rooftrace.synth.mix import ROOF_PALETTE, WALL_PALETTE, default_buildings
 
@@ -151,11 +151,11 @@ class SceneOptions:
         if not 0.02 <= self.gsd <= 2.0:
             raise InputError(f"simulate: gsd must be between 0.02 and 2 m, got {self.gsd!r}")
         if (self.image or self.orthophoto) and self.size * 1.1 / self.gsd > 4000:
-            raise InputError(f"simulate: a {self.size:g} m scene at gsd {self.gsd:g} m needs an image over 4000 pixels "
-                             "wide; raise --gsd or lower --size")
+            raise OptionError(f"simulate: a {self.size:g} m scene at gsd {self.gsd:g} m needs an image over 4000 "
+                              "pixels wide; raise {gsd} or lower {size}", "gsd", "size")
         if self.size**2 * self.density > 1.2e7:
-            raise InputError(f"simulate: {self.size:g} m at {self.density:g} pts/m² is over 12 million pulses; lower "
-                             "--size or --density")
+            raise OptionError(f"simulate: {self.size:g} m at {self.density:g} pts/m² is over 12 million pulses; "
+                              "lower {size} or {density}", "size", "density")
         if not 1.0 <= self.scan_angle_deg <= 40.0:
             raise InputError(f"simulate: scan_angle_deg must be between 1 and 40, got {self.scan_angle_deg!r}")
         if not 0.0 <= self.strip_overlap <= 0.9:

@@ -337,7 +337,7 @@ def write_scene(out_dir, scene: Scene, *, overwrite: bool = False,
     paths = {k: out / SCENE_FILES[k] for k in keys}
     existing = [str(p) for p in paths.values() if p.exists()]
     if existing and not overwrite:
-        raise OutputExistsError(f"{', '.join(existing)} exist(s); pass --overwrite to replace")
+        raise OutputExistsError(f"{', '.join(existing)} exist(s); pass {{overwrite}} to replace", "overwrite")
     out.mkdir(parents=True, exist_ok=True)
     cloud = scene.cloud
     write_las(paths["points"], cloud, extra={"truth_class": cloud.fields["truth_class"],

@@ -32,17 +32,21 @@ Flow (each step restartable):
    (``workers=1``), on a Dask LocalCluster or on a Dask cluster
    (``--scheduler``; the run folder must be on a file system every worker
    sees).
-4. ``merge``: join the tile results, number the buildings by their lowest
-   (x, y, z) point like the untiled detection does, and write the
-   GeoPackage atomically.  With an image, the parent first refines all the
-   merged buildings in one pass, as the untiled run does; the image is
-   checked before step 1 and never goes to the tiles
-   (:mod:`rooftrace.tiling.image`).
+4. ``merge``: join the tile results and number the buildings by their
+   lowest (x, y, z) point like the untiled detection does.  With an image,
+   the parent then refines all the merged buildings in one pass, as the
+   untiled run does; the image is checked before step 1 and never goes to
+   the tiles (:mod:`rooftrace.tiling.image`).
+
+:func:`run_tiled` returns the merged layers and models
+(:class:`TiledRunResult`); writing them is the caller's, as for
+:func:`rooftrace.pipeline.run_pipeline` (``rooftrace run`` writes both the
+same way).
 
 Results do not depend on the number of workers: tiles are independent and
 merged in a fixed order.  ``--resume`` keeps the split, the parameters and
 every finished tile of an earlier run of the same inputs and options
-(the image and camera included).
+(the image and camera included) in the same run folder.
 """
 
 
@@ -54,15 +58,18 @@ import logging
 import os
 import pickle
 import shutil
+import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
+from rooftrace.io.vector import Layer
+from rooftrace.model.types import BuildingModel
 from rooftrace.progress import Reporter
 from rooftrace.tiling.image import (
     check_image_inputs,
@@ -70,6 +77,7 @@ from rooftrace.tiling.image import (
     image_fingerprint,
     join_neighbourhoods,
     merged_planes,
+    roofs_of_layers,
 )
 from rooftrace.tiling.split import (  # noqa: F401
     POINT_DTYPE,
@@ -83,21 +91,30 @@ from rooftrace.tiling.split import (  # noqa: F401
     write_json,
 )
 from rooftrace.tiling.tile import (
+    TileResult,
     TileTask,
     building_numbers,
     estimate_parameters,
+    footprints_per_tile,
     merge_tiles,
     merged_models,
+    merged_point_labels,
     owned_buildings,
     process_tile,
     tile_core,
     tile_extent,
-    write_classified_points,
 )
+
+if TYPE_CHECKING:  # rooftrace.config imports TileOptions from this package
+    from rooftrace.config import RunOptions
+    from rooftrace.footprints import Footprints
+    from rooftrace.lidar.detect import DerivedParams
+    from rooftrace.refine import RefineResult
 
 __all__ = [
     "TileOptions", "tile_grid", "tile_cell_ranges", "sample_windows", "split_to_tiles", "estimate_parameters",
-    "owned_buildings", "TileTask", "process_tile", "merge_tiles", "merged_models", "run_tiled",
+    "owned_buildings", "TileTask", "TileResult", "process_tile", "merge_tiles", "merged_models", "run_tiled",
+    "TiledRunResult",
 ]
 
 log = logging.getLogger(__name__)
@@ -148,7 +165,7 @@ def _execute(tasks: list[TileTask], sizes: list[int], options: TileOptions, repo
         try:
             client = Client(options.scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(f"--scheduler {options.scheduler}: cannot connect ({exc})") from None
+            raise OptionError(f"{{scheduler}} {options.scheduler}: cannot connect ({exc})", "scheduler") from None
     try:
         # the biggest tiles first, so that the last task to finish is a short
         # one; the merge does not depend on the order results come back in
@@ -168,96 +185,195 @@ def _execute(tasks: list[TileTask], sizes: list[int], options: TileOptions, repo
             cluster.close()
 
 
-def _refine_merged(layers: dict, results: list[dict], image: Path, camera: Path, cam, cfg: dict | None, seed: int,
-                   reporter: Reporter):
+@dataclass
+class TiledRunResult:
+    """Everything a tiled run produced (:func:`run_tiled`), merged.
+
+    Attributes
+    ----------
+    layers : dict of str to Layer
+        The output layers, as :attr:`rooftrace.pipeline.RunResult.layers`
+        of an untiled run (same names, order and numbering).
+    models : list of BuildingModel
+        3D models of every outlined building, in building-id order.
+    refined : RefineResult or None
+        Image refinement of the merged buildings, when an image was given.
+    crs : pyproj.CRS or None
+        CRS of the inputs (or the one assigned).
+    points : int
+        Points of the inputs.
+    tiles : int
+        Tiles processed.
+    tile_size, buffer : float
+        Tile side and buffer used (m).
+    tile_points : int
+        Points over all buffered tiles.
+    edge_buildings : int
+        Buildings that reach a buffer's open edge (maybe cut; a warning names each).
+    parameters : DerivedParams
+        The data-derived detection parameters every tile used.
+    sample_points : int
+        Points they were measured on.
+    classification, building_id : ndarray of shape (N,) or None
+        Class and merged building id of every input point in input order,
+        when asked for (``classified``).
+    timings : dict of str to float
+        Seconds per step of the tiled run.
+    stage_seconds : dict of str to float
+        Seconds per pipeline stage, summed over the tiles.
+    """
+
+    layers: dict[str, Layer]
+    models: list[BuildingModel]
+    refined: RefineResult | None
+    crs: Any
+    points: int
+    tiles: int
+    tile_size: float
+    buffer: float
+    tile_points: int
+    edge_buildings: int
+    parameters: DerivedParams
+    sample_points: int
+    classification: np.ndarray | None = None
+    building_id: np.ndarray | None = None
+    timings: dict[str, float] = field(default_factory=dict)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+
+    def point_labels(self) -> tuple[np.ndarray, np.ndarray]:
+        """Class and building id of every input point, in input order (``classified`` runs)."""
+        if self.classification is None or self.building_id is None:
+            raise ValueError("run_tiled(classified=False) keeps no point labels")
+        return self.classification, self.building_id
+
+    def summary(self) -> dict[str, Any]:
+        """A JSON-serialisable summary for ``--json``: counts, the parameters, the seconds of every step."""
+        return {
+            "points": self.points, "tiles": self.tiles,
+            "buildings": len(self.layers["roof_outlines"]), "ridges": len(self.layers["ridges"]),
+            "roof_faces": len(self.layers["roof_faces"]), "tile_size": self.tile_size, "buffer": self.buffer,
+            "tile_points": self.tile_points, "edge_buildings": self.edge_buildings,
+            "parameters": self.parameters.to_dict(), "sample_points": self.sample_points,
+            "refined": self.refined is not None,
+            # as the untiled summary: the camera's exterior orientation corrected from all buildings' line matches
+            **({"orientation": self.refined.summary()["orientation"]}
+               if self.refined is not None and self.refined.orientation is not None else {}),
+            "timings": {k: round(v, 3) for k, v in self.timings.items()},
+            "stage_seconds": {k: round(v, 3) for k, v in self.stage_seconds.items()},
+        }
+
+
+def _footprints_fingerprint(footprints: Footprints) -> str:
+    """What ``resume`` compares of the footprints: a hash of their geometries, ids and id field."""
+    import hashlib
+
+    import shapely
+
+    digest = hashlib.sha256(footprints.id_field.encode())
+    for polygon, fid in zip(footprints.polygons, footprints.ids):
+        digest.update(shapely.to_wkb(polygon))
+        digest.update(repr(fid).encode())
+    return digest.hexdigest()
+
+
+def _refine_merged(layers: dict[str, Layer], results: list[TileResult], image: Path, camera: Path, cam,
+                   options: RunOptions, seed: int, reporter: Reporter):
     """Refine the merged buildings with the image, once (see :mod:`rooftrace.tiling.image`)."""
     from rooftrace.io.checks import check_image_size
     from rooftrace.io.raster import read_image
-    from rooftrace.pipeline import refine_layers
+    from rooftrace.pipeline import refined_layers
+    from rooftrace.refine import refine_roofs
 
     grey = read_image(image)
     check_image_size(grey.shape[::-1], cam, str(image), str(camera))  # the file may have changed since the check
     points = join_neighbourhoods(results)
-    planes = merged_planes(results, building_numbers(results))
+    roofs = roofs_of_layers(layers, merged_planes(results, building_numbers(results)))
     with reporter.stage("image refinement", total=None):
-        return refine_layers(layers, planes, points, grey, cam, config=cfg, seed=seed)
+        refined = refine_roofs(roofs, grey, cam, points_xyz=points, options=options.refine, seed=seed)
+    return refined, refined_layers(layers, refined)
 
 
-def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileOptions, *, crs=None,
-              config: dict | None = None, alpha: str | None = None, planes: bool = True, image=None, camera=None,
-              seed: int = 0, overwrite: bool = False, reporter: Reporter | None = None,
-              classified: os.PathLike | None = None, model_outputs: Sequence[os.PathLike] = ()) -> dict[str, Any]:
-    """Tile, measure the parameters, process and merge.
+def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, tiling: TileOptions | None = None,
+              *, run_dir: os.PathLike | None = None, crs=None, image: os.PathLike | None = None,
+              camera: os.PathLike | None = None, seed: int = 0, reporter: Reporter | None = None,
+              classified: bool = False, footprints: Footprints | None = None) -> TiledRunResult:
+    """The whole method on inputs of any size, in tiles: split, measure the parameters, process, merge.
 
     Parameters
     ----------
     inputs : sequence of path-like
         LAS/LAZ files, in any number and layout.
-    output : path-like or None
-        GeoPackage to write (atomically); None for model files only.
-    options : TileOptions
-    crs, config, alpha, planes, seed, overwrite
-        As ``rooftrace run``.
-    reporter : Reporter, optional
-        Progress callbacks (silent by default).
+    options : RunOptions, optional
+        Every option of the run, as :func:`rooftrace.pipeline.run_pipeline`
+        takes them (default: the defaults).
+    tiling : TileOptions, optional
+        Tile size, buffer, workers, scheduler, resume.
+    run_dir : path-like, optional
+        Folder of the tiles and their results, kept for ``tiling.resume``
+        when the run fails or is killed; the caller removes it once the
+        outputs are written.  None: a temporary folder, removed at the end.
+    crs : str or pyproj.CRS, optional
+        Assign or override the inputs' CRS (all inputs must agree otherwise).
     image, camera : path-like, optional
         Aerial image and its ``camera.json`` (None for a georeferenced
         orthophoto, whose GeoTIFF is its camera): the merged buildings are
         refined with it in one pass, as an untiled run refines them
         (:mod:`rooftrace.tiling.image`).  Checked before any tile work.
-    classified : path-like, optional
-        Also write the input points with the run's classes and building ids
-        (LAS/LAZ, every input dimension kept; inputs of one point format).
-    model_outputs : sequence of path-like
-        CityJSONSeq, CityJSON or OBJ files of the 3D models
-        (:func:`rooftrace.io.models.write_models`); each tile builds the
-        models of the buildings it owns and the merge writes them in
-        building-id order, so the files equal those of an untiled run.
+    seed : int, default 0
+        Seed of everything random.
+    reporter : Reporter, optional
+        Progress callbacks (silent by default).
+    classified : bool, default False
+        Also give the class and merged building id of every input point
+        (:meth:`TiledRunResult.point_labels`; inputs of one point format, so
+        that one LAS file can hold them all).
+    footprints : Footprints, optional
+        Building footprints in the points' CRS: one building per footprint,
+        as :func:`rooftrace.pipeline.run_pipeline` makes them.  They are
+        split along the tiles as the points are; each tile outputs the
+        footprints whose centre is in its core, so a footprint's building
+        is the untiled run's when the buffer holds it and its neighbours.
 
     Returns
     -------
-    dict
-        A JSON-serialisable summary: counts, the parameters used, whether
-        the image refinement ran (``refined``, and the camera's
-        ``orientation`` correction when there was one), and the seconds and
-        throughput of every step.
+    TiledRunResult
+        The merged layers and models, equal to those of an untiled
+        :func:`rooftrace.pipeline.run_pipeline` on the whole input, and the
+        counts and seconds of the run.
 
-    Notes
-    -----
-    The run folder ``OUTPUT.parts`` (of the first output) is kept when the run fails or is
-    killed, for ``--resume``; it is removed after a successful merge.
+    Raises
+    ------
+    InputError
+        Unreadable inputs, inputs of different CRSs, an image that does not
+        fit them, or ``resume`` with other inputs or options than the run
+        folder's.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from rooftrace.io.las import write_las
+    >>> from rooftrace.synth import SceneOptions, simulate_scene
+    >>> scene = simulate_scene(SceneOptions(seed=1, size=40.0, density=8.0, image=False, trees=False))
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> path = write_las(folder / "scene.laz", scene.cloud)
+    >>> result = run_tiled([path], tiling=TileOptions(tile_size=20.0, buffer=20.0))
+    >>> result.tiles, len(result.layers["roof_outlines"])
+    (4, 1)
     """
-    from rooftrace.config import validate_config
-    from rooftrace.io.atomic import check_output, commit_together
-    from rooftrace.io.checks import check_camera_has_image, check_same_crs, require_metric_crs
-    from rooftrace.io.models import write_models
+    from rooftrace.config import RunOptions
+    from rooftrace.io.checks import check_same_crs, require_metric_crs
     from rooftrace.io.points import parse_crs
-    from rooftrace.io.vector import write_layers
-    from rooftrace.lidar.detect import DerivedParams, DetectOptions
-    from rooftrace.pipeline import building_layers
-    from rooftrace.refine import RefineOptions
 
-    check_camera_has_image(image, camera)
-    model_outputs = [check_output(p, overwrite) for p in model_outputs]
-    if output is None and not model_outputs:
-        raise InputError("no output given")
-    output = check_output(output, overwrite) if output is not None else None
-    if config:
-        validate_config(config)
-    cfg = {k: v for k, v in (config or {}).items() if k != "__path__"} or None
-    try:
-        outlier_opts = DetectOptions.from_config(cfg).outliers
-        refine_context = RefineOptions.from_config(cfg).context if image is not None else None
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"config: {exc}") from None
+    options = options if options is not None else RunOptions()
+    tiling = tiling if tiling is not None else TileOptions()
+    refine_context = options.refine.context if image is not None else None
     paths = [Path(p) for p in inputs]
     if not paths:
         raise InputError("no input files given")
     head = scan_headers(paths)
-    if classified is not None:
+    if classified:
         from rooftrace.io.las import check_point_formats
 
-        classified = check_output(classified, overwrite)
         check_point_formats(paths)
     file_crss = head["crs"]
     user_crs = parse_crs(crs) if isinstance(crs, str) else crs
@@ -265,7 +381,7 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
     if user_crs is None:
         for p, c in zip(paths[1:], file_crss[1:]):
             if (c is None) != (crs_obj is None):
-                raise InputError(f"{p}: CRS differs from {paths[0]}; assign one with --crs")
+                raise OptionError(f"{p}: CRS differs from {paths[0]}; assign one with {{crs}}", "crs")
             check_same_crs(crs_obj, c, str(paths[0]), str(p))
     b = head["bounds"]  # without a CRS, header bounds within a fraction of a unit of (lon, lat) are degrees
     require_metric_crs(crs_obj, str(paths[0]), np.array([[b[0], b[1]], [b[2], b[3]]]))
@@ -274,38 +390,56 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
         # the untiled run's checks, on the headers, before minutes of tile work
         cam = check_image_inputs(Path(image), None if camera is None else Path(camera), crs_obj, head,
                                  ", ".join(map(str, paths)))
-    run_dir = Path(str(output if output is not None else model_outputs[0]) + ".parts")
-    if run_dir.exists() and not options.resume:
+    temporary = run_dir is None
+    run_dir = Path(tempfile.mkdtemp(prefix="rooftrace-tiles-")) if temporary else Path(run_dir)
+    try:
+        result = _run_in(run_dir, paths, head, options, tiling, crs_obj, image, camera, cam, seed,
+                         reporter or Reporter(), classified, refine_context, footprints)
+    finally:
+        if temporary:
+            shutil.rmtree(run_dir, ignore_errors=True)
+    return result
+
+
+def _run_in(run_dir: Path, paths: list[Path], head: dict, options: RunOptions, tiling: TileOptions, crs_obj,
+            image, camera, cam, seed: int, reporter: Reporter, classified: bool,
+            refine_context: float | None, footprints: Footprints | None) -> TiledRunResult:
+    """:func:`run_tiled` after its checks, in ``run_dir``."""
+    from rooftrace.lidar.detect import DerivedParams
+    from rooftrace.pipeline import building_layers
+
+    if run_dir.exists() and not tiling.resume:
         shutil.rmtree(run_dir)
-    run_dir.mkdir(exist_ok=True)
+    run_dir.mkdir(parents=True, exist_ok=True)
     meta = {"inputs": [str(p.resolve()) for p in paths],
-            "options": {k: v for k, v in asdict(options).items() if k not in ("resume", "workers", "scheduler")},
+            "tiling": {k: v for k, v in asdict(tiling).items() if k not in ("resume", "workers", "scheduler")},
             "crs": crs_obj.to_wkt() if crs_obj is not None else None,
-            "alpha": alpha, "planes": planes, "seed": seed, "config": cfg, "classified": classified is not None,
+            "options": asdict(options), "seed": seed, "classified": classified,
             # the tiles do not use the image, but a resumed run must give what a fresh one gives
             **({"image": image_fingerprint(Path(image), None if camera is None else Path(camera))}
-               if image is not None else {})}
-    meta = json.loads(json.dumps(meta))
+               if image is not None else {}),
+            **({"footprints": _footprints_fingerprint(footprints)} if footprints is not None else {})}
+    meta = json.loads(json.dumps(meta, default=str))
     meta_path = run_dir / "run.json"
-    if options.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
-        raise InputError(f"{run_dir}: --resume with different inputs or options; rerun without --resume")
+    if tiling.resume and meta_path.exists() and json.loads(meta_path.read_text()) != meta:
+        raise OptionError(f"{run_dir}: {{resume}} with different inputs or options; rerun without {{resume}}",
+                          "resume")
     write_json(meta_path, meta)
 
     timings: dict[str, float] = {}
-    reporter = reporter or Reporter()
     t0 = time.perf_counter()
     with reporter.stage("split into tiles"):
-        index = split_to_tiles(paths, run_dir, options, cell=outlier_opts.cell)
+        index = split_to_tiles(paths, run_dir, tiling, cell=options.detect.outliers.cell)
     timings["split"] = time.perf_counter() - t0
     derived_path = run_dir / "derived.json"
     t0 = time.perf_counter()
-    if options.resume and derived_path.exists():
+    if tiling.resume and derived_path.exists():
         derived = DerivedParams.from_dict(json.loads(derived_path.read_text()))
     else:
         with reporter.stage("parameters"):
             sample = load_tile_points(run_dir / "sample", crs_obj)
             sample.sources = [str(p) for p in paths]
-            derived = estimate_parameters(sample, cfg, origin=index["origin"], extent=index["bounds"])
+            derived = estimate_parameters(sample, options.detect, origin=index["origin"], extent=index["bounds"])
             del sample
         write_json(derived_path, derived.to_dict())
     timings["parameters"] = time.perf_counter() - t0
@@ -313,57 +447,48 @@ def run_tiled(inputs: Sequence[os.PathLike], output: os.PathLike, options: TileO
              derived.mean_spacing, derived.density, derived.sigma_h, derived.entropy_threshold)
     keys = sorted(index["tiles"], key=lambda k: tuple(int(v) for v in k.split("_")))
     wkt = crs_obj.to_wkt() if crs_obj is not None else None
-    tasks = [TileTask(str(run_dir), k, tuple(tile_core(index, k)), wkt, cfg, alpha, planes, seed, derived.to_dict(),
-                      tuple(tile_extent(index, k)), classified is not None, refine_context) for k in keys]
+    # the tiles get the parameters as the file holds them, so that a resumed run gives what a fresh one gives
+    fixed = DerivedParams.from_dict(derived.to_dict())
+    per_tile = (footprints_per_tile(footprints, index, keys, reach=2.0 * options.footprints.overhang + 1.0)
+                if footprints is not None else {})
+    tasks = [TileTask(str(run_dir), k, tuple(tile_core(index, k)), wkt, options, seed, fixed,
+                      tuple(tile_extent(index, k)), classified, refine_context, per_tile.get(k)) for k in keys]
     t0 = time.perf_counter()
     with reporter.stage("tiles", total=len(tasks)):
-        result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], options, reporter)
+        result_paths = _execute(tasks, [index["tiles"][k]["points"] for k in keys], tiling, reporter)
     timings["tiles"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    results = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
+    results: list[TileResult] = [pickle.loads(Path(r).read_bytes()) for r in result_paths]
     layers = merge_tiles(results)
     empty = building_layers([], [], models=[])
     for name, layer in empty.items():
         layers.setdefault(name, layer)
     layers = {name: layers[name] for name in empty}  # the untiled run's layer order
-    merge_seconds = time.perf_counter() - t0
+    models = merged_models(results)
+    timings["merge"] = time.perf_counter() - t0
     refined = None
     if cam is not None and len(layers["roof_outlines"]):
         for k, res in zip(keys, results):
-            for x, y, r in np.asarray(res.get("refine_discs", []), float).reshape(-1, 3)[
-                    cut_neighbourhoods(res.get("refine_discs", []), tile_extent(index, k), index["bounds"])]:
+            for x, y, r in np.asarray(res.refine_discs, float).reshape(-1, 3)[
+                    cut_neighbourhoods(res.refine_discs, tile_extent(index, k), index["bounds"])]:
                 log.warning("tile %s: the image refinement uses the points within %.1f m of the building at "
-                            "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger --buffer", k, r, x, y)
+                            "(%.1f, %.1f), beyond the tile's buffer; rerun with a larger buffer", k, r, x, y)
         t0 = time.perf_counter()
-        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, cfg, seed, reporter)
+        refined, layers = _refine_merged(layers, results, Path(image), Path(camera or image), cam, options, seed,
+                                         reporter)
         timings["refine"] = time.perf_counter() - t0
-    with commit_together():  # every output new, or all as they were
+    classes = building_id = None
+    if classified:
         t0 = time.perf_counter()
-        if model_outputs:
-            write_models(model_outputs, merged_models(results), crs_obj, overwrite=overwrite)
-        if output is not None:
-            write_layers(output, layers, crs_obj, overwrite=overwrite)
-        timings["merge"] = merge_seconds + time.perf_counter() - t0
-        if classified is not None:
-            t0 = time.perf_counter()
-            write_classified_points(paths, classified, results, result_paths, index["points"], crs_obj, overwrite)
-            timings["classified"] = time.perf_counter() - t0
+        classes, building_id = merged_point_labels(results, result_paths, index["points"])
+        timings["classified"] = time.perf_counter() - t0
     stages: dict[str, float] = {}
     for res in results:
-        for k, v in res["timings"].items():
+        for k, v in res.timings.items():
             stages[k] = stages.get(k, 0.0) + v
-    shutil.rmtree(run_dir, ignore_errors=True)
-    return {
-        "output": str(output if output is not None else model_outputs[0]), "points": index["points"], "tiles": len(keys),
-        "buildings": len(layers["roof_outlines"]), "ridges": len(layers["ridges"]),
-        "roof_faces": len(layers["roof_faces"]), "tile_size": index["tile_size"], "buffer": index["buffer"],
-        "tile_points": int(sum(r["points"] for r in results)),
-        "edge_buildings": int(sum(len(r["edge_buildings"]) for r in results)),
-        "parameters": derived.to_dict(), "sample_points": index["sample_points"],
-        "refined": refined is not None,
-        # as the untiled summary: the camera's exterior orientation corrected from all buildings' line matches
-        **({"orientation": refined.summary()["orientation"]}
-           if refined is not None and refined.orientation is not None else {}),
-        "timings": {k: round(v, 3) for k, v in timings.items()},
-        "stage_seconds": {k: round(v, 3) for k, v in stages.items()},
-    }
+    return TiledRunResult(
+        layers=layers, models=models, refined=refined, crs=crs_obj, points=index["points"], tiles=len(keys),
+        tile_size=index["tile_size"], buffer=index["buffer"], tile_points=int(sum(r.points for r in results)),
+        edge_buildings=int(sum(len(r.edge_buildings) for r in results)), parameters=derived,
+        sample_points=index["sample_points"], classification=classes, building_id=building_id,
+        timings=timings, stage_seconds=stages)

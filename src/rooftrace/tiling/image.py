@@ -2,7 +2,7 @@
 
 The tiles run the LiDAR method only; the image never goes to a worker.
 After the merge the parent refines every building in one pass with
-:func:`rooftrace.pipeline.refine_layers`, the function the untiled run
+:func:`rooftrace.refine.refine_roofs`, the function the untiled run
 uses, because the refinement is not per building: the exterior-orientation
 correction (``[refine] orientation``) fits one camera to the line matches of
 all buildings, and the genetic algorithm of building ``i`` is seeded with
@@ -38,7 +38,7 @@ import numpy as np
 from rooftrace.tiling.split import near_open_side
 
 __all__ = ["check_image_inputs", "image_fingerprint", "neighbourhood_points", "cut_neighbourhoods",
-           "join_neighbourhoods", "merged_planes"]
+           "join_neighbourhoods", "merged_planes", "roofs_of_layers"]
 
 log = logging.getLogger(__name__)
 
@@ -183,15 +183,17 @@ def cut_neighbourhoods(discs: np.ndarray, extent: Sequence[float], bounds: Seque
     return near_open_side(np.column_stack([x - r, y - r, x + r, y + r]), extent, bounds)
 
 
-def join_neighbourhoods(results: Sequence[dict]) -> np.ndarray | None:
+def join_neighbourhoods(results: Sequence) -> np.ndarray | None:
     """The points of every tile's building neighbourhoods, each once, in the order of the input files.
+
+    ``results`` are the tiles' :class:`rooftrace.tiling.tile.TileResult`.
 
     Returns
     -------
     ndarray of shape (M, 3), float64, or None
         ``None`` when no tile kept any point.
     """
-    parts = [r["refine_points"] for r in results if len(r.get("refine_points", {}).get("gidx", ()))]
+    parts = [r.refine_points for r in results if len(r.refine_points.get("gidx", ()))]
     if not parts:
         return None
     gidx = np.concatenate([p["gidx"] for p in parts])
@@ -201,11 +203,32 @@ def join_neighbourhoods(results: Sequence[dict]) -> np.ndarray | None:
     return xyz[first]
 
 
-def merged_planes(results: Sequence[dict], numbers: Sequence[tuple]) -> dict[int, np.ndarray]:
-    """Roof planes of every building by its merged id (``numbers`` from :func:`building_numbers`)."""
+def merged_planes(results: Sequence, numbers: Sequence[tuple]) -> dict[int, np.ndarray]:
+    """Roof planes of every building by its merged id.
+
+    ``results`` are the tiles' :class:`rooftrace.tiling.tile.TileResult`,
+    ``numbers`` from :func:`rooftrace.tiling.tile.building_numbers`.
+    """
     out = {}
     for _, t, old, new in numbers:
-        planes = results[t].get("planes", {}).get(old)
+        planes = results[t].planes.get(old)
         if planes is not None:
             out[int(new)] = planes
     return out
+
+
+def roofs_of_layers(layers: dict, planes: dict[int, np.ndarray]):
+    """The merged layers of a tiled run as the refinement takes them (:class:`rooftrace.refine.LidarRoofs`).
+
+    The tiles hand their buildings to the merge as layers; this reads the
+    outlines, ridges and their buildings back from ``roof_outlines`` and
+    ``ridges``, in the layers' (building-id) order, as
+    :func:`rooftrace.pipeline.lidar_roofs` takes them from the stages.
+    """
+    from rooftrace.refine import LidarRoofs
+
+    outlines, ridges = layers["roof_outlines"], layers["ridges"]
+    return LidarRoofs(building_ids=[int(b) for b in outlines.attributes["building_id"]],
+                      outlines=list(outlines.geometries), ridges=list(ridges.geometries),
+                      ridge_building_ids=[int(b) for b in ridges.attributes["building_id"]],
+                      ridge_kinds=list(ridges.attributes["kind"]), planes=planes)

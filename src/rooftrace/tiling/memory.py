@@ -1,4 +1,4 @@
-"""Whether a run fits in memory in one piece (DESIGN.md: "default: no tiling for inputs that fit in memory").
+"""Whether a run fits in memory in one piece (by default, inputs that fit in memory run untiled).
 
 An untiled ``rooftrace run`` holds the whole cloud with its features,
 neighbour pairs and per-building results at once; its peak resident memory

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from rooftrace.errors import InputError
+from rooftrace.errors import InputError, OptionError
 
 log = logging.getLogger(__name__)
 
@@ -68,9 +68,9 @@ class TileOptions:
         for name in ("tile_size", "buffer"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
-                raise InputError(f"--{name.replace('_', '-')} must be a number > 0 (metres), got {v}")
+                raise OptionError(f"{{{name}}} must be a number > 0 (metres), got {v}", name)
         if self.workers < 1:
-            raise InputError(f"--workers must be >= 1, got {self.workers}")
+            raise OptionError(f"{{workers}} must be >= 1, got {self.workers}", "workers")
         if self.chunk_size < 1 or self.sample_points < 1000:
             raise InputError(f"tiling: chunk_size must be >= 1 and sample_points >= 1000, got "
                              f"{self.chunk_size}, {self.sample_points}")

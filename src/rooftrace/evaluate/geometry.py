@@ -11,7 +11,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-__all__ = ["ring_vertices", "ring_segments"]
+__all__ = ["polygonal", "ring_vertices", "ring_segments", "closest_on_segments"]
 
 # points × segments evaluated at once in the 3D distance; bounds memory (~100 MB)
 _CHUNK = 2_000_000
@@ -29,7 +29,7 @@ def _as_geometry(geom) -> BaseGeometry | None:
     return shapely.union_all(np.asarray(parts, dtype=object))
 
 
-def _polygonal(geom, name: str) -> BaseGeometry | None:
+def polygonal(geom, name: str) -> BaseGeometry | None:
     geom = _as_geometry(geom)
     if geom is None or geom.is_empty:
         return None
@@ -61,7 +61,7 @@ def ring_vertices(geom) -> np.ndarray:
     ndarray of shape (N, 3) float64
         x, y, z; z is NaN for a 2D geometry. Empty for None/empty input.
     """
-    geom = _polygonal(geom, "geom")
+    geom = polygonal(geom, "geom")
     if geom is None:
         return np.empty((0, 3))
     rings = [r[:-1] for r in _rings(geom)]
@@ -70,14 +70,14 @@ def ring_vertices(geom) -> np.ndarray:
 
 def ring_segments(geom) -> tuple[np.ndarray, np.ndarray]:
     """Start and end points, each (M, 3) float64, of every boundary segment."""
-    geom = _polygonal(geom, "geom")
+    geom = polygonal(geom, "geom")
     if geom is None:
         return np.empty((0, 3)), np.empty((0, 3))
     rings = _rings(geom)
     return np.concatenate([r[:-1] for r in rings]), np.concatenate([r[1:] for r in rings])
 
 
-def _closest_on_segments(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, dims: int, *,
+def closest_on_segments(points: np.ndarray, p0: np.ndarray, p1: np.ndarray, dims: int, *,
                          z_tie: float | None = None) -> np.ndarray:
     """Closest point (N, 3) on a set of segments for each point, measured in ``dims`` dimensions.
 

@@ -6,7 +6,7 @@ of them small; the ten ``np.bincount`` passes per fit cost more than the
 arithmetic.  These loops add the same products in the same order (point
 order, from 0.0, as ``np.bincount`` does), so the sums are identical.
 
-Private to :mod:`rooftrace.roof.planes`.
+The kernels of :mod:`rooftrace.roof.planes`.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__: list[str] = []
+__all__ = ["normal_sums", "residual_sums"]
 
 
 @njit(cache=True)
-def _normal_sums(xyz, labels, K):  # pragma: no cover - compiled
+def normal_sums(xyz, labels, K):  # pragma: no cover - compiled
     """Counts (K,), centres (K, 3), normal matrices (K, 3, 3) and right-hand sides (K, 3).
 
     Design ``[x - cx, y - cy, 1]`` per label, ``-1`` labels skipped.
@@ -62,7 +62,7 @@ def _normal_sums(xyz, labels, K):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _residual_sums(xyz, labels, centre, pqr):  # pragma: no cover - compiled
+def residual_sums(xyz, labels, centre, pqr):  # pragma: no cover - compiled
     """Sum of squared height residuals per label, (K,)."""
     rss = np.zeros(len(pqr))
     for p in range(len(labels)):

@@ -4,10 +4,11 @@ A cell whose k nearest labelled points disagree takes the candidate with
 the fewest violations of the intersection lines near it, then (with
 ``vote``) the most votes, then the nearest.  In numpy this went through
 (cells, k, k) arrays of candidate pairs, a third of the face partition on
-Delft; here one pass per cell does the integer bookkeeping.  The float work (distances of cells to
-lines, plane heights) stays in numpy, in :mod:`~rooftrace.roof.faces`.
+Delft; here one pass per cell does the integer bookkeeping.  The float
+work (distances of cells to lines, plane heights) stays in numpy, in
+:mod:`~rooftrace.roof.faces`.
 
-Private to :mod:`rooftrace.roof.faces`.
+The kernels of :mod:`rooftrace.roof.faces`.
 """
 
 from __future__ import annotations
@@ -15,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__: list[str] = []
+__all__ = ["cell_lines", "cell_choice"]
 
 
 @njit(cache=True)
-def _cell_lines(cand, segidx):  # pragma: no cover - compiled
+def cell_lines(cand, segidx):  # pragma: no cover - compiled
     """Lines between the distinct candidate planes of each cell.
 
     Returns ``ptr`` (R+1,) and ``line`` (P,): the lines of cell r are
@@ -62,7 +63,7 @@ def _n_lines(segidx):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _cell_choice(cand, segidx, ptr, line, near, sign, z, vote=True):  # pragma: no cover - compiled
+def cell_choice(cand, segidx, ptr, line, near, sign, z, vote=True):  # pragma: no cover - compiled
     """Index (0..k-1) of the candidate each cell takes.
 
     Score, lowest wins (first on ties): violations x (k+1)² - votes x (k+1)
