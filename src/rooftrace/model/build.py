@@ -140,6 +140,20 @@ def _clip(cells: list, footprint) -> list:
             if g.geom_type == "Polygon" and g.area > 0]
 
 
+def _with_face_corners(footprint, cells: list):
+    """The footprint with the corners of the cells that lie on its edges as vertices of its own.
+
+    A face boundary meets the footprint between two of its vertices; rounded
+    to the vertex grid apart, the cut point falls up to half a grid step off
+    the rounded footprint edge and the solid gets a wall a grid step long
+    (val3dity: repeated points).  As a footprint vertex it rounds as the
+    faces' corner does.  The footprint's shape is unchanged.
+    """
+    corners = shapely.multipoints(np.vstack([shapely.get_coordinates(c) for c, _ in cells]))
+    snapped = shapely.snap(footprint, corners, 1e-7)
+    return snapped if snapped.is_valid and abs(snapped.area - footprint.area) <= 1e-9 * footprint.area else footprint
+
+
 def _levels(cells: list, step: float) -> list[list[int]]:
     """Cells joined into height levels: neighbours whose shared boundary jumps at most ``step`` (m)."""
     n = len(cells)
@@ -207,6 +221,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         else:
             why["1.3"] = why["1.2"]
         return part, why
+    kw["footprint"] = _with_face_corners(footprint, cells)
     try:
         levels = []
         for members in _levels(cells, options.level_step):
