@@ -1,6 +1,7 @@
 """Where a Delft outline differs from BGT `pand`, and what a wall-line reference costs a roof outline.
 
     .venv/bin/python benchmarks/bench_delft_reference.py OUT.gpkg [MORE.gpkg ...]
+    .venv/bin/python benchmarks/bench_delft_reference.py --record NAME OUT.gpkg   # and record its figures
 
 For each GeoPackage of ``rooftrace run`` or ``rooftrace outline`` on the two
 Delft tiles (layer ``roof_outlines``), inside the area the BGT layers cover:
@@ -42,13 +43,14 @@ def _scores(extracted: shapely.Geometry, reference: shapely.Geometry) -> tuple[f
     return 2 * tp / (2 * tp + fp + fn), fn, fp
 
 
-def main(paths: list[str]) -> None:
+def main(paths: list[str], name: str | None = None) -> None:
     layers = sorted(DELFT.glob("bgt_*.sqlite"))
     aoi = shapely.union_all([_union(p) for p in layers])
     pand = _union(DELFT / "bgt_pand.sqlite").intersection(aoi)
     others = {p.stem.removeprefix("bgt_"): _union(p).intersection(aoi) for p in layers if p.stem != "bgt_pand"}
     walls = pand.boundary
     near, far = walls.buffer(0.5), walls.buffer(1.0)
+    rows = []
     for path in paths:
         outlines = shapely.force_2d(np.asarray(read_layer(path, "roof_outlines").geometries))
         extracted = shapely.union_all(outlines).intersection(aoi)
@@ -57,15 +59,31 @@ def main(paths: list[str]) -> None:
         a, b = false.intersection(near).area, false.intersection(far).area
         beyond = false.difference(far)
         print(f"{path}: F {f:.4f}, FN {fn:.0f} m², FP {fp:.0f} m²")
+        rows += [dict(method=name, metric="f_score", value=f, target=">= 0.93"),
+                 dict(method=name, metric="fn_area", value=fn, unit="m²"),
+                 dict(method=name, metric="fp_area", value=fp, unit="m²"),
+                 dict(method=name, metric="fp_area_within_1m_of_wall", value=b, unit="m²")]
         print(f"  FP by distance to a BGT wall: < 0.5 m {a:.0f}, 0.5-1 m {b - a:.0f}, beyond {beyond.area:.0f} m²; "
               "beyond, on: " + ", ".join(f"{k} {beyond.intersection(v).area:.0f}" for k, v in others.items()))
         for d in SHIFTS[1:]:
             moved = shapely.union_all(shapely.buffer(outlines, -d, join_style="mitre")).intersection(aoi)
             f, fn, fp = _scores(moved, pand)
             print(f"  moved {d:.2f} m inwards: F {f:.4f}, FN {fn:.0f}, FP {fp:.0f} m²")
+    if name is not None:
+        from _results import record
+
+        record("outline", "delft_run", rows, command=(
+            "rooftrace run ahn3_cropped_1.laz ahn3_cropped_2.laz --crs EPSG:28992 -o delft.gpkg; .venv/bin/python "
+            f"benchmarks/bench_delft_reference.py --record '{name}' delft.gpkg"))
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 2:
+    args = sys.argv[1:]
+    label = None
+    if args[:1] == ["--record"]:
+        if len(args) != 3:
+            sys.exit(__doc__)
+        label, args = args[1], args[2:]
+    if not args:
         sys.exit(__doc__)
-    main(sys.argv[1:])
+    main(args, label)

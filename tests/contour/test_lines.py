@@ -88,22 +88,40 @@ def test_the_edge_lies_between_the_last_roof_point_and_the_first_other_point():
         errors_ctx.append(with_ctx.area - truth.area)
         errors_none.append(without.area - truth.area)
     # through the outermost points the outline lies inside (area short by ~ perimeter x half a spacing);
-    # halfway to the first outside point it is unbiased
+    # between it and at most one step beyond (or the first outside point) it is unbiased
     perimeter_x_half_gap = truth.length * 0.5 / np.sqrt(4.0)
     assert np.mean(errors_none) < -0.6 * perimeter_x_half_gap
     assert abs(np.mean(errors_ctx)) < 0.25 * perimeter_x_half_gap
 
 
+def test_the_edge_does_not_follow_the_ground_into_a_wall_s_scan_shadow():
+    truth = shapely.box(0, 0, 20, 12)
+    errors = []
+    for seed in range(4):
+        roof, others = scene(truth, density=4.0, seed=seed, jitter=0.0)
+        # no ground returns within 1 m of the south wall: the first non-roof point there is 1-1.5 m out
+        shadow = (others[:, 1] < 0) & (others[:, 1] > -1.0)
+        south = trace_outline(roof, context_xy=others[~shadow]).polygon
+        errors.append(-south.bounds[1])  # how far the south wall lies beyond the true one, metres
+    # the outermost roof points lie 0-0.5 m inside: beyond the edge by at most one step, not half the gap
+    assert abs(np.mean(errors)) < 0.1
+
+
 def test_edge_shift_measures_the_gap_and_falls_back_without_points():
     xy = np.column_stack([np.arange(0, 10, 0.5), np.zeros(20)])
     normal = np.array([0.0, -1.0])  # outwards: the roof lies at y > 0
-    outside = np.column_stack([np.arange(0.1, 10, 0.5), np.full(20, -0.6)])
-    shift, measured = edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(outside), fallback=0.4)
-    assert measured and shift == pytest.approx(0.3)
+    near = np.column_stack([np.arange(0.1, 10, 0.5), np.full(20, -0.3)])
+    shift, measured = edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(near), fallback=0.4)
+    assert measured and shift == pytest.approx(0.15)
     shift, measured = edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(None), fallback=0.4)
     assert not measured and shift == pytest.approx(0.2)
-    far = outside - [0, 5.0]  # beyond 3 spacings: occlusion or water, no evidence
-    assert edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(far), fallback=0.4) == (pytest.approx(0.2), False)
+    # ground in a wall's scan shadow: beyond one sampling step (2 x 0.4 x 0.5 m) it does not move the edge out
+    for shadow in (0.6, 5.0):
+        far = near - [0, shadow - 0.3]
+        assert edge_shift(xy, np.zeros(20), normal, 0.5, EdgeContext(far), fallback=0.4) == (pytest.approx(0.2), False)
+    # the residuals carry over: points scattered about the fitted line keep their own depth
+    residual = np.tile([-0.05, 0.05], 10)
+    assert edge_shift(xy, residual, normal, 0.5, EdgeContext(near), fallback=0.4)[0] == pytest.approx(0.15)
 
 
 def test_fit_line_is_exact_on_a_line_and_robust_to_an_outlier():

@@ -15,8 +15,9 @@ from rooftrace.model import (
     solid_volume,
     vertical_rmse,
 )
+from rooftrace.model.measure import roof_height_at
 from rooftrace.roof import RoofStructure, roof_structure
-from rooftrace.roof.models import gable, sample_roof
+from rooftrace.roof.models import flat_annex, gable, sample_roof, terraced
 
 
 @pytest.fixture(scope="module")
@@ -121,3 +122,53 @@ def test_options_are_checked():
         ModelOptions(roof_percentile=120)
     with pytest.raises(ValueError, match="grid"):
         ModelOptions(grid=0)
+    with pytest.raises(ValueError, match="snap must be a multiple of grid"):
+        ModelOptions(snap=0.0155)
+    assert ModelOptions(snap=0.02).snap == 0.02
+
+
+@pytest.mark.parametrize("model, most", [(terraced(angle=17, offset=(85000.0, 447000.0)), 0.12),
+                                         (flat_annex(angle=-8, chimney=False), 0.05)], ids=["terraced", "flat_annex"])
+def test_lod22_roofs_fit_their_points_at_height_steps(model, most):
+    """Houses of different heights side by side, a flat roof with a lower annex: the LoD 2.2 roof
+    over each sampled point is the plane it was sampled from, so its vertical RMSE is the noise's
+    order, not the metres a face boundary off the step would add (the k-nearest majority partition
+    gave 0.19 m and 0.17 m here)."""
+    xyz, face = sample_roof(model, density=10, noise=0.03, seed=3)
+    m = build_model(model.outline, roof_structure(xyz, model.outline), xyz, 0.0)
+    solids = [p.lods["2.2"] for p in m.parts]
+    assert all(solid_errors(s) == [] for s in solids)
+    assert vertical_rmse(solids, xyz) < most
+    dz = xyz[:, 2] - roof_height_at(solids, xyz[:, :2])
+    # the solid's plan lies on the 1 cm vertex lattice, so a point that close to the outline may fall outside
+    inner = shapely.distance(model.outline.boundary, shapely.points(xyz[:, :2])) > ModelOptions().snap
+    assert np.isfinite(dz[inner]).all() and np.mean(np.abs(dz[inner]) > 0.5) < 0.005
+
+
+def test_a_face_boundary_meeting_the_footprint_leaves_no_hair_thin_wall():
+    """Where a face boundary meets a footprint edge between its vertices, the cut point, rounded to the
+    1 mm vertex grid apart from the edge, made a wall 1 mm long (val3dity: CONSECUTIVE_POINTS_SAME) in 7
+    of these 40 random houses; the footprint now takes the cut points as vertices."""
+    from types import SimpleNamespace
+
+    import shapely.affinity
+
+    rng = np.random.default_rng(1)
+    shortest = []
+    for _ in range(40):
+        ang, off, turn = rng.uniform(0, 90), rng.uniform(2, 10), rng.uniform(-20, 20)
+        x0, y0 = 85000 + rng.uniform(0, 1), 447000 + rng.uniform(0, 1)
+        fp = shapely.affinity.rotate(shapely.box(x0, y0, x0 + 12.3, y0 + 8.7), ang, origin=(x0, y0))
+        cut = shapely.affinity.rotate(shapely.box(x0 + off, y0 - 20, x0 + 40, y0 + 30), ang + turn, origin=(x0, y0))
+        low, high = fp.difference(cut), fp.intersection(cut)
+        if low.geom_type != "Polygon" or high.geom_type != "Polygon":
+            continue
+        roof = SimpleNamespace(faces=[shapely.force_3d(low), shapely.force_3d(high)], face_plane=[0, 1],
+                               planes=np.array([[0, 0, 1, -6.0], [0, 0, 1, -9.0]]), status="ok")
+        xy = np.column_stack([rng.uniform(x0 - 10, x0 + 15, 3000), rng.uniform(y0 - 5, y0 + 15, 3000)])
+        xy = xy[shapely.contains_xy(fp, xy[:, 0], xy[:, 1])]
+        xyz = np.column_stack([xy, np.where(shapely.contains_xy(high, xy[:, 0], xy[:, 1]), 9.0, 6.0)])
+        solid = build_model(fp, roof, xyz, 0.0).parts[0].lods["2.2"]
+        shortest.append(min(np.linalg.norm(np.diff(np.vstack([r, r[:1]]), axis=0), axis=1).min()
+                            for s in solid.surfaces for r in s.rings))
+    assert len(shortest) > 30 and min(shortest) > 0.0015

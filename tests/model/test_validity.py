@@ -77,3 +77,25 @@ def test_volume_is_translation_invariant():
     solid = prism_solid(cells, 0.0)
     moved = Solid([Surface([r + [85000.0, 447000.0, 0.0] for r in s.rings], s.kind) for s in solid.surfaces])
     assert solid_volume(moved) == pytest.approx(volume, abs=1e-3)
+
+
+def test_a_vertex_one_grid_step_from_the_next_repeats_it_for_val3dity():
+    # val3dity snaps vertices within 1 mm when it reads a file: a ring through two vertices 1 mm
+    # apart (distinct on the writer's 1 mm grid) repeats one (its error 102)
+    solid = _box()
+    roof = solid.surfaces[0]
+    r = roof.rings[0]
+    roof.rings[0] = np.vstack([r[:1], r[:1] + [0.001, 0.0, 0.0], r[1:]])
+    assert any("duplicate" in e for e in solid_errors(solid))
+    assert not any("duplicate" in e for e in solid_errors(solid, snap_tolerance=0.0))
+
+
+def test_a_surface_flat_to_the_millimetre_whose_triangles_tilt_is_not_planar():
+    # a roof vertex 1 cm beside a corner and 4 mm above the plane: within the 1 cm distance to the
+    # plane, but the thin triangle it makes tilts by about 20-40 degrees (val3dity's error 204)
+    square = np.array([[0, 0, 6], [10, 0, 6], [10, 8, 6], [0.01, 8, 6.004], [0, 8, 6]], float)
+    solid = _box()
+    solid.surfaces[0].rings[0] = square
+    errors = solid_errors(solid)
+    assert any("triangles' normals" in e for e in errors) and not any("m from its plane" in e for e in errors)
+    assert not any("triangles' normals" in e for e in solid_errors(solid, normals_deviation=89.0))

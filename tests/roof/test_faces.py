@@ -140,3 +140,64 @@ def test_cell_choice_equals_the_pairwise_vote():
     np.add.at(viol, (m[wrong], i[wrong]), 1)
     score = viol * (k + 1) ** 2 - votes * (k + 1) + np.arange(k)
     assert np.array_equal(cell_choice(cm, segidx, ptr, line, near, sign, z), np.argmin(score, axis=1))
+    nearest = viol * (k + 1) ** 2 + np.arange(k)  # without the vote: fewest violations, then the nearest
+    assert np.array_equal(cell_choice(cm, segidx, ptr, line, near, sign, z, False), np.argmin(nearest, axis=1))
+
+
+def test_labelled_points_lie_under_their_own_plane_at_steps():
+    """Nearest-point faces with the simplification held back where it would misplace points: at the
+    height steps of a terraced row almost no labelled point lies under another plane's face more
+    than 0.1 m off (the k-nearest majority with free simplification misplaced ten times more)."""
+    from rooftrace.roof.faces import partition_outline
+
+    model = models.terraced(angle=17)
+    xyz, face = models.sample_roof(model, 10, 0.03, seed=3)
+    roof = roof_structure(xyz, model.outline)
+    lab = roof.labels >= 0
+    own = plane_height(roof.planes[roof.labels[lab]], xyz[lab, :2])
+
+    def misplaced(**kw):
+        polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, cell=roof.spacing / 2,
+                                        line_tolerance=1.0, **kw)
+        at, f = shapely.STRtree(polys).query(shapely.points(xyz[lab, :2]), predicate="within")
+        z = plane_height(roof.planes[np.asarray(pids)[f]], xyz[lab][at, :2])
+        return np.mean(np.abs(z - own[at]) > 0.1)
+
+    now, before = misplaced(), misplaced(vote=True, max_dz=None)
+    assert now < 0.003 and before > 5 * now  # measured: 0.08 % against 0.9 %
+
+
+def test_a_line_across_a_step_is_not_trusted():
+    """The line rule (the lower plane across a convex line) is checked against the points near the
+    line: a true ridge keeps it, a step whose planes' line the adjacency put there loses it."""
+    from rooftrace.roof.faces import _line_misplaces
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 8, (4000, 2))
+    east = xy[:, 0] > 4
+    lab = east.astype(np.int64)
+    ends = np.array([[4.0, 0.0], [4.0, 8.0]])
+    # a gable ridge along x = 4: both planes meet there (z = 8 on the line)
+    ridge = np.array([[-0.5, 0, 1, -6.0], [0.5, 0, 1, -10.0]]) / np.hypot(0.5, 1)
+    assert not _line_misplaces(ends, 0, 1, +1, xy, lab, ridge, 1.0, 0.1)
+    # a slope rising to 7 m at x = 4 beside a flat roof at 8 m: a 1 m step, the extended planes cross at x = 6
+    step = np.array([[-0.5, 0, 1, -5.0], [0, 0, 1, -8.0]]) / [[np.hypot(0.5, 1)], [1.0]]
+    assert _line_misplaces(ends, 0, 1, +1, xy, lab, step, 1.0, 0.1)
+
+
+def test_close_face_vertices_are_merged_and_the_faces_still_tile():
+    """A face boundary with a 2 mm kink and a vertex 0.4 mm short of the outline: both gone, shared
+    vertices still shared, the outline's corners kept, the faces still tile it."""
+    from rooftrace.roof.faces import merge_close_vertices
+
+    outline = Polygon([(0, 0), (10, 0), (10, 6), (0, 6)])
+    line = [(5.0, 0.0), (5.0, 3.0), (5.002, 3.0), (5.002, 5.9996), (5.002, 6.0)]
+    left = Polygon([(0, 0), *line, (0, 6)])
+    right = Polygon([*line[::-1], (10, 0), (10, 6)])
+    faces = merge_close_vertices([left, right], outline, 0.01)
+    xy = np.unique(np.vstack([shapely.get_coordinates(f) for f in faces]), axis=0)
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    assert d[d > 0].min() > 0.01 and len(xy) == 7  # four corners, the line's two ends and its bend
+    assert all(f.is_valid for f in faces) and sum(f.area for f in faces) == pytest.approx(60.0)
+    assert shapely.union_all(faces).equals(outline)
+    assert {(0.0, 0.0), (10.0, 0.0), (10.0, 6.0), (0.0, 6.0)} <= set(map(tuple, xy))

@@ -221,9 +221,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     context_xy : ndarray of shape (C, 2) float64, optional
         Plan coordinates (metres, same CRS) of points around the building that
         are not its roof: ground, vegetation, other buildings.  The 'lines'
-        regularisation places the edge halfway between the last roof point
-        and the first of these (``[regularize] edge_factor`` spacings out
-        where there are none).
+        regularisation places the edge beyond the last roof point by half
+        the sampling step or half the gap to the first of these, whichever
+        is smaller (:func:`rooftrace.contour.edge.edge_shift`).
 
     Returns
     -------

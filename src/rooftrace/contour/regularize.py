@@ -49,10 +49,11 @@ class RegularizeOptions:
         the model choice).  The outermost points of a uniform sampling lie
         0-1 spacing inside the edge: 1/√12 ≈ 0.29.
     edge_factor : float
-        'lines': outward shift of the fitted boundary to the roof edge, in
-        local spacings, where no points that are not roof are known around
-        the segment (``rooftrace outline`` on class 6 only,
-        ``--single-building``).
+        'lines': half the sampling step across a roof edge, in local
+        spacings: the outward shift of the fitted boundary to the roof edge
+        where no point that is not roof lies nearer than the step
+        (:func:`rooftrace.contour.edge.edge_shift`), and everywhere when none
+        are known (``rooftrace outline --single-building``).
     bridge_factor : float
         'lines': inlets of the outer ring narrower than this many local
         spacings are closed (a morphological closing): where two roof levels

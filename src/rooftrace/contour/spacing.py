@@ -188,32 +188,30 @@ def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
 def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
     # points in cell order (cell_ptr indexes xy directly); each edge is stored
     # once, at its lower end point; it counts for point i when both end
-    # points are in i's ball (marked with i)
+    # points are in i's ball (the other end tested where the edge is met: one
+    # pass over the ball, in the same order as marking it first did)
     n = len(xy)
     r2 = radius * radius
-    mark = np.full(n, -1, dtype=np.int64)
-    ball = np.empty(n, dtype=np.int64)
     out = np.empty(n, dtype=np.float64)
     for i in range(n):
-        m = 0
+        xi, yi = xy[i, 0], xy[i, 1]
+        total = 0.0
+        count = 0
         for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
             for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
                 c = cx * ny + cy
                 for j in range(cell_ptr[c], cell_ptr[c + 1]):
-                    dx = xy[j, 0] - xy[i, 0]
-                    dy = xy[j, 1] - xy[i, 1]
-                    if dx * dx + dy * dy <= r2:
-                        mark[j] = i
-                        ball[m] = j
-                        m += 1
-        total = 0.0
-        count = 0
-        for p in range(m):
-            j = ball[p]
-            for q in range(adj_ptr[j], adj_ptr[j + 1]):
-                e = adj_edge[q]
-                if mark[edge_hi[e]] == i:
-                    total += lengths[e]
-                    count += 1
+                    dx = xy[j, 0] - xi
+                    dy = xy[j, 1] - yi
+                    if dx * dx + dy * dy > r2:
+                        continue
+                    for q in range(adj_ptr[j], adj_ptr[j + 1]):
+                        e = adj_edge[q]
+                        h = edge_hi[e]
+                        ex = xy[h, 0] - xi
+                        ey = xy[h, 1] - yi
+                        if ex * ex + ey * ey <= r2:
+                            total += lengths[e]
+                            count += 1
         out[i] = total / count if count > 0 else np.nan
     return out

@@ -63,6 +63,10 @@ class ModelOptions:
         this (m) are separate height levels.
     grid : float
         Vertex grid (m); the CityJSON writer's scale.
+    snap : float
+        Plan lattice of the solids' vertices (m), a multiple of ``grid``:
+        vertices are at least this far apart, well above the 1 mm within
+        which validators (val3dity) merge vertices when they read a file.
     z_tolerance : float
         Heights of one vertex closer than this (m) are one height.
     planarity : float
@@ -78,6 +82,7 @@ class ModelOptions:
     ground_percentile: float = 10.0
     level_step: float = 0.5
     grid: float = 0.001
+    snap: float = 0.01
     z_tolerance: float = 0.01
     planarity: float = 0.01
     validate: bool = True
@@ -86,9 +91,11 @@ class ModelOptions:
         for name in ("roof_percentile", "ground_percentile"):
             if not 0 <= getattr(self, name) <= 100:
                 raise ValueError(f"{name} must be in [0, 100], got {getattr(self, name)}")
-        for name in ("level_step", "grid", "z_tolerance", "planarity"):
+        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
+        if self.snap < self.grid or abs(self.snap / self.grid - round(self.snap / self.grid)) > 1e-6:
+            raise ValueError(f"snap must be a multiple of grid ({self.grid} m), got {self.snap}")
 
 
 def ground_height(terrain_z: np.ndarray, percentile: float = 10.0) -> float:
@@ -131,6 +138,20 @@ def _clip(cells: list, footprint) -> list:
     cut = shapely.intersection(np.array([c for c, _ in cells], dtype=object), footprint)
     return [(g, plane) for piece, (_, plane) in zip(cut, cells) for g in shapely.get_parts(piece)
             if g.geom_type == "Polygon" and g.area > 0]
+
+
+def _with_face_corners(footprint, cells: list):
+    """The footprint with the corners of the cells that lie on its edges as vertices of its own.
+
+    A face boundary meets the footprint between two of its vertices; rounded
+    to the vertex grid apart, the cut point falls up to half a grid step off
+    the rounded footprint edge and the solid gets a wall a grid step long
+    (val3dity: repeated points).  As a footprint vertex it rounds as the
+    faces' corner does.  The footprint's shape is unchanged.
+    """
+    corners = shapely.multipoints(np.vstack([shapely.get_coordinates(c) for c, _ in cells]))
+    snapped = shapely.snap(footprint, corners, 1e-7)
+    return snapped if snapped.is_valid and abs(snapped.area - footprint.area) <= 1e-9 * footprint.area else footprint
 
 
 def _levels(cells: list, step: float) -> list[list[int]]:
@@ -183,7 +204,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         return part, dict.fromkeys(("1.2", "1.3", "2.2"), "no roof points in the footprint")
     h = float(np.percentile(z, options.roof_percentile))
     part.attributes["h_roof_lod12"] = round(h, 3)
-    kw = dict(footprint=footprint, grid=options.grid, z_tolerance=options.z_tolerance)
+    kw = dict(footprint=footprint, grid=options.grid, snap=options.snap, z_tolerance=options.z_tolerance)
     try:
         part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
     except _FAILURES as exc:
@@ -200,6 +221,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         else:
             why["1.3"] = why["1.2"]
         return part, why
+    kw["footprint"] = _with_face_corners(footprint, cells)
     try:
         levels = []
         for members in _levels(cells, options.level_step):

@@ -7,12 +7,17 @@ the face's plane.
 
 Construction (all coordinates on a grid, 1 mm by default, so that equal
 vertices are equal numbers and the CityJSON writer's integer vertices are
-exact):
+exact; plan positions on a coarser lattice, ``snap``, 1 cm by default):
 
-1. The cells' and the footprint's boundaries are noded together and
-   polygonised; each piece goes to the cell holding it (pieces no cell
-   holds - gaps of the roof partition - to the neighbour sharing most
-   boundary), so the cells tile the footprint exactly, edge to edge.
+1. The cells' and the footprint's boundaries are snapped to the ``snap``
+   lattice, noded together and polygonised (so two plan vertices are at
+   least ``snap`` apart: a validator reading the file merges vertices
+   closer than its own tolerance, 1 mm for val3dity, and a ring through
+   two such vertices would repeat one; faces narrower than the lattice
+   vanish instead of tilting at random); each piece goes to the cell
+   holding it (pieces no cell holds - gaps of the roof partition - to the
+   neighbour sharing most boundary), so the cells tile the footprint
+   exactly, edge to edge.
 2. Every vertex lying on another cell's edge is inserted in that edge (no
    T-junctions), and where two neighbouring planes cross along a shared
    edge the crossing point is inserted too (the wall between them changes
@@ -27,6 +32,9 @@ exact):
    between its bottom and top, so that each vertical edge is shared by
    exactly two walls.  The ground surface is the footprint at the ground
    height, facing down.
+5. A roof surface that is flat only to the grid and ``z_tolerance`` but
+   whose triangles tilt apart (vertices a lattice step apart) is written
+   as those triangles (each one planar).
 
 Walls are vertical and every plan position has one roof height, so the
 shell cannot fold over itself; curved outlines stay curved (every outline
@@ -41,6 +49,7 @@ from shapely.geometry import Polygon
 
 from rooftrace.errors import GeometryError
 from rooftrace.model.types import Solid, Surface
+from rooftrace.model.validity import surface_tilt, surface_triangles
 
 __all__ = ["prism_solid", "horizontal_plane"]
 
@@ -54,15 +63,15 @@ def _polygons(geom) -> list[Polygon]:
     return [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty and g.area > 0]
 
 
-def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int], Polygon]:
+def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[int], Polygon]:
     """Pieces of the noded arrangement, dissolved per cell; and the footprint they tile."""
-    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), grid))
-    fp = shapely.set_precision(shapely.force_2d(footprint), grid)
+    polys = list(shapely.set_precision(shapely.force_2d(np.array([p for p, _ in cells], dtype=object)), lattice))
+    fp = shapely.set_precision(shapely.force_2d(footprint), lattice)
     if len(polys) == 1 and shapely.equals(polys[0], fp) and fp.geom_type == "Polygon":
         pieces = np.array([fp], dtype=object)  # one cell that is the footprint (LoD 1.2): nothing to node
     else:
         lines = [shapely.boundary(fp)] + [shapely.boundary(p) for p in polys if not p.is_empty]
-        noded = shapely.union_all(lines, grid_size=grid)
+        noded = shapely.union_all(lines, grid_size=lattice)
         pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
     if not len(pieces):
         raise GeometryError("the footprint has no area")
@@ -103,14 +112,14 @@ def _tile(cells: list, footprint, grid: float) -> tuple[list[Polygon], list[int]
         mine = pieces[owner == c]
         merged = mine if len(mine) == 1 else _polygons(shapely.coverage_union_all(mine))
         if not all(g.is_valid for g in merged):
-            merged = _polygons(shapely.union_all(mine, grid_size=grid))
+            merged = _polygons(shapely.union_all(mine, grid_size=lattice))
         for g in merged:
             faces.append(shapely.orient_polygons(g, exterior_cw=False))
             face_cell.append(int(c))
     # the pieces are a coverage (edges shared exactly): their fast coverage union
     whole = _polygons(shapely.coverage_union_all(pieces))
     if len(whole) != 1 or not whole[0].is_valid:
-        whole = _polygons(shapely.union_all(pieces, grid_size=grid))
+        whole = _polygons(shapely.union_all(pieces, grid_size=lattice))
     if len(whole) != 1:
         raise GeometryError(f"the footprint falls into {len(whole)} pieces")
     return faces, face_cell, shapely.orient_polygons(whole[0], exterior_cw=False)
@@ -177,6 +186,38 @@ class _Rings:
         return out
 
 
+def _split_tilted(roofs: list[list[list[tuple]]], max_tilt: float) -> list[list[list[tuple]]]:
+    """Roof surfaces, each one whose triangles tilt apart more than ``max_tilt`` degrees cut into them.
+
+    A roof vertex is on its plane only to the grid (and to ``z_tolerance``
+    where two faces' heights were made one): with vertices a lattice step
+    apart, or nearly in line, the triangles a validator cuts the surface into
+    tilt by tens of degrees (val3dity's error 204).  Such a surface becomes
+    the triangles of its constrained triangulation in plan, each one planar
+    and none degenerate (the plan vertices are on the integer lattice), all
+    ``RoofSurface``; the shell stays closed, the triangles share their inner
+    edges.
+    """
+    if not roofs:
+        return roofs
+    tilt = surface_tilt([Surface([np.asarray(r, dtype=np.float64) for r in rings], "RoofSurface") for rings in roofs],
+                        max_tilt)
+    split = np.flatnonzero(tilt > max_tilt)
+    if not len(split):
+        return roofs
+    xyz = [np.asarray([v for r in roofs[k] for v in r], dtype=np.float64) for k in split]
+    plans = np.array([shapely.Polygon(np.asarray(roofs[k][0])[:, :2], [np.asarray(h)[:, :2] for h in roofs[k][1:]])
+                      for k in split])
+    corners, of = surface_triangles(plans, np.vstack(xyz)[:, :2], np.repeat(np.arange(len(split)), [len(x) for x in xyz]))
+    table = np.vstack(xyz).astype(np.int64)
+    triangles = {int(k): [[[tuple(v) for v in table[tri].tolist()]] for tri in corners[of == j]]
+                 for j, k in enumerate(split)}
+    out = []
+    for k, rings in enumerate(roofs):
+        out.extend(triangles.get(k, [rings]))
+    return out
+
+
 def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
     """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
     out = []
@@ -188,8 +229,8 @@ def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
     return out
 
 
-def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e-3,
-                z_tolerance: float = 0.01) -> Solid:
+def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e-3, snap: float = 0.01,
+                z_tolerance: float = 0.01, max_tilt: float = 10.0) -> Solid:
     """A closed solid from roof cells, walls down to ``ground_height`` and a ground surface.
 
     Parameters
@@ -205,8 +246,15 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         The plan outline of the solid; default the union of the cells.
     grid : float, default 0.001
         Every vertex is rounded to this grid (m).
+    snap : float, default 0.01
+        Plan positions are rounded to this lattice (m), a multiple of
+        ``grid``: distinct vertices are at least this far apart.
     z_tolerance : float, default 0.01
         Heights of one vertex closer than this (m) are made one.
+    max_tilt : float, default 10
+        A roof surface whose triangles' normals are more than this
+        (degrees) apart is written as its triangles (half of val3dity's
+        20 degree tolerance: its triangulation may differ from ours).
 
     Returns
     -------
@@ -227,6 +275,8 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
     >>> [s.kind for s in solid.surfaces].count("WallSurface")
     4
     """
+    if not (snap >= grid and abs(snap / grid - round(snap / grid)) < 1e-6):
+        raise ValueError(f"snap must be a multiple of grid, got {snap} and {grid}")
     cells = [(c, np.asarray(pl, dtype=np.float64)) for c, pl in cells]
     if not cells:
         raise GeometryError("no roof cells")
@@ -234,12 +284,12 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         footprint = shapely.union_all([shapely.force_2d(c) for c, _ in cells])
     for attempt in range(4):
         try:
-            return _prism(cells, ground_height, footprint, grid, z_tolerance)
+            return _prism(cells, ground_height, footprint, grid, snap, z_tolerance, max_tilt)
         except _Saddle as saddle:
             if attempt == 3:
                 raise GeometryError(f"roof faces meet at {len(saddle.points)} saddle or pinch vertices") from None
-            # 1 cm, then wider when a disk's own edge made a new one
-            cells = _open_saddles(cells, saddle.points, saddle.faces, 10 * grid * 4**attempt,
+            # two lattice steps, then wider when a disk's own edge made a new one
+            cells = _open_saddles(cells, saddle.points, saddle.faces, 2 * snap * 4**attempt,
                                   small=0.0 if attempt == 0 else 1.0)
     raise AssertionError("unreachable")
 
@@ -272,8 +322,9 @@ def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: flo
     return [(poly, plane) for poly, plane in cells if not poly.is_empty]
 
 
-def _prism(cells: list, ground_height: float, footprint, grid: float, z_tolerance: float) -> Solid:
-    faces, face_cell, whole = _tile(cells, footprint, grid)
+def _prism(cells: list, ground_height: float, footprint, grid: float, snap: float, z_tolerance: float,
+           max_tilt: float) -> Solid:
+    faces, face_cell, whole = _tile(cells, footprint, snap)
     table = _Rings(grid)
     face_rings = [table.polygon(f) for f in faces]
     ground_rings = table.polygon(whole)
@@ -282,6 +333,7 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, z_toleranc
     if not (np.abs(planes[:, 2]) > 1e-9).all():
         raise GeometryError("a vertical roof plane")
     tol = z_tolerance / grid
+    lattice = int(round(snap / grid))  # plan lattice in grid steps
 
     def edges(face_rings):
         """Every directed ring edge: its face, start and end vertex, the next edge of its ring and the
@@ -304,11 +356,14 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, z_toleranc
         pl = planes[f]
         return np.round(-(pl[:, 0] * xy[:, 0] + pl[:, 1] * xy[:, 1] + pl[:, 3]) / pl[:, 2] / grid)
 
-    def snap(p, zz):
+    crossings: set[int] = set()  # vertices where two planes cross: one height, whatever the tolerance
+
+    def one_height(p, zz):
         """One height per (vertex, near-equal heights): a ridge is one line for both of its planes."""
         order = np.lexsort((zz, p))
         sv, sz = p[order], zz[order]
-        new_group = np.r_[True, (sv[1:] != sv[:-1]) | (np.diff(sz) >= tol)]
+        forced = np.isin(sv[1:], np.fromiter(crossings, dtype=np.int64, count=len(crossings)))
+        new_group = np.r_[True, (sv[1:] != sv[:-1]) | ((np.diff(sz) >= tol) & ~forced)]
         gid = np.cumsum(new_group) - 1
         mean = np.round(np.bincount(gid, weights=sz) / np.bincount(gid)).astype(np.int64)
         out = np.empty_like(zz)
@@ -332,7 +387,7 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, z_toleranc
     for _ in range(4):
         f, p, q, nx, opp = edges(face_rings)
         zz = z_at(f, p).astype(np.int64)
-        snapped = snap(p, zz)
+        snapped = one_height(p, zz)
         has = opp >= 0
         o = np.maximum(opp, 0)
         zl_q = snapped[nx]
@@ -345,12 +400,20 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, z_toleranc
         d0 = (zz[cross] - zz[nx[o[cross]]]).astype(np.float64)
         d1 = (zz[nx[cross]] - zz[o[cross]]).astype(np.float64)
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
-        w = np.round(xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])).astype(np.int64)
+        exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for pp, qq, (wx, wy) in zip(p[cross].tolist(), q[cross].tolist(), w.tolist()):
-            if (wx, wy) in table.index:
+        for pp, qq, (ex, ey) in zip(p[cross].tolist(), q[cross].tolist(), exact.tolist()):
+            # the nearest lattice point that is not a vertex yet (a crossing within half a step of
+            # a vertex would land on it): the edge bends by at most a step there, in both faces
+            near = sorted(((x - ex) ** 2 + (y - ey) ** 2, x * lattice, y * lattice) for x in (np.floor(ex), np.ceil(ex))
+                          for y in (np.floor(ey), np.ceil(ey)))
+            free = [(int(x), int(y)) for _, x, y in near if (int(x), int(y)) not in table.index]
+            if not free:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
-            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex((wx, wy))
+            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free[0])
+            # on the lattice the point is up to half a step off the crossing, where the two
+            # heights may differ by more than the tolerance: they are made one there
+            crossings.add(crossing[(pp, qq)])
         face_rings = [[_insert(r, crossing) for r in rings] for rings in face_rings]
     else:
         raise GeometryError("two roof faces cross along their shared edge")
@@ -407,5 +470,6 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, z_toleranc
     def surface(rings, kind):
         return Surface([np.asarray(r, dtype=np.float64) * grid for r in rings], kind)
 
+    roofs = _split_tilted(roofs, max_tilt)
     return Solid([surface(r, "RoofSurface") for r in roofs] + [surface(r, "WallSurface") for r in walls]
                  + [surface(ground, "GroundSurface")])

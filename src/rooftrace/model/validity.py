@@ -6,13 +6,20 @@ A valid :class:`~rooftrace.model.types.Solid` here is one outer shell that is
   in each direction (so the orientations agree), the surfaces around every
   vertex form one fan, and the shell is one connected piece;
 - **outward**: the enclosed (signed) volume is positive;
-- **planar**: every surface lies within ``planarity`` of its plane;
+- **planar**: every surface lies within ``planarity`` of its plane
+  (val3dity's error 203), and the triangles of its constrained
+  triangulation all face the same way, within ``normals_deviation``
+  degrees of each other (error 204: a surface a few millimetres wide is
+  flat by distance but its triangles tilt at random);
 - **simple in its plane**: every surface, projected on its plane, is a valid
   polygon (no self-intersection, holes inside the outer ring, area > 0),
   outer ring counter-clockwise seen from outside, holes clockwise.
 
-Vertices are compared on a grid (``grid``, 1 mm by default, the precision
-of the CityJSON writer), so two vertices closer than the grid are one.
+Vertices are first rounded to ``grid`` (1 mm by default, the precision of
+the CityJSON writer), then vertices closer than ``snap_tolerance`` are one,
+as val3dity snaps them when it reads a file: two vertices one grid step
+apart become one there, and a ring through both repeats a vertex (its
+error 102).
 What is *not* checked: intersections between different surfaces of the
 shell (val3dity's ``SHELL_SELF_INTERSECTION``); the builders make 2.5D
 shells (walls vertical, one roof height per plan position) where those
@@ -23,17 +30,19 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 
-__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal"]
+__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_triangles", "triangle_tilt",
+           "surface_tilt"]
 
 
-def _ring_table(solid):
+def _ring_table(surfaces):
     """All rings stacked: vertices (V, 3), ring of each vertex, next vertex, surface of each ring."""
-    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in solid.surfaces for r in s.rings]
+    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in surfaces for r in s.rings]
     sizes = np.array([len(r) for r in rings], dtype=np.int64)
-    owner = np.repeat(np.arange(len(solid.surfaces)), [len(s.rings) for s in solid.surfaces])
+    owner = np.repeat(np.arange(len(surfaces)), [len(s.rings) for s in surfaces])
     xyz = np.vstack(rings) if rings else np.zeros((0, 3))
     ring = np.repeat(np.arange(len(rings)), sizes)
     start = np.r_[0, np.cumsum(sizes)[:-1]]
@@ -82,7 +91,7 @@ def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     """
     if not solid.surfaces:
         return 0.0
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     if origin is None:
         origin = xyz[0]
     area = _area_vectors(xyz, ring, nxt, owner, sizes, len(solid.surfaces), origin) / 2.0
@@ -100,7 +109,148 @@ def _bases(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, _cross(n, u)
 
 
-def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planarity) -> list[str]:
+def surface_triangles(polys: np.ndarray, flat: np.ndarray, surf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay triangles of surfaces drawn in 2D, as indices of their vertices.
+
+    Parameters
+    ----------
+    polys : ndarray of shapely Polygon, shape (S,)
+        Each surface in 2D (its plane, or plan view for a roof), built from
+        the rows of ``flat`` (the triangulation adds no vertex).
+    flat : ndarray of shape (V, 2)
+        2D vertices of all surfaces (m).
+    surf : ndarray of shape (V,), int
+        Surface of each vertex.
+
+    Returns
+    -------
+    corners : ndarray of shape (T, 3), int
+        Rows of ``flat`` at each triangle's corners, counter-clockwise in 2D.
+    of : ndarray of shape (T,), int
+        Surface of each triangle.
+    """
+    tris, of = shapely.get_parts(shapely.constrained_delaunay_triangles(polys), return_index=True)
+    if not len(tris):
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    xy = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
+    # back to the vertex each corner is (the triangulation copies the vertices it is given);
+    # surfaces far apart in a third coordinate so that no corner finds another surface's vertex
+    span = np.abs(flat).max() * 4.0 + 1.0
+    _, at = cKDTree(np.column_stack([flat, surf * span])).query(
+        np.column_stack([xy.reshape(-1, 2), np.repeat(of, 3) * span]))
+    corners = at.reshape(-1, 3)
+    e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
+    cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
+    corners[cw] = corners[cw][:, ::-1]
+    return corners, of
+
+
+def triangle_tilt(xyz: np.ndarray, corners: np.ndarray, of: np.ndarray, unit: np.ndarray,
+                  limit: float) -> np.ndarray:
+    """Largest angle (degrees) between the normals of two triangles of each surface, where it matters.
+
+    val3dity's error 204 compares the normals of a surface's triangles; a
+    surface a few millimetres wide, or with vertices a centimetre apart, is
+    flat by distance yet its triangles tilt at random.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (V, 3)
+        Vertices (m).
+    corners, of : ndarray
+        Triangles as :func:`surface_triangles` gives them.
+    unit : ndarray of shape (S, 3)
+        Unit normal of each surface, on the side the triangles face.
+    limit : float
+        Tolerance (degrees) the result is compared with: the exact pairwise
+        angle is computed only for surfaces with a triangle more than half
+        of it from ``unit`` (two triangles within half of it of one
+        direction are within ``limit`` of each other).
+
+    Returns
+    -------
+    ndarray of shape (S,)
+        Triangles of zero area in 3D have no normal and are skipped.
+    """
+    tilt = np.zeros(len(unit))
+    p = xyz[corners]
+    normal = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    norm = np.linalg.norm(normal, axis=1)
+    ok = norm > 1e-12
+    normal, of = normal[ok] / norm[ok, None], of[ok]
+    off = np.degrees(np.arccos(np.clip((normal * unit[of]).sum(axis=1), -1.0, 1.0)))
+    np.maximum.at(tilt, of, off)
+    for k in np.flatnonzero(tilt > limit / 2):
+        n = normal[of == k]
+        tilt[k] = np.degrees(np.arccos(np.clip((n @ n.T).min(), -1.0, 1.0)))
+    return tilt
+
+
+def _centres(xyz, surf, n_surfaces):
+    count = np.bincount(surf, minlength=n_surfaces)
+    return np.column_stack([np.bincount(surf, weights=xyz[:, i], minlength=n_surfaces)
+                            for i in range(3)]) / np.maximum(count, 1)[:, None]
+
+
+def _in_plane(xyz, ring, nxt, owner, sizes, start, n_surfaces):
+    """Every surface drawn in its own plane (through its vertices' mean, across its Newell normal).
+
+    Returns the origin the coordinates are taken from, the area vectors, the
+    2D vertices, the rings and the first ring of each surface, and the
+    surfaces as 2D polygons.
+    """
+    origin = xyz.min(axis=0)
+    normal = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin)
+    surf = owner[ring]
+    rel = xyz - origin - _centres(xyz - origin, surf, n_surfaces)[surf]
+    u, v = _bases(np.where(np.linalg.norm(normal, axis=1, keepdims=True) > 1e-12, normal, [[0.0, 0.0, 1.0]]))
+    flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
+    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
+    closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
+    lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
+    n_rings = np.bincount(owner, minlength=n_surfaces)
+    first = np.r_[0, np.cumsum(n_rings)[:-1]]
+    simple = np.flatnonzero(n_rings == 1)
+    polys = np.empty(n_surfaces, dtype=object)
+    polys[simple] = shapely.polygons(lr[first[simple]])
+    for k in np.flatnonzero(n_rings > 1):
+        polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
+    return origin, normal, flat, lr, first, polys
+
+
+def surface_tilt(surfaces, limit: float = 20.0) -> np.ndarray:
+    """Largest angle (degrees) between two triangles of each surface, triangulated in its plane.
+
+    What :func:`solid_errors` compares with ``normals_deviation`` (see
+    :func:`triangle_tilt` for ``limit``).
+
+    Parameters
+    ----------
+    surfaces : sequence of Surface
+    limit : float, default 20
+
+    Returns
+    -------
+    ndarray of shape (S,)
+        0 for a surface that is not a valid polygon in its plane.
+    """
+    xyz, ring, nxt, owner, sizes, start = _ring_table(surfaces)
+    n = len(surfaces)
+    origin, normal, flat, _, _, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n)
+    norm = np.linalg.norm(normal, axis=1)
+    ok = (norm > 1e-12) & shapely.is_valid(polys)
+    tilt = np.zeros(n)
+    if ok.any():
+        keep = ok[owner[ring]]
+        index = np.cumsum(ok) - 1
+        corners, of = surface_triangles(polys[ok], flat[keep], index[owner[ring]][keep])
+        sub = triangle_tilt(xyz[keep] - origin, corners, of, normal[ok] / norm[ok, None], limit)
+        tilt[ok] = sub
+    return tilt
+
+
+def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planarity,
+                    normals_deviation) -> list[str]:
     """Rings with too few or repeated vertices, non-planar surfaces, surfaces not simple in their plane."""
     errors = []
     bad_ring = sizes < 3
@@ -116,39 +266,28 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
         errors.append(f"surface {k}: a ring passes twice through one vertex")
     if errors:
         return errors
-    origin = xyz.min(axis=0)
-    normal = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin)
+    origin, normal, flat, lr, first, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n_surfaces)
     norm = np.linalg.norm(normal, axis=1)
     for k in np.flatnonzero(~(norm > 1e-12)):
         errors.append(f"surface {k}: zero area")
     if errors:
         return errors
     surf = owner[ring]
-    count = np.bincount(surf, minlength=n_surfaces)
-    centre = np.column_stack([np.bincount(surf, weights=xyz[:, i] - origin[i], minlength=n_surfaces)
-                              for i in range(3)]) / count[:, None]
     unit = normal / norm[:, None]
+    centre = _centres(xyz - origin, surf, n_surfaces)
     dist = np.abs(((xyz - origin - centre[surf]) * unit[surf]).sum(axis=1))
     worst = np.zeros(n_surfaces)
     np.maximum.at(worst, surf, dist)
     for k in np.flatnonzero(worst > planarity):
         errors.append(f"surface {k}: not planar ({worst[k]:.4f} m from its plane)")
-    u, v = _bases(normal)
-    rel = xyz - origin - centre[surf]
-    flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
-    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
-    closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
-    lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
-    n_rings = np.bincount(owner, minlength=n_surfaces)
-    first = np.r_[0, np.cumsum(n_rings)[:-1]]
-    simple = np.flatnonzero(n_rings == 1)
-    polys = np.empty(n_surfaces, dtype=object)
-    polys[simple] = shapely.polygons(lr[first[simple]])
-    for k in np.flatnonzero(n_rings > 1):
-        polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
     valid = shapely.is_valid(polys)
     for k in np.flatnonzero(~valid):
         errors.append(f"surface {k}: self-intersecting in its plane ({shapely.is_valid_reason(polys[k])})")
+    if valid.all():
+        corners, of = surface_triangles(polys, flat, owner[ring])
+        tilt = triangle_tilt(xyz - origin, corners, of, unit, normals_deviation)
+        for k in np.flatnonzero(tilt > normals_deviation):
+            errors.append(f"surface {k}: not planar (its triangles' normals {tilt[k]:.1f} degrees apart)")
     ccw = shapely.is_ccw(lr)
     hole = np.ones(len(lr), bool)
     hole[first] = False
@@ -159,7 +298,8 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
     return errors
 
 
-def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[str]:
+def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tolerance: float = 1e-3,
+                 normals_deviation: float = 20.0) -> list[str]:
     """What makes a solid invalid; an empty list when it is valid.
 
     Parameters
@@ -170,7 +310,13 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[
         Newell normal through the vertices' mean; val3dity's default
         ``planarity_d2p_tol``).
     grid : float, default 0.001
-        Vertices closer than this (m) are one vertex.
+        Vertices are rounded to this grid (m), as the CityJSON writer does.
+    snap_tolerance : float, default 0.001
+        Rounded vertices this close (m) or closer are one vertex
+        (val3dity's default ``--snap_tol``; ``0``: only equal vertices).
+    normals_deviation : float, default 20
+        Largest angle (degrees) between the normals of two triangles of a
+        surface (val3dity's default ``--planarity_n_tol``).
 
     Returns
     -------
@@ -188,11 +334,18 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3) -> list[
     surfaces = solid.surfaces
     if len(surfaces) < 4:
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid)
+    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
-    _, vid = np.unique(keys, axis=0, return_inverse=True)
+    unique, vid = np.unique(keys, axis=0, return_inverse=True)
     vid = vid.ravel()
-    errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity)
+    if snap_tolerance > 0:
+        # val3dity compares decoded floats (``d < tol``): a pair exactly one tolerance apart may
+        # merge or not there, so it counts as merged here
+        pairs = cKDTree(unique * grid).query_pairs(snap_tolerance * (1 + 1e-6), output_type="ndarray")
+        if len(pairs):
+            vid = components(len(unique), pairs)[vid].astype(np.int64)
+    errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity,
+                             normals_deviation)
     if errors:
         return errors
     # closed and consistently oriented: each directed edge once, and its reverse once

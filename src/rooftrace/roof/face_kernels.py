@@ -1,11 +1,12 @@
 """Compiled loops of :func:`rooftrace.roof.faces.partition_outline`: the plane each raster cell takes.
 
 A cell whose k nearest labelled points disagree takes the candidate with
-the fewest violations of the intersection lines near it, then the most
-votes, then the nearest.  In numpy this went through (cells, k, k) arrays of
-candidate pairs, a third of the face partition on Delft; here one pass per
-cell does the integer bookkeeping.  The float work (distances of cells to
-lines, plane heights) stays in numpy, in :mod:`~rooftrace.roof.faces`.
+the fewest violations of the intersection lines near it, then (with
+``vote``) the most votes, then the nearest.  In numpy this went through
+(cells, k, k) arrays of candidate pairs, a third of the face partition on
+Delft; here one pass per cell does the integer bookkeeping.  The float
+work (distances of cells to lines, plane heights) stays in numpy, in
+:mod:`~rooftrace.roof.faces`.
 
 The kernels of :mod:`rooftrace.roof.faces`.
 """
@@ -62,14 +63,15 @@ def _n_lines(segidx):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def cell_choice(cand, segidx, ptr, line, near, sign, z):  # pragma: no cover - compiled
+def cell_choice(cand, segidx, ptr, line, near, sign, z, vote=True):  # pragma: no cover - compiled
     """Index (0..k-1) of the candidate each cell takes.
 
     Score, lowest wins (first on ties): violations x (k+1)² - votes x (k+1)
-    + rank, where a violation is a candidate pair across a line within the
-    tolerance (``near`` per entry of ``line``) whose heights ``z`` (R, k)
-    disagree with the line's convexity (``sign``: the lower plane across a
-    convex line, the higher across a concave one).
+    + rank (without ``vote``: violations x (k+1)² + rank), where a violation
+    is a candidate pair across a line within the tolerance (``near`` per
+    entry of ``line``) whose heights ``z`` (R, k) disagree with the line's
+    convexity (``sign``: the lower plane across a convex line, the higher
+    across a concave one).
     """
     n, k = cand.shape
     pos = np.full(_n_lines(segidx), -1, dtype=np.int64)
@@ -89,7 +91,7 @@ def cell_choice(cand, segidx, ptr, line, near, sign, z):  # pragma: no cover - c
                 if s >= 0 and near[pos[s]] and ((sign[s] > 0 and z[r, i] > z[r, j])
                                                  or (sign[s] < 0 and z[r, i] < z[r, j])):
                     viol += 1
-            score = viol * (k + 1) * (k + 1) - votes * (k + 1) + i
+            score = viol * (k + 1) * (k + 1) - (votes * (k + 1) if vote else 0) + i
             if i == 0 or score < best:
                 best, best_j = score, i
         choice[r] = best_j

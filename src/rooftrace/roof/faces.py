@@ -1,17 +1,26 @@
 """Roof faces that tile the outline, and the step edges between roof levels.
 
 The outline's bounding box is rasterised (cell ``cell`` m) and each cell
-takes a plane from its ``k`` nearest labelled points.  Near a ridge, hip or
-valley found by :mod:`rooftrace.roof.ridges` the nearest point is not good
-enough, so there a cell takes the candidate plane that agrees with the line's
-geometry: the lower of the two planes across a convex line, the higher across
-a concave one.  The face boundaries then follow the intersection lines (to
-the cell size) rather than the point pattern.  The label raster is turned
-into polygons (``rasterio.features.shapes``), the shared boundaries are
-simplified together (``shapely.coverage_simplify``, so neighbours keep
-identical edges), and each region is cut by the outline; slivers are merged
-into the neighbour they share most boundary with.  The faces therefore tile
-the outline exactly, and each face takes its Z from its plane.
+takes the plane of its nearest labelled point (the Voronoi partition of the
+labelled points, to the cell size): at a height step the boundary then lies
+halfway between the points of the two levels, so every labelled point sits
+under its own plane.  Near a ridge, hip or valley found by
+:mod:`rooftrace.roof.ridges` the nearest point is not good enough, so there a
+cell takes the candidate plane (of its ``k`` nearest labelled points) that
+agrees with the line's geometry: the lower of the two planes across a convex
+line, the higher across a concave one.  The face boundaries then follow the
+intersection lines (to the cell size) rather than the point pattern; a line
+that would put the points beside it under the other plane (two roof levels
+whose extended planes cross near their step) is not used.  The
+label raster is turned into polygons (``rasterio.features.shapes``), the
+shared boundaries are simplified together (``shapely.coverage_simplify``, so
+neighbours keep identical edges) as far as that moves no more labelled points
+under a face more than ``max_dz`` off their own plane than the raster has
+(straight edges along ridges, where the two planes agree, and the step edges
+kept where the points put them), and each region is cut by the outline;
+slivers are merged into the neighbour they share most boundary with.  The
+faces therefore tile the outline exactly, and each face takes its Z from its
+plane.
 """
 
 from __future__ import annotations
@@ -22,13 +31,15 @@ import numpy as np
 import shapely
 from rasterio import features
 from rasterio.transform import Affine
+from scipy import ndimage
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
+from rooftrace.graph import components
 from rooftrace.roof.face_kernels import cell_choice, cell_lines
 from rooftrace.roof.planes import plane_height
 
-__all__ = ["partition_outline", "snap_to_lines", "lift_to_plane", "step_edges"]
+__all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
 
 log = logging.getLogger(__name__)
 
@@ -83,6 +94,71 @@ def _absorb_slivers(polys: list, ids: list, min_area: float):
     return polys, ids
 
 
+def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.ndarray, planes: np.ndarray,
+               max_dz: float) -> int:
+    """Labelled points (plan ``xy``, own plane height ``own_z``) in a region whose plane is more than ``max_dz`` off."""
+    n = 0
+    box = shapely.bounds(regions)
+    for reg, pid, (x0, y0, x1, y1) in zip(regions, ids, box):
+        if pid < 0:
+            continue
+        # only points whose own plane this region's is far from can be misplaced in it: test just those
+        cand = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
+        a, b, c, d = planes[pid]
+        cand = cand[np.abs(-(a * xy[cand, 0] + b * xy[cand, 1] + d) / c - own_z[cand]) > max_dz]
+        if len(cand):
+            n += int(np.count_nonzero(shapely.contains_xy(reg, xy[cand, 0], xy[cand, 1])))
+    return n
+
+
+def _line_misplaces(ends: np.ndarray, a: int, b: int, convex: int, P: np.ndarray, lab: np.ndarray,
+                    planes: np.ndarray, tolerance: float, max_dz: float, few: float = 0.05) -> bool:
+    """Would the line rule (the lower plane across a convex line, the higher across a concave one) put
+    more than ``few`` of the points of planes ``a``, ``b`` within ``tolerance`` (m) of the line
+    ``ends`` under the other plane, more than ``max_dz`` (m) off their own?
+
+    True where the two planes' intersection line is not where they meet: a
+    step between two roof levels whose extended planes happen to cross near it
+    (there about half the points are across; at a true ridge only the few
+    the segmentation put on the wrong side, about 2 % on a sampled hip roof).
+    """
+    mine = np.flatnonzero((lab == a) | (lab == b))
+    mine = mine[_segment_distance(P[mine, :2], np.broadcast_to(ends[0], (len(mine), 2)),
+                                  np.broadcast_to(ends[1], (len(mine), 2))) <= tolerance]
+    if not len(mine):
+        return False
+    za, zb = plane_height(planes[[a, b]], P[mine, :2]).T
+    rule_a = za <= zb if convex > 0 else za >= zb  # where the rule gives plane a
+    wrong = np.where(lab[mine] == a, ~rule_a, rule_a) & (np.abs(za - zb) > max_dz)
+    return bool(wrong.sum() > max(3, few * len(mine)))
+
+
+def _regularised(regions: list, ids: list, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
+                 tolerance: float, floor: float, max_dz: float):
+    """The regions simplified together at the largest tolerance (m) that misplaces no more labelled points.
+
+    Tolerances ``tolerance, tolerance / 2, ...`` down to ``floor`` are
+    tried; a misplaced point is one under a region whose plane is more than
+    ``max_dz`` (m) off the point's own plane, counted against the raster
+    regions themselves (whose own misplacements are the cell size's).  When
+    none passes, the regions are simplified at ``floor``: below a cell that
+    only straightens the raster's staircases, within the raster's own error.
+    """
+    geoms = np.array(regions, dtype=object)
+    if tolerance <= 0 or not len(P):
+        return geoms
+    ids = np.asarray(ids, dtype=np.int64)
+    own_z = plane_height(planes[lab], P[:, :2])
+    base = _misplaced(geoms, ids, P[:, :2], own_z, planes, max_dz)
+    t = tolerance
+    while t > floor:
+        simplified = shapely.coverage_simplify(geoms, t, simplify_boundary=False)
+        if _misplaced(simplified, ids, P[:, :2], own_z, planes, max_dz) <= base:
+            return simplified
+        t /= 2
+    return shapely.coverage_simplify(geoms, floor, simplify_boundary=False) if floor > 0 else geoms
+
+
 def partition_outline(
     outline,
     xyz: np.ndarray,
@@ -95,6 +171,8 @@ def partition_outline(
     k: int = 8,
     min_area: float | None = None,
     simplify: float = 5.0,
+    vote: bool = False,
+    max_dz: float | None = 0.1,
 ):
     """Split the outline among the planes.
 
@@ -117,7 +195,19 @@ def partition_outline(
     min_area : float, optional
         Faces smaller than this (m²) are merged into a neighbour; default ``4 cell²``.
     simplify : float
-        Tolerance of the shared-boundary simplification, in cells.
+        Largest tolerance of the shared-boundary simplification, in cells.
+    vote : bool
+        A cell away from the lines takes the majority plane of its ``k``
+        nearest points (ties to the nearest) rather than the nearest point's:
+        smoother boundaries, but at a height step the majority moves the
+        boundary off the points (see docs/design-notes.md, 3D models).
+    max_dz : float or None
+        Simplification may not put more labelled points under a face more
+        than this (m) off their own plane than the raster does (the
+        tolerance is halved until it does not, down to 0.75 cells, which only
+        straightens the raster's staircases), and a line whose rule puts
+        more than 5 % of the points near it that far off is not used; None:
+        every line, and simplify at ``simplify`` cells regardless.
 
     Returns
     -------
@@ -153,8 +243,9 @@ def partition_outline(
     # Only cells whose neighbours disagree need a decision.
     rows = np.flatnonzero((cand != cand[:, :1]).any(axis=1))
     cm, Cm = cand[rows], C[rows]
-    # Majority of the k nearest points (ties to the nearest): a boundary
-    # smoother than the nearest point's Voronoi staircase.
+    # Where no line is near, the nearest point's plane (or with ``vote`` the
+    # majority of the k nearest, a smoother boundary that drifts off the
+    # points at a step).
     K = len(planes)
     segidx = np.full((K, K), -1, dtype=np.int64)
     seg, sign = np.zeros((0, 2, 2)), np.zeros(0, dtype=np.int64)
@@ -169,10 +260,13 @@ def partition_outline(
             pts = np.asarray(pts)
             d = pts - pts[0]
             t = d @ (d[np.argmax(np.hypot(d[:, 0], d[:, 1]))] if len(pts) > 1 else np.zeros(2))
+            ends = pts[[np.argmin(t), np.argmax(t)]]
+            if max_dz is not None and _line_misplaces(ends, a, b, cv, P, lab, planes, line_tolerance, max_dz):
+                continue  # the planes do not meet here (a step): the points decide
             segidx[a, b] = segidx[b, a] = len(seg)
-            seg.append(pts[[np.argmin(t), np.argmax(t)]])
+            seg.append(ends)
             sign.append(cv)
-        seg, sign = np.asarray(seg), np.asarray(sign, dtype=np.int64)
+        seg, sign = np.asarray(seg, dtype=np.float64).reshape(-1, 2, 2), np.asarray(sign, dtype=np.int64)
     # Only candidate pairs joined by a line matter, and only near the line:
     # each cell's distance to each such line, then fewest violations first,
     # then the vote (compiled, see rooftrace.roof.face_kernels).
@@ -181,7 +275,7 @@ def partition_outline(
     near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
     z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
     if len(rows):
-        choice[rows] = cm[np.arange(len(rows)), cell_choice(cm, segidx, ptr, line, near, sign, z)]
+        choice[rows] = cm[np.arange(len(rows)), cell_choice(cm, segidx, ptr, line, near, sign, z, vote)]
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
@@ -190,7 +284,18 @@ def partition_outline(
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
         regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
-    regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
+    if max_dz is None:
+        regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
+    else:
+        # only points near a region boundary can change region: those whose
+        # cell has another label within the tolerance (plus a cell)
+        r = int(np.ceil(simplify)) + 1
+        mixed = ndimage.maximum_filter(grid, 2 * r + 1) != ndimage.minimum_filter(grid, 2 * r + 1)
+        col = np.clip(((P[:, 0] - x0) / cell).astype(np.int64), 0, nx - 1)
+        row = np.clip(((y1 - P[:, 1]) / cell).astype(np.int64), 0, ny - 1)
+        near = mixed[row, col]
+        regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell,
+                               floor=min(0.75, simplify) * cell, max_dz=max_dz)
     polys, pids = [], []
     for reg, pid in zip(regions, ids):
         if pid < 0:
@@ -202,6 +307,71 @@ def partition_outline(
                 pids.append(pid)
     polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
     return polys, pids
+
+
+def merge_close_vertices(polys: list, outline, eps: float) -> list:
+    """Face vertices moved onto a vertex within ``eps`` (m): no face edge that short, the outline's vertices kept.
+
+    Where a cell staircase meets the outline, or its steps are projected onto
+    a ridge line (:func:`snap_to_lines`), vertices come out a fraction of a
+    millimetre apart, which the models' vertex grid and validators (val3dity
+    snaps at 1 mm) turn into repeated points or hair-thin walls.  A vertex
+    within ``eps`` of the outline goes onto it; a cluster of close vertices
+    moves onto its outline vertex, else onto a vertex on the outline, else
+    onto its first vertex in coordinate order, so vertices shared by two
+    faces stay shared; the outline's own vertices never move.  A face the
+    moves would make invalid keeps its vertices (and its neighbours keep the
+    shared ones); if the faces would stop tiling the outline, they are
+    returned unchanged.
+    """
+    if eps <= 0 or not polys:
+        return polys
+    coords = [shapely.get_coordinates(p) for p in polys]
+    xy, inv = np.unique(np.vstack(coords), axis=0, return_inverse=True)
+    ring = shapely.boundary(outline)
+    off = shapely.distance(ring, shapely.points(xy))
+    # vertices a hair inside the outline go onto it (else the wall there is a hair long)
+    graze = (off > 0) & (off < eps)
+    pos = xy.copy()
+    if graze.any():
+        pos[graze] = shapely.get_coordinates(shapely.line_interpolate_point(
+            ring, shapely.line_locate_point(ring, shapely.points(xy[graze]))))
+    pairs = cKDTree(pos).query_pairs(eps, output_type="ndarray")
+    if not len(pairs) and not graze.any():
+        return polys
+    corners = shapely.get_coordinates(ring)
+    fixed = cKDTree(corners).query(xy)[0] == 0
+    label = components(len(xy), pairs.reshape(-1, 2))
+    # the target of each cluster: its outline vertex, else a vertex on the outline (cuts of a face boundary with
+    # it), else its first vertex; ties in coordinate order (xy is sorted)
+    order = np.lexsort((np.arange(len(xy)), off >= eps, ~fixed))
+    rank = np.empty(len(xy), dtype=np.int64)
+    rank[order] = np.arange(len(xy))
+    best = np.full(label.max() + 1, len(xy), dtype=np.int64)
+    np.minimum.at(best, label, rank)
+    target = np.where(fixed, np.arange(len(xy)), order[best[label]])  # the outline's own vertices stay
+    inv = inv.ravel()
+    starts = np.cumsum([0] + [len(c) for c in coords])
+    area = sum(p.area for p in polys)
+    held = np.zeros(len(xy), bool)
+    # a face the moves would make invalid keeps its vertices (and so do its neighbours, which share them)
+    for _ in range(8):
+        at = np.where(held[:, None], xy, pos)[np.where(held, np.arange(len(xy)), target)][inv]
+        try:
+            moved = [shapely.remove_repeated_points(shapely.transform(p, lambda _, a=at[starts[k]:starts[k + 1]]: a))
+                     for k, p in enumerate(polys)]
+        except shapely.errors.GEOSException:
+            break
+        bad = [k for k, p in enumerate(moved) if not (p.geom_type == "Polygon" and not p.is_empty and p.is_valid)]
+        if not bad:
+            if (abs(sum(p.area for p in moved) - area) <= 1e-6 * max(area, 1.0)
+                    and abs(shapely.union_all(moved).area - area) <= 1e-6 * max(area, 1.0)):
+                return moved
+            break
+        for k in bad:
+            held[inv[starts[k]:starts[k + 1]]] = True
+    log.debug("merging close face vertices undone (would break the tiling)")
+    return polys
 
 
 def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:

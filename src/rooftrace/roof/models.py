@@ -21,7 +21,8 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
-__all__ = ["RoofModel", "gable", "hip", "l_hip", "flat_annex", "shed", "gable_dormer", "sample_roof", "BENCHMARK_MODELS"]
+__all__ = ["RoofModel", "gable", "hip", "l_hip", "flat_annex", "shed", "gable_dormer", "terraced", "sample_roof",
+           "BENCHMARK_MODELS"]
 
 
 @dataclass
@@ -202,6 +203,31 @@ def gable_dormer(positions=(8.0,), *, width=4.0, angle=0.0, offset=(0.0, 0.0)):
         ridges.append([(x - width / 2, yv, 5.0 + t * yv), (x + width / 2, yv, 5.0 + t * yv)])
         kinds.append("valley")
     return _build("gable_dormer", [(0, 0), (16, 0), (16, 10), (0, 10)], lp, parts, ridges, kinds, (), angle, offset)
+
+
+def terraced(eaves=(5.0, 6.5, 4.0, 6.5), *, house=6.0, width=10.0, slope=35.0, angle=0.0, offset=(0.0, 0.0)):
+    """A terraced row of gable houses (ridges along the row) at different eave heights (m).
+
+    Houses ``house`` m wide side by side along the local x axis; where two
+    eaves differ the party wall is a height step (its step edge, a gable
+    profile, is not listed), where they are equal the two roofs continue
+    each other (one pair of planes).
+    """
+    t = np.tan(np.radians(slope))
+    planes, parts, ridges, kinds = [], [], [], []
+    for i, eave in enumerate(eaves):
+        x0, x1 = i * house, (i + 1) * house
+        if i and eave == eaves[i - 1]:
+            parts[-1] = (parts[-1][0], 0, x1, width, parts[-1][4])
+            ridges[-1] = [ridges[-1][0], (x1, width / 2, eave + t * width / 2)]
+            continue
+        planes += [(eave, 0, t), (eave + t * width, 0, -t)]
+        parts.append((x0, 0, x1, width, [len(planes) - 2, len(planes) - 1]))
+        ridges.append([(x0, width / 2, eave + t * width / 2), (x1, width / 2, eave + t * width / 2)])
+        kinds.append("ridge")
+    n = len(eaves) * house
+    return _build("terraced", [(0, 0), (n, 0), (n, width), (0, width)], planes, parts, ridges, kinds, (),
+                  angle, offset)
 
 
 def sample_roof(model: RoofModel, density: float = 12.0, noise: float = 0.04, seed: int = 0):

@@ -29,7 +29,7 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.faces import lift_to_plane, partition_outline, snap_to_lines, step_edges
+from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines, step_edges
 from rooftrace.roof.planes import estimate_spacing
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import segment_planes
@@ -37,6 +37,10 @@ from rooftrace.roof.segmentation import segment_planes
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
 log = logging.getLogger(__name__)
+
+#: shortest face edge (m): closer face vertices are merged (val3dity snaps vertices within 1 mm, and the models
+#: write on a 1 mm grid, so shorter edges come out as repeated points)
+MIN_FACE_EDGE = 0.01
 
 
 @dataclass(frozen=True)
@@ -345,6 +349,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
+        polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
         roof.status = "no_faces"
