@@ -185,7 +185,7 @@ class ClassifyOptions:
         (L_Dxy about 1.6 m) the roof level of a 100 m² house took in 215
         points of the crowns beside it (non-last returns 0.76, the roof's 0)
         and the penetration tests dropped the house.  At AHN3 and LiDAR HD
-        densities (L_Dxy 0.55-0.65 m) region growing does not reach across
+        densities (L_Dxy 0.49-0.66 m) region growing does not reach across
         the gap between eaves and crown, and the split there took hedge
         cores in as roofs (Delft building F1 0.9605 -> 0.9594).  ``None``
         (``false`` in a config file): never.

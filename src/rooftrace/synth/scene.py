@@ -71,7 +71,7 @@ class SceneOptions:
     blur_sigma_px, image_noise : float
         Gaussian blur (pixels) and noise (standard deviation in [0, 1] units).
     trees : bool
-        Add trees (ellipsoid crowns, some over roof edges).
+        Add trees (ellipsoid crowns; over roof edges with ``overhanging_trees``).
     tree_density : float
         Trees per hectare of open ground.
     overhanging_trees : float
