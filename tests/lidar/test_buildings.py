@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar.buildings import drop_penetrated, split_cut, split_parts
+from rooftrace.lidar.buildings import drop_penetrated, split_cut, split_parts, split_patches
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, penetration
 
 
@@ -99,7 +99,8 @@ def test_split_cut_splits_only_the_groups_that_lost_points():
 
 
 @pytest.mark.parametrize("key, value", [("penetration_edge", 0.0), ("penetration_edge", 1.5),
-                                        ("max_patch_penetration", 0.0), ("patch_factor", 0.0)])
+                                        ("max_patch_penetration", 0.0), ("patch_factor", 0.0),
+                                        ("split_patches_from", -1.0)])
 def test_penetration_options_are_checked(key, value):
     with pytest.raises(ValueError, match=key):
         ClassifyOptions(**{key: value})
@@ -115,3 +116,20 @@ def test_local_penetration_sees_only_the_points_own_cluster():
     assert np.all(got[:25] == 0.0) and np.all(got[25:] == 1.0)
     labels[:5] = -1
     assert np.isnan(local_penetration(xy, labels, ret, 0.5)[:5]).all()
+
+
+def test_split_patches_takes_a_crown_off_a_roof_but_leaves_crowns_and_roofs_whole():
+    roof = grid(30, 20)  # 9 x 6 m at 0.3 m
+    crown = grid(10, 10, x0=9.0, y0=1.0)  # 3 x 3 m beside its east edge, pulses through at 3 of 4 points
+    hedge = grid(20, 4, x0=20.0)
+    xy = np.vstack([roof, crown, hedge])
+    returns = np.concatenate([np.zeros(len(roof)), (np.arange(len(crown)) % 4 > 0).astype(float),
+                              (np.arange(len(hedge)) % 4 > 0).astype(float)])
+    levels = np.repeat([0, 0, 1], [len(roof), len(crown), len(hedge)])
+    out = split_patches(xy, levels, returns, 0.9, 0.5, 20, 0.18)
+    assert (out[:len(roof)] == 0).all()
+    assert np.mean(out[len(roof):len(roof) + len(crown)] == 2) > 0.8
+    # a crown on its own has no solid rest: it stays whole
+    assert (out[-len(hedge):] == 1).all()
+    # a roof too small once the patches leave stays whole too
+    assert (split_patches(xy, levels, returns, 0.9, 0.5, len(roof) + 50, 0.18)[:len(roof) + len(crown)] == 0).all()

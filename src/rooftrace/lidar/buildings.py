@@ -107,6 +107,64 @@ def drop_penetrated(xy: np.ndarray, group: np.ndarray, returns: np.ndarray, radi
     return group
 
 
+def split_patches(xy: np.ndarray, levels: np.ndarray, returns: np.ndarray, radius: float, max_fraction: float,
+                  min_points: int, max_share: float) -> np.ndarray:
+    """Take the penetrated patches out of the roof levels whose remaining points are a solid roof.
+
+    A patch is the points of a level around which more than
+    ``max_fraction`` of the level's points within ``radius`` in plan are
+    non-last returns (:func:`drop_penetrated`): a crown over the eaves that
+    region growing joined to the roof at low density.  When the rest of the
+    level has at least ``min_points`` points and at most ``max_share`` of
+    them are non-last returns, the patches become a level of their own, so
+    the roof and the crown are judged apart; otherwise (a crown, a heap of
+    crowns, a roof without patches) the level stays whole.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Plan coordinates (m).
+    levels : ndarray of shape (N,), int
+        Roof level of each point, 0..K-1.
+    returns : ndarray of shape (N,), float64
+        1.0 where a point is not the last return of its pulse.
+    radius : float
+        Plan radius of the neighbourhood (m).
+    max_fraction : float
+        Largest fraction of non-last returns around a point of the roof.
+    min_points : int
+        Smallest roof left once the patches are out (T_Np).
+    max_share : float
+        Largest fraction of non-last returns of that roof.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        Levels 0..K'-1: the split levels' patches numbered from K on.
+
+    Examples
+    --------
+    >>> g = np.stack(np.meshgrid(np.arange(10.0), np.arange(4.0)), -1).reshape(-1, 2)
+    >>> crown = (g[:, 0] >= 6).astype(float)  # the east part lets pulses through
+    >>> split_patches(g, np.zeros(40, int), crown, 1.5, 0.5, 10, 0.2).reshape(4, 10)[0].tolist()
+    [0, 0, 0, 0, 0, 0, 1, 1, 1, 1]
+    """
+    levels = np.asarray(levels, dtype=np.int64)
+    k = int(levels.max(initial=-1)) + 1
+    own = drop_penetrated(xy, levels, returns, radius, max_fraction)
+    n_own = np.bincount(own[own >= 0], minlength=k)
+    share = np.bincount(own[own >= 0], np.asarray(returns, np.float64)[own >= 0], minlength=k) / np.maximum(n_own, 1)
+    solid = (n_own >= min_points) & (share <= max_share)
+    patch = (own < 0) & solid[levels]
+    if not patch.any():
+        return levels
+    # one new level per split level, numbered in the order of the old ones
+    split = np.flatnonzero(solid & (np.bincount(levels[patch], minlength=k) > 0))
+    new = np.full(k, -1, np.int64)
+    new[split] = k + np.arange(len(split))
+    return np.where(patch, new[levels], levels)
+
+
 def split_parts(xy: np.ndarray, group: np.ndarray, radius: float, min_points: int) -> np.ndarray:
     """One group per part of a building that is connected in plan at ``radius``; parts under ``min_points`` leave.
 

@@ -64,7 +64,7 @@ from threadpoolctl import threadpool_limits
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.lidar._kernels import unique_pairs
-from rooftrace.lidar.buildings import assemble_buildings, group_widths
+from rooftrace.lidar.buildings import assemble_buildings, group_widths, split_patches
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
 from rooftrace.lidar.features import eigen_features
@@ -327,6 +327,14 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
         normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
+        returns = _penetration(cloud, above)
+        split = (co.split_patches_from is not None and link_d >= co.split_patches_from
+                 and co.max_penetration is not None and co.max_patch_penetration is not None)
+        if split and returns is not None and len(levels):
+            # at low density L_Dxy reaches into a crown over the eaves: the
+            # roof is judged on its own points, the crown on its own
+            levels = split_patches(pts[high, :2], levels, returns[high], co.patch_factor * link_d,
+                                   co.max_patch_penetration, min_pts, co.max_penetration * co.building_penetration)
         sizes = np.bincount(levels, minlength=int(levels.max(initial=-1)) + 1)
         params["segment"] = {
             **options_dict(so), "link_distance": link_d, "sector_reach": reach, "link_height": link_h,
@@ -370,7 +378,6 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
                 building_level |= smooth & ~linear_level
             cparams["n_smooth"] = int((big & smooth).sum())
         linear = big & linear_level
-        returns = _penetration(cloud, above)
         penetrated = np.zeros(len(sizes), bool)
         if co.max_penetration is not None and returns is not None:
             share = cluster_means(levels, returns[high], len(sizes))

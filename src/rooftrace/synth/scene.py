@@ -71,9 +71,18 @@ class SceneOptions:
     blur_sigma_px, image_noise : float
         Gaussian blur (pixels) and noise (standard deviation in [0, 1] units).
     trees : bool
-        Add trees (ellipsoid crowns, some over roof edges).
+        Add trees (ellipsoid crowns; over roof edges with ``overhanging_trees``).
     tree_density : float
         Trees per hectare of open ground.
+    overhanging_trees : float
+        Share of the low buildings (ridge under 12 m) that get a crown over
+        a roof edge.  Default 0: until this option the crowns meant to
+        overhang roofs were never placed (each was tested against its own
+        roof), and every scene and figure so far has none.
+    crowns_to_eaves : bool
+        Those crowns hang down to the eaves (crown bottom 0.3 m above the
+        eave height, standing at the wall) instead of clearing the ridge by
+        1 m: the harshest case for detection, a crown touching the roof.
     power_line : bool
         Add a three-conductor power line across the scene (ASPRS class 14).
     scan_pattern : {'zigzag', 'parallel', 'random'}
@@ -129,6 +138,8 @@ class SceneOptions:
     image_noise: float = 0.012
     trees: bool = True
     tree_density: float = 14.0
+    overhanging_trees: float = 0.0
+    crowns_to_eaves: bool = False
     power_line: bool = False
     scan_pattern: str = "zigzag"
     line_spacing: float | None = None
@@ -173,6 +184,8 @@ class SceneOptions:
         if self.line_spacing is not None and not (isinstance(self.line_spacing, (int, float))
                                                   and 0.05 <= self.line_spacing <= 20.0):
             raise InputError(f"simulate: line_spacing must be between 0.05 and 20 m, got {self.line_spacing!r}")
+        if not (isinstance(self.overhanging_trees, (int, float)) and 0.0 <= self.overhanging_trees <= 1.0):
+            raise InputError(f"simulate: overhanging_trees must be between 0 and 1, got {self.overhanging_trees!r}")
         if self.cell > 0.25:
             raise InputError(f"simulate: cell must be at most 0.25 m, got {self.cell!r}")
         if len(tuple(self.origin)) != 2:
@@ -265,10 +278,12 @@ class PowerLine:
 
 def place_trees(options: SceneOptions, buildings: list[Building], terrain: Terrain,
                 rng: np.random.Generator) -> Trees:
-    """Trees on open ground (``tree_density`` per hectare) plus a few whose crowns overhang roof edges.
+    """Trees on open ground (``tree_density`` per hectare) plus, on request, crowns over roof edges.
 
-    Free trees keep their crown clear of every roof; overhanging trees stand
-    beside a wall with the crown bottom at least 0.5 m above that roof.
+    Free trees keep their crown clear of every roof; overhanging trees
+    (``overhanging_trees`` of the low buildings, none by default) stand beside a wall with the
+    crown bottom 1 m above that roof's ridge, or with ``crowns_to_eaves``
+    0.3 m above its eaves, the crown reaching over the roof.
     """
     roofs = [b.roof_outline for b in buildings]
     union = shapely.union_all(roofs) if roofs else shapely.Polygon()
@@ -289,23 +304,26 @@ def place_trees(options: SceneOptions, buildings: list[Building], terrain: Terra
         cs.append([p[0], p[1], float(terrain.height(*p)) + rng.uniform(2.0, 4.0) + v])
         rh.append(r)
         rv.append(v)
-    # crowns over roof edges: beside the first few low buildings
-    n_over = min(len(buildings), max(1, int(round(len(buildings) / 5)))) if buildings else 0
-    low = [b for b in buildings if b.ridge_height < 12][:n_over]
-    for b in low:
-        ring = b.roof_outline.exterior
-        p = np.asarray(ring.interpolate(rng.uniform(0, ring.length)).coords[0])
-        r = rng.uniform(2.8, 3.8)
-        away = p - np.asarray(b.roof_outline.centroid.coords[0])
+    # crowns over roof edges, beside the first few low buildings; their own
+    # stream, so the free trees and the power line do not depend on them
+    over_rng = np.random.default_rng([int(options.seed), 0x0E1A])
+    n_over = min(len(buildings), int(round(len(buildings) * options.overhanging_trees)))
+    low = [i for i, b in enumerate(buildings) if b.ridge_height < 12][:n_over]
+    for i in low:
+        b = buildings[i]
+        ring = roofs[i].exterior
+        p = np.asarray(ring.interpolate(over_rng.uniform(0, ring.length)).coords[0])
+        r = over_rng.uniform(2.8, 3.8)
+        away = p - np.asarray(roofs[i].centroid.coords[0])
         p = p + away / max(np.hypot(*away), 1e-9) * r * 0.45
         if not (x0 + r < p[0] < x1 - r and y0 + r < p[1] < y1 - r):
             continue
-        others = [o for o in roofs if o is not b.roof_outline]
+        others = roofs[:i] + roofs[i + 1:]
         if others and shapely.union_all(others).distance(shapely.Point(p)) < r + 0.5:
             continue
-        v = r * rng.uniform(1.0, 1.3)
+        v = r * over_rng.uniform(1.0, 1.3)
         ground = float(terrain.height(*p))
-        cz = ground + b.ridge_height + 1.0 + v
+        cz = ground + (b.eave_height + 0.3 if options.crowns_to_eaves else b.ridge_height + 1.0) + v
         cs.append([p[0], p[1], cz])
         rh.append(r)
         rv.append(v)
