@@ -36,9 +36,9 @@ import shapely
 
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
-from rooftrace.model.solid import horizontal_plane, prism_solid
-from rooftrace.model.types import BuildingModel, PartModel, Solid
-from rooftrace.model.validity import solid_errors, solid_volume
+from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
+from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
+from rooftrace.model.validity import overlapping_parts, solid_errors, solid_plan, solid_volume
 
 __all__ = ["ModelOptions", "build_model", "ground_height"]
 
@@ -191,9 +191,32 @@ def _checked(solid: Solid, options: ModelOptions) -> Solid:
     return solid
 
 
+def _cut(footprints: list, cells: list, snap: float) -> list[tuple[Any, list]]:
+    """Per part its footprint and the roof cells cut to it.
+
+    Several parts are cut from one arrangement on the plan lattice
+    (:func:`~rooftrace.model.solid.party_walls`), so that their solids
+    share their party walls vertex for vertex instead of overlapping by a
+    sliver there.
+    """
+    if len(footprints) > 1:
+        try:
+            return party_walls(footprints, cells, snap)
+        except _FAILURES as exc:
+            log.warning("parts not cut together (%s): each part on its own", exc)
+    out = []
+    for k, fp in enumerate(footprints, start=1):
+        try:
+            out.append((fp, _clip(cells, fp)))
+        except _FAILURES as exc:
+            log.warning("part %d: roof faces not cut to the part (%s)", k, exc)
+            out.append((fp, []))
+    return out
+
+
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
-          options: ModelOptions) -> tuple[PartModel, dict[str, str]]:
-    """One part's three solids, and why any of them is missing."""
+          options: ModelOptions, lods: tuple[str, ...] = LODS) -> tuple[PartModel, dict[str, str]]:
+    """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing."""
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
     shapely.prepare(footprint)
@@ -205,15 +228,11 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
     h = float(np.percentile(z, options.roof_percentile))
     part.attributes["h_roof_lod12"] = round(h, 3)
     kw = dict(footprint=footprint, grid=options.grid, snap=options.snap, z_tolerance=options.z_tolerance)
-    try:
-        part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
-    except _FAILURES as exc:
-        why["1.2"] = str(exc)
-    try:
-        cells = _clip(cells, footprint)
-    except _FAILURES as exc:
-        log.warning("part %d: roof faces not cut to the part (%s)", part_id, exc)
-        cells = []
+    if "1.2" in lods or not cells:
+        try:
+            part.lods["1.2"] = _checked(prism_solid([(footprint, horizontal_plane(h))], ground, **kw), options)
+        except _FAILURES as exc:
+            why["1.2"] = str(exc)
     if not cells:
         why["2.2"] = f"no roof faces ({roof_status})"
         if "1.2" in part.lods:
@@ -222,24 +241,75 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             why["1.3"] = why["1.2"]
         return part, why
     kw["footprint"] = _with_face_corners(footprint, cells)
-    try:
-        levels = []
-        for members in _levels(cells, options.level_step):
-            poly = shapely.union_all([cells[i][0] for i in members])
-            shapely.prepare(poly)
-            zl = xyz[shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]), 2]
-            hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
-            levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
-        part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)
-    except _FAILURES as exc:
-        why["1.3"] = str(exc)
-    try:
-        part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
-    except _FAILURES as exc:
-        why["2.2"] = str(exc)
+    if "1.3" in lods:
+        try:
+            levels = []
+            for members in _levels(cells, options.level_step):
+                poly = shapely.union_all([cells[i][0] for i in members])
+                shapely.prepare(poly)
+                zl = xyz[shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]), 2]
+                hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
+                levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
+            part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)
+        except _FAILURES as exc:
+            why["1.3"] = str(exc)
+    if "2.2" in lods:
+        try:
+            part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
+        except _FAILURES as exc:
+            why["2.2"] = str(exc)
     for lod, solid in part.lods.items():
         part.attributes[f"volume_lod{lod.replace('.', '')}"] = round(solid_volume(solid), 3)
     return part, why
+
+
+def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
+                       options: ModelOptions, rounds: int = 3) -> None:
+    """Rebuild the solids of parts that overlap a neighbour, their party wall bent as the neighbour's.
+
+    Cut from one arrangement, two parts start with the same party wall; but
+    ``prism_solid`` may still move it in one of them (the disk that opens a
+    saddle vertex on the wall crosses it between two vertices, and the
+    crossing, on the lattice, is up to 0.7 lattice steps off the wall).  The
+    two solids then overlap by a sliver (val3dity's error 601).  The other
+    part gets that vertex in its footprint and cells too
+    (:func:`shapely.snap`) and its solid of that level of detail is rebuilt,
+    so both walls bend alike; a few rounds, as a rebuild may move another
+    vertex.  ``parts`` are changed in place.
+    """
+    tol = 0.75 * options.snap  # above the half diagonal of a lattice cell, below a step
+    for lod in LODS:
+        bases = {k: cut[k] for k in range(len(parts))}
+        for attempt in range(rounds + 1):
+            have = [k for k, p in enumerate(parts) if lod in p.lods]
+            pairs = overlapping_parts([parts[k].lods[lod] for k in have], grid=options.grid)
+            if not pairs:
+                break
+            if attempt == rounds:
+                log.warning("LoD %s: parts %s still overlap", lod, [(have[a] + 1, have[b] + 1) for a, b in pairs])
+                break
+            plans = {have[i]: solid_plan(parts[have[i]].lods[lod], grid=options.grid) for pair in pairs for i in pair}
+            extra: dict[int, list] = {}
+            for a, b in pairs:
+                for i, j in ((have[a], have[b]), (have[b], have[a])):
+                    xy = shapely.get_coordinates(plans[i])
+                    mine = {tuple(v) for v in np.round(shapely.get_coordinates(plans[j]) / options.grid).tolist()}
+                    new = np.array([tuple(v) not in mine for v in np.round(xy / options.grid).tolist()], dtype=bool)
+                    near = new & (shapely.distance(shapely.points(xy), plans[j].boundary) < tol)
+                    if near.any():
+                        extra.setdefault(j, []).append(xy[near])
+            if not extra:
+                log.warning("LoD %s: parts %s overlap", lod, [(have[a] + 1, have[b] + 1) for a, b in pairs])
+                break
+            for j, points in sorted(extra.items()):
+                ref = shapely.multipoints(np.vstack(points))
+                fp, cells = bases[j]
+                bases[j] = (shapely.snap(fp, ref, tol), [(shapely.snap(c, ref, tol), plane) for c, plane in cells])
+                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,))
+                if lod in again.lods:
+                    parts[j].lods[lod] = again.lods[lod]
+                    parts[j].attributes[f"volume_lod{lod.replace('.', '')}"] = again.attributes[
+                        f"volume_lod{lod.replace('.', '')}"]
 
 
 def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequence | None = None,
@@ -293,10 +363,16 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         if g.geom_type == "Polygon" and g.area > 0]
     cells = _roof_cells(roof)
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
-    reasons: list[str] = []
-    for k, fp in enumerate(footprints, start=1):
-        part, why = _part(k, fp, cells, xyz, float(ground), roof_status, opt)
+    cut = _cut(footprints, cells, opt.snap)
+    whys = []
+    for k, (fp, part_cells) in enumerate(cut, start=1):
+        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt)
         model.parts.append(part)
+        whys.append(why)
+    if len(model.parts) > 1:
+        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt)
+    reasons: list[str] = []
+    for k, why in enumerate(whys, start=1):
         for lod, reason in sorted(why.items()):
             reasons.append(f"lod{lod.replace('.', '')}" + (f" part {k}" if len(footprints) > 1 else "")
                            + f": {reason}")

@@ -51,7 +51,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.model.types import Solid, Surface
 from rooftrace.model.validity import surface_tilt, surface_triangles
 
-__all__ = ["prism_solid", "horizontal_plane"]
+__all__ = ["prism_solid", "horizontal_plane", "party_walls"]
 
 
 def horizontal_plane(height: float) -> np.ndarray:
@@ -123,6 +123,68 @@ def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[i
     if len(whole) != 1:
         raise GeometryError(f"the footprint falls into {len(whole)} pieces")
     return faces, face_cell, shapely.orient_polygons(whole[0], exterior_cw=False)
+
+
+def party_walls(footprints: list, cells: list, snap: float) -> list[tuple]:
+    """Each part's footprint and roof cells, all cut from one arrangement on the plan lattice.
+
+    Built one part at a time, the party wall between two parts would be
+    snapped to the ``snap`` lattice twice: where a roof face's edge meets it
+    one part gets a vertex there, rounded off the straight wall, and the
+    other part does not, so the two solids overlap by a sliver (val3dity's
+    error 601, BuildingParts overlap).  Noded once for the whole building -
+    every part's boundary and every face's boundary together - both sides of
+    a party wall have the same vertices, every face cut point included, and
+    :func:`~rooftrace.model.solid.prism_solid` finds nothing left to move.
+
+    Parameters
+    ----------
+    footprints : list of shapely Polygon
+        The parts' plan outlines (they should tile the building).
+    cells : list of (shapely Polygon, ndarray of shape (4,))
+        Roof faces in plan with their planes.
+    snap : float
+        Plan lattice (m).
+
+    Returns
+    -------
+    list of (shapely geometry, list of (shapely Polygon, ndarray))
+        Per footprint, in order: the footprint on the lattice (empty when it
+        vanished there) and its cells, overlaps to the first cell as in
+        ``prism_solid``; pieces no cell holds stay gaps for it to fill.
+    """
+    fps = shapely.set_precision(np.array(footprints, dtype=object), snap)
+    cps = shapely.set_precision(np.array([c for c, _ in cells], dtype=object), snap)
+    lines = [shapely.boundary(g) for g in (*fps, *cps) if not g.is_empty]
+    noded = shapely.union_all(lines, grid_size=snap)
+    pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
+    reps = shapely.point_on_surface(pieces)
+
+    def first_holder(polys):
+        owner = np.full(len(pieces), len(polys), dtype=np.int64)
+        at, of = shapely.STRtree(polys).query(reps, predicate="within")
+        np.minimum.at(owner, at, of)  # the first one wins: a fixed rule, deterministic
+        return owner
+
+    part_of = first_holder(fps)
+    cell_of = first_holder(cps) if len(cps) else np.full(len(pieces), 0, dtype=np.int64)
+    out = []
+    for k in range(len(fps)):
+        mine = part_of == k
+        footprint = _dissolve(pieces[mine], snap)
+        mine_cells = []
+        for c in np.unique(cell_of[mine & (cell_of < len(cps))]):
+            mine_cells.extend((g, cells[c][1]) for g in shapely.get_parts(_dissolve(pieces[mine & (cell_of == c)], snap)))
+        out.append((footprint, mine_cells))
+    return out
+
+
+def _dissolve(pieces: np.ndarray, snap: float):
+    """Union of pieces of one noded arrangement (edges shared exactly: the coverage union keeps every node)."""
+    if not len(pieces):
+        return shapely.Polygon()
+    whole = shapely.coverage_union_all(pieces)
+    return whole if whole.is_valid else shapely.union_all(pieces, grid_size=snap)
 
 
 class _Rings:

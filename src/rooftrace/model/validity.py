@@ -20,6 +20,9 @@ the CityJSON writer), then vertices closer than ``snap_tolerance`` are one,
 as val3dity snaps them when it reads a file: two vertices one grid step
 apart become one there, and a ring through both repeats a vertex (its
 error 102).
+Between the solids of one building's parts, :func:`overlapping_parts` finds
+those whose interiors overlap (val3dity's error 601, ``BUILDINGPARTS_OVERLAP``).
+
 What is *not* checked: intersections between different surfaces of the
 shell (val3dity's ``SHELL_SELF_INTERSECTION``); the builders make 2.5D
 shells (walls vertical, one roof height per plan position) where those
@@ -35,7 +38,7 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 
 __all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_triangles", "triangle_tilt",
-           "surface_tilt"]
+           "surface_tilt", "overlapping_parts", "solid_plan"]
 
 
 def _ring_table(surfaces):
@@ -396,3 +399,63 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
 def is_valid_solid(solid, **kwargs) -> bool:
     """``solid_errors(solid, **kwargs) == []``."""
     return not solid_errors(solid, **kwargs)
+
+
+def solid_plan(solid, *, grid: float = 1e-3):
+    """The plan of a 2.5D solid: the union of its ``GroundSurface``\\ s, vertices rounded to ``grid`` (m)."""
+    rings = [[np.round(np.asarray(r, dtype=np.float64)[:, :2] / grid) * grid for r in s.rings]
+             for s in solid.surfaces if s.kind == "GroundSurface"]
+    return shapely.union_all([shapely.Polygon(r[0], r[1:]) for r in rings])
+
+
+def overlapping_parts(solids, *, tolerance: float = 0.0, grid: float = 1e-3) -> list[tuple[int, int]]:
+    """Pairs of 2.5D solids (the parts of one building) whose interiors overlap.
+
+    val3dity's test of BuildingParts (error 601): two parts may share wall
+    surfaces but no volume.  For the builders' solids (vertical walls, one
+    ground surface, every plan position under the roof inside) two solids
+    overlap in 3D exactly when their plans' interiors overlap and their
+    height ranges do.
+
+    Parameters
+    ----------
+    solids : sequence of Solid
+        Each with its ``GroundSurface``\\ s: their union is its plan.
+    tolerance : float, default 0
+        Plans and height ranges are first shrunk by this distance (m), as
+        val3dity's ``--overlap_tol`` (default 0: any overlap counts, however
+        thin - a sliver of a few mm² between two party walls is one).
+    grid : float, default 0.001
+        Vertices are rounded to this grid (m) first, as the CityJSON writer
+        does.
+
+    Returns
+    -------
+    list of (int, int)
+        Index pairs ``i < j`` into ``solids``, in order.
+
+    Examples
+    --------
+    >>> from rooftrace.model.solid import horizontal_plane, prism_solid
+    >>> import shapely
+    >>> a = prism_solid([(shapely.box(0, 0, 5, 8), horizontal_plane(6.0))], 0.0)
+    >>> b = prism_solid([(shapely.box(5, 0, 10, 8), horizontal_plane(7.0))], 0.0)
+    >>> c = prism_solid([(shapely.box(4.99, 0, 10, 8), horizontal_plane(7.0))], 0.0)
+    >>> overlapping_parts([a, b]), overlapping_parts([a, b, c]), overlapping_parts([a, c], tolerance=0.01)
+    ([], [(0, 2), (1, 2)], [])
+    """
+    plans, low, high = [], [], []
+    for solid in solids:
+        plan = solid_plan(solid, grid=grid)
+        z = np.concatenate([np.asarray(r)[:, 2] for s in solid.surfaces for r in s.rings])
+        plans.append(plan.buffer(-tolerance, join_style="mitre") if tolerance > 0 else plan)
+        low.append(np.round(z.min() / grid) * grid + tolerance)
+        high.append(np.round(z.max() / grid) * grid - tolerance)
+    plans = np.array(plans, dtype=object)
+    i, j = shapely.STRtree(plans).query(plans, predicate="intersects")
+    keep = i < j
+    i, j = i[keep], j[keep]
+    # interiors meet (touching along a party wall does not count)
+    inner = shapely.relate_pattern(plans[i], plans[j], "T********")
+    pairs = zip(i[inner].tolist(), j[inner].tolist())
+    return sorted((a, b) for a, b in pairs if min(high[a], high[b]) > max(low[a], low[b]))
