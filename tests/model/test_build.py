@@ -16,6 +16,7 @@ from rooftrace.model import (
     vertical_rmse,
 )
 from rooftrace.model.measure import roof_height_at
+from rooftrace.model.validity import overlapping_parts
 from rooftrace.roof import RoofStructure, roof_structure
 from rooftrace.roof.models import flat_annex, gable, sample_roof, terraced
 
@@ -91,6 +92,8 @@ def test_parts_share_their_party_wall(gable_roof):
     assert [p.part_id for p in split.parts] == [1, 2]
     for p in split.parts:
         assert set(p.lods) == {"1.2", "1.3", "2.2"} and all(solid_errors(s) == [] for s in p.lods.values())
+    for lod in ("1.2", "1.3", "2.2"):
+        assert overlapping_parts([p.lods[lod] for p in split.parts]) == []
     v = sum(solid_volume(p.lods["2.2"]) for p in split.parts)
     assert v == pytest.approx(solid_volume(whole.parts[0].lods["2.2"]), rel=1e-3)
 

@@ -127,3 +127,30 @@ def test_planes_crossing_between_lattice_points_along_a_shared_edge(y0):
     top = np.vstack([s.rings[0] for s in solid.surfaces if s.kind == "RoofSurface"])
     at = top[(top[:, 0] == 5.0) & (np.abs(top[:, 1] - y0) < 0.01)]
     assert len(at) and np.abs(at[:, 2] - 20.0).max() <= 0.03
+
+
+@pytest.mark.parametrize("step_y", [3.3372, 4.1234])
+def test_parts_cut_together_do_not_overlap_where_built_alone_they_do(step_y):
+    from rooftrace.model.solid import party_walls
+    from rooftrace.model.validity import overlapping_parts, solid_plan
+
+    # a slanted party wall; in part a a roof step meets it between two of its vertices
+    a = shapely.Polygon([(0, 0), (4.0037, 0), (6.0011, 7.001), (0, 7.001)])
+    b = shapely.Polygon([(4.0037, 0), (10.003, 0), (10.003, 7.001), (6.0011, 7.001)])
+    low = shapely.box(0, 0, 10.003, step_y)
+    cells = [(a & low, horizontal_plane(6.0)), (a - low, horizontal_plane(8.0)), (b, horizontal_plane(7.0))]
+    # one part at a time: only a gets the step's end on the wall, rounded to the lattice off it
+    alone = [prism_solid([(c & fp, pl) for c, pl in cells if (c & fp).area > 0], 0.0, footprint=fp) for fp in (a, b)]
+    assert overlapping_parts(alone) == [(0, 1)]
+    assert shapely.intersection(*[solid_plan(s) for s in alone]).area > 1e-3
+    cut = party_walls([a, b], cells, 0.01)
+    assert [len(c) for _, c in cut] == [2, 1]
+    together = [prism_solid(c, 0.0, footprint=fp) for fp, c in cut]
+    assert overlapping_parts(together) == [] and all(solid_errors(s) == [] for s in together)
+    plans = [solid_plan(s) for s in together]
+    assert plans[0].union(plans[1]).area == pytest.approx(a.union(b).area, abs=0.05)  # 1 cm lattice
+    # the shared wall has the same vertices on both sides
+    wall = plans[0].boundary.intersection(plans[1].boundary)
+    near = [{tuple(v) for v in np.round(shapely.get_coordinates(p), 3).tolist()
+             if wall.distance(shapely.Point(v)) < 1e-9} for p in plans]
+    assert near[0] == near[1] and len(near[0]) >= 3

@@ -6,6 +6,7 @@ import copy
 
 import numpy as np
 import pytest
+import shapely
 
 from rooftrace.model import Solid, Surface, prism_solid, solid_errors, solid_volume
 from tests.model.cases import box, gable
@@ -99,3 +100,19 @@ def test_a_surface_flat_to_the_millimetre_whose_triangles_tilt_is_not_planar():
     errors = solid_errors(solid)
     assert any("triangles' normals" in e for e in errors) and not any("m from its plane" in e for e in errors)
     assert not any("triangles' normals" in e for e in solid_errors(solid, normals_deviation=89.0))
+
+
+def test_overlapping_parts_finds_slivers_and_not_shared_walls():
+    from rooftrace.model import horizontal_plane
+    from rooftrace.model.validity import overlapping_parts
+
+    left = prism_solid([(shapely.box(0, 0, 5, 8), horizontal_plane(6.0))], 0.0)
+    right = prism_solid([(shapely.box(5, 0, 10, 8), horizontal_plane(9.0))], 0.0)
+    # a party wall bent 7 mm into the neighbour over 8 m: 0.028 m² of overlap
+    bent = prism_solid([(shapely.Polygon([(4.993, 4), (5, 0), (10, 0), (10, 8), (5, 8)]), horizontal_plane(9.0))], 0.0)
+    above = prism_solid([(shapely.box(0, 0, 5, 8), horizontal_plane(20.0))], 10.0)  # a storey over left
+    assert overlapping_parts([left, right]) == []
+    assert overlapping_parts([left, right, bent]) == [(0, 2), (1, 2)]
+    assert overlapping_parts([left, bent], tolerance=0.01) == []  # val3dity's --overlap_tol
+    assert overlapping_parts([left, above]) == [] and overlapping_parts([right, above]) == []
+    assert overlapping_parts([left]) == []

@@ -160,20 +160,27 @@ def party_walls(footprints: list, cells: list, snap: float) -> list[tuple]:
     pieces = np.array(_polygons(shapely.polygonize(shapely.get_parts(noded))), dtype=object)
     reps = shapely.point_on_surface(pieces)
 
-    def first_holder(polys):
-        owner = np.full(len(pieces), len(polys), dtype=np.int64)
-        at, of = shapely.STRtree(polys).query(reps, predicate="within")
-        np.minimum.at(owner, at, of)  # the first one wins: a fixed rule, deterministic
-        return owner
-
-    part_of = first_holder(fps)
-    cell_of = first_holder(cps) if len(cps) else np.full(len(pieces), 0, dtype=np.int64)
+    part_of = np.full(len(pieces), len(fps), dtype=np.int64)
+    at, of = shapely.STRtree(fps).query(reps, predicate="within")
+    np.minimum.at(part_of, at, of)  # the first one wins: a fixed rule, deterministic
+    # a piece takes the first face that holds it as the faces were, among the faces of its part:
+    # snapped on its own a face may bulge a lattice step across a party wall
+    raw = shapely.force_2d(np.array([c for c, _ in cells], dtype=object))
+    fp_raw = shapely.force_2d(np.array(footprints, dtype=object))
+    k, c = shapely.STRtree(raw).query(fp_raw, predicate="intersects")
+    own = shapely.area(shapely.intersection(fp_raw[k], raw[c])) > snap * snap
+    allowed = set(zip(k[own].tolist(), c[own].tolist()))
+    cell_of = np.full(len(pieces), len(raw), dtype=np.int64)
+    at, of = shapely.STRtree(raw).query(reps, predicate="within")
+    for i, c in sorted(zip(at.tolist(), of.tolist()), reverse=True):
+        if (int(part_of[i]), c) in allowed:
+            cell_of[i] = c
     out = []
     for k in range(len(fps)):
         mine = part_of == k
         footprint = _dissolve(pieces[mine], snap)
         mine_cells = []
-        for c in np.unique(cell_of[mine & (cell_of < len(cps))]):
+        for c in np.unique(cell_of[mine & (cell_of < len(raw))]):
             mine_cells.extend((g, cells[c][1]) for g in shapely.get_parts(_dissolve(pieces[mine & (cell_of == c)], snap)))
         out.append((footprint, mine_cells))
     return out
