@@ -39,6 +39,10 @@ exact; plan positions on a coarser lattice, ``snap``, 1 cm by default):
 Walls are vertical and every plan position has one roof height, so the
 shell cannot fold over itself; curved outlines stay curved (every outline
 vertex is kept).
+
+The parts of one building are cut from one arrangement on the lattice
+(:func:`party_walls`) before their solids are built, so that a party wall
+has the same vertices on both sides and the parts' solids do not overlap.
 """
 
 from __future__ import annotations
