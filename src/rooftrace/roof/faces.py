@@ -173,6 +173,7 @@ def partition_outline(
     simplify: float = 5.0,
     vote: bool = False,
     max_dz: float | None = 0.1,
+    hold_simplification: bool = True,
 ):
     """Split the outline among the planes.
 
@@ -208,6 +209,11 @@ def partition_outline(
         straightens the raster's staircases), and a line whose rule puts
         more than 5 % of the points near it that far off is not used; None:
         every line, and simplify at ``simplify`` cells regardless.
+    hold_simplification : bool, default True
+        Hold the simplification back as ``max_dz`` says.  False simplifies
+        at ``simplify`` cells (the line rule of ``max_dz`` still applies):
+        about four times fewer face vertices on AHN3 roofs, but a boundary at
+        a height step may move by up to ``simplify`` cells.
 
     Returns
     -------
@@ -284,7 +290,7 @@ def partition_outline(
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
         regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
-    if max_dz is None:
+    if max_dz is None or not hold_simplification:
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     else:
         # only points near a region boundary can change region: those whose

@@ -90,6 +90,13 @@ class RoofOptions:
         Smallest height jump (m) between neighbouring faces for a step edge.
     cell : float or None
         Raster cell (m) of the face partition; default ``s / 2``.
+    hold_step_boundaries : bool
+        Simplify the face boundaries only as far as it puts no more labelled
+        points under a face more than 0.1 m off their own plane than the
+        raster does, so a boundary stays on its height step (LoD 2.2 RMSE
+        of simulated terraced houses 0.19 -> 0.09 m).  Off by default: on
+        AHN3 Delft it gives 3.8 times the face vertices and makes the run
+        about 40 % slower for a 3 % lower RMSE (1.373 -> 1.329 m).
     hull_edge : float or None
         Longest triangle edge (m) of the point hull used when no outline is
         given; default ``max(3 s, 2 P95)``, ``P95`` the 95th percentile of
@@ -115,6 +122,7 @@ class RoofOptions:
     min_ridge_length: float = 1.0
     step_height: float = 0.5
     cell: float | None = None
+    hold_step_boundaries: bool = False
     hull_edge: float | None = None
 
     def __post_init__(self) -> None:
@@ -346,7 +354,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     cell = opt.cell or s / 2
     try:
         polys, pids = partition_outline(
-            outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol
+            outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
+            hold_simplification=opt.hold_step_boundaries,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
