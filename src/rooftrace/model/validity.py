@@ -20,6 +20,7 @@ the CityJSON writer), then vertices closer than ``snap_tolerance`` are one,
 as val3dity snaps them when it reads a file: two vertices one grid step
 apart become one there, and a ring through both repeats a vertex (its
 error 102).
+
 Between the solids of one building's parts, :func:`overlapping_parts` finds
 those whose interiors overlap (val3dity's error 601, ``BUILDINGPARTS_OVERLAP``).
 
