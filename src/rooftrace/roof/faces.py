@@ -14,10 +14,13 @@ that would put the points beside it under the other plane (two roof levels
 whose extended planes cross near their step) is not used.  The
 label raster is turned into polygons (``rasterio.features.shapes``), the
 shared boundaries are simplified together (``shapely.coverage_simplify``, so
-neighbours keep identical edges) as far as that moves no more labelled points
+neighbours keep identical edges) at ``simplify`` cells, or, with
+``hold_simplification``, only as far as that moves no more labelled points
 under a face more than ``max_dz`` off their own plane than the raster has
 (straight edges along ridges, where the two planes agree, and the step edges
-kept where the points put them), and each region is cut by the outline;
+kept where the points put them; about four times the vertices on AHN3
+roofs, so the pipeline holds it back only with ``[planes]
+hold_step_boundaries``), and each region is cut by the outline;
 slivers are merged into the neighbour they share most boundary with.  The
 faces therefore tile the outline exactly, and each face takes its Z from its
 plane.
