@@ -17,7 +17,7 @@ from rooftrace.model import (
 )
 from rooftrace.model.measure import roof_height_at
 from rooftrace.model.validity import overlapping_parts
-from rooftrace.roof import RoofOptions, RoofStructure, roof_structure
+from rooftrace.roof import RoofStructure, roof_structure
 from rooftrace.roof.models import flat_annex, gable, sample_roof, terraced
 
 
@@ -138,8 +138,7 @@ def test_lod22_roofs_fit_their_points_at_height_steps(model, most):
     order, not the metres a face boundary off the step would add (the k-nearest majority partition
     gave 0.19 m and 0.17 m here)."""
     xyz, face = sample_roof(model, density=10, noise=0.03, seed=3)
-    held = RoofOptions(hold_step_boundaries=True)
-    m = build_model(model.outline, roof_structure(xyz, model.outline, held), xyz, 0.0)
+    m = build_model(model.outline, roof_structure(xyz, model.outline), xyz, 0.0)
     solids = [p.lods["2.2"] for p in m.parts]
     assert all(solid_errors(s) == [] for s in solids)
     assert vertical_rmse(solids, xyz) < most

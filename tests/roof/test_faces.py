@@ -201,3 +201,86 @@ def test_close_face_vertices_are_merged_and_the_faces_still_tile():
     assert all(f.is_valid for f in faces) and sum(f.area for f in faces) == pytest.approx(60.0)
     assert shapely.union_all(faces).equals(outline)
     assert {(0.0, 0.0), (10.0, 0.0), (10.0, 6.0), (0.0, 6.0)} <= set(map(tuple, xy))
+
+
+def _shared_boundaries(polys, pids):
+    """Plane pairs and the merged shared boundary of each pair of faces that share a line."""
+    out = []
+    for i in range(len(polys)):
+        for j in range(i + 1, len(polys)):
+            shared = shapely.line_merge(shapely.intersection(polys[i].boundary, polys[j].boundary))
+            if shared.length > 0:
+                out.append(((pids[i], pids[j]), shared))
+    return out
+
+
+def test_ridges_run_straight_from_node_to_node():
+    """Each shared boundary by its own rule: on a hip roof every boundary is a ridge or hip (the planes
+    meet along it), so each comes out as one straight segment between its nodes, before any snapping
+    to the lines (one tolerance for the whole roof left bends in three of the five)."""
+    from types import SimpleNamespace
+
+    from rooftrace.roof.faces import partition_outline
+
+    model = models.hip(angle=30)
+    xyz, _ = models.sample_roof(model, 12, 0.04, seed=4)
+    roof = roof_structure(xyz, model.outline)
+    lines = SimpleNamespace(lines=roof.ridges, pairs=roof.ridge_planes,
+                            convex=[-1 if k == "valley" else 1 for k in roof.ridge_kind])
+    polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, lines, cell=roof.spacing / 2,
+                                    line_tolerance=1.0, plane_sigma=roof.plane_sigma)
+    shared = _shared_boundaries(polys, pids)
+    assert len(shared) == 5 and all(isinstance(p, int) for p in pids)
+    assert all(g.geom_type == "LineString" and len(g.coords) == 2 for _, g in shared)
+    assert sum(f.area for f in polys) == pytest.approx(model.outline.area, rel=1e-9)
+
+
+@pytest.mark.parametrize("model", [models.terraced(angle=17), models.gable_dormer()], ids=lambda m: m.name)
+def test_each_boundary_by_its_rule_holds_steps_with_fewer_vertices(model):
+    """Steps held, ridges free: no more labelled points under a face more than 0.1 m off their plane
+    than one held-back tolerance for the roof gives, with at most half its vertices."""
+    from rooftrace.roof.faces import partition_outline
+
+    xyz, _ = models.sample_roof(model, 10, 0.03, seed=3)
+    roof = roof_structure(xyz, model.outline)
+    lab = roof.labels >= 0
+    own = plane_height(roof.planes[roof.labels[lab]], xyz[lab, :2])
+
+    def measure(boundaries):
+        polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, cell=roof.spacing / 2,
+                                        line_tolerance=1.0, boundaries=boundaries)
+        assert sum(f.area for f in polys) == pytest.approx(model.outline.area, rel=1e-9)
+        assert shapely.union_all(polys).area == pytest.approx(model.outline.area, rel=1e-9)
+        at, f = shapely.STRtree(polys).query(shapely.points(xyz[lab, :2]), predicate="within")
+        z = plane_height(roof.planes[np.asarray(pids)[f]], xyz[lab][at, :2])
+        return np.count_nonzero(np.abs(z - own[at]) > 0.1), sum(len(shapely.get_coordinates(p)) for p in polys)
+
+    (each, n_each), (held, n_held), (free, _) = measure("each"), measure("held"), measure("free")
+    assert each <= held < free and n_each <= n_held / 2  # measured: terraced 3 / 5 / 28 points, 142 / 384 vertices
+
+
+def test_a_step_boundary_is_straightened_only_where_no_point_crosses():
+    """The compiled arc simplification on a staircase between two roof levels 1 m apart: without points
+    near it the staircase goes straight; a point the chord would put under the other level keeps a
+    vertex; a point of a third face in the way keeps the staircase; along a crease it goes straight
+    whatever the points."""
+    from rooftrace.roof.face_kernels import simplify_arcs
+
+    x = np.arange(11.0)
+    V = np.column_stack([x, np.where(np.arange(11) % 2, 0.3, 0.0)])  # a zigzag 0.3 m deep
+    vptr = np.array([0, 11])
+
+    def kept(pts, delta, foreign, crease=False):
+        return simplify_arcs(V, vptr, np.full(11, crease), np.asarray(pts, float).reshape(-1, 2),
+                             np.array([0, len(delta)]), np.asarray(delta, np.int64), np.asarray(foreign, bool),
+                             np.array([True]), 0.1, 1.0, 0)
+
+    assert np.flatnonzero(kept([], [], [])).tolist() == [0, 10]
+    # a point just under vertex 5 (y = 0.3), between the zigzag and the chord y = 0: moving it misplaces it
+    k = kept([[5.0, 0.2]], [1], [False])
+    assert k[0] and k[10] and 2 < k.sum() < 11
+    assert np.flatnonzero(kept([[5.0, 0.2]], [-1], [False])).tolist() == [0, 10]  # the move mends it
+    assert np.flatnonzero(kept([[5.0, 0.2]], [1], [False], crease=True)).tolist() == [0, 10]
+    assert kept([[5.0, 0.2]], [0], [True], crease=True).sum() > 2
+    # a point beyond the zigzag is never moved
+    assert np.flatnonzero(kept([[5.0, 0.5]], [1], [False])).tolist() == [0, 10]

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["cell_lines", "cell_choice"]
+__all__ = ["cell_lines", "cell_choice", "simplify_arcs"]
 
 
 @njit(cache=True)
@@ -96,3 +96,107 @@ def cell_choice(cand, segidx, ptr, line, near, sign, z, vote=True):  # pragma: n
                 best, best_j = score, i
         choice[r] = best_j
     return choice
+
+
+@njit(cache=True)
+def _swept(V, i, j, pts, lo, hi, delta, foreign):  # pragma: no cover - compiled
+    """Net misplacements (sum of ``delta``) of the points the chord ``V[i]-V[j]`` moves across the arc
+    ``V[i..j]``, and whether any of them lies in a third face (``foreign``).
+
+    The points moved are those inside the closed curve arc + chord by the
+    even-odd rule: there the chord puts them on the arc's other side.
+    """
+    x0, y0 = V[i, 0], V[i, 1]
+    x1, y1 = x0, y0
+    for v in range(i, j + 1):
+        x0, x1 = min(x0, V[v, 0]), max(x1, V[v, 0])
+        y0, y1 = min(y0, V[v, 1]), max(y1, V[v, 1])
+    net = 0
+    for p in range(lo, hi):
+        px, py = pts[p, 0], pts[p, 1]
+        if px < x0 or px > x1 or py < y0 or py > y1:
+            continue
+        inside = False
+        for e in range(i, j + 1):
+            ax, ay = V[e, 0], V[e, 1]
+            if e < j:
+                bx, by = V[e + 1, 0], V[e + 1, 1]
+            else:
+                bx, by = V[i, 0], V[i, 1]
+            if (ay > py) != (by > py) and px < ax + (py - ay) * (bx - ax) / (by - ay):
+                inside = not inside
+        if inside:
+            if foreign[p]:
+                return net, True
+            net += delta[p]
+    return net, False
+
+
+@njit(cache=True)
+def simplify_arcs(V, vptr, crease, pts, pptr, delta, foreign, free, floor, cap, few):  # pragma: no cover - compiled
+    """Vertices kept of each face boundary (arc) by a Douglas-Peucker split judged on the points.
+
+    Arc ``r`` is ``V[vptr[r]:vptr[r+1]]`` (its ends fixed; a closed arc is
+    first split at its vertex farthest from its start), its points
+    ``pts[pptr[r]:pptr[r+1]]`` with the change ``delta`` (-1, 0, +1) in the
+    number of misplaced points should the arc's simplification move each
+    across it, and ``foreign`` for points in a third face.  A chord replaces
+    its stretch of arc when the stretch is within ``floor`` (m) of it (the
+    raster's own staircase), or when it moves no point of a third face and
+    either every vertex of the stretch is a ``crease`` (the two planes meet
+    there: a ridge or valley, which a chord between crease points keeps
+    within the crease tolerance) or it lies within ``cap`` (m) and misplaces
+    at most ``few`` points more than the stretch did.  Arcs not ``free``
+    keep every vertex.  Returns a keep mask over ``V``.
+    """
+    keep = np.zeros(len(V), dtype=np.bool_)
+    stack = np.empty((2 * len(V) + 4, 2), dtype=np.int64)
+    for r in range(len(vptr) - 1):
+        s, t = vptr[r], vptr[r + 1] - 1
+        keep[s] = keep[t] = True
+        if not free[r]:
+            keep[s:t] = True
+            continue
+        top = 0
+        if V[s, 0] == V[t, 0] and V[s, 1] == V[t, 1]:
+            far, best = s, -1.0
+            for v in range(s + 1, t):
+                d = (V[v, 0] - V[s, 0]) ** 2 + (V[v, 1] - V[s, 1]) ** 2
+                if d > best:
+                    far, best = v, d
+            keep[far] = True
+            stack[0, 0], stack[0, 1], stack[1, 0], stack[1, 1] = s, far, far, t
+            top = 2
+        else:
+            stack[0, 0], stack[0, 1] = s, t
+            top = 1
+        while top:
+            top -= 1
+            i, j = stack[top, 0], stack[top, 1]
+            if j - i < 2:
+                continue
+            ax, ay = V[i, 0], V[i, 1]
+            dx, dy = V[j, 0] - ax, V[j, 1] - ay
+            L2 = max(dx * dx + dy * dy, 1e-24)
+            dev, far = -1.0, i + 1
+            for v in range(i + 1, j):
+                u = min(max(((V[v, 0] - ax) * dx + (V[v, 1] - ay) * dy) / L2, 0.0), 1.0)
+                d = np.hypot(V[v, 0] - ax - u * dx, V[v, 1] - ay - u * dy)
+                if d > dev:
+                    dev, far = d, v
+            ok = dev <= floor
+            if not ok:
+                ridge = True
+                for v in range(i, j + 1):
+                    if not crease[v]:
+                        ridge = False
+                        break
+                if ridge or dev <= cap:
+                    net, third = _swept(V, i, j, pts, pptr[r], pptr[r + 1], delta, foreign)
+                    ok = not third and (ridge or net <= few)
+            if not ok:
+                keep[far] = True
+                stack[top, 0], stack[top, 1] = i, far
+                stack[top + 1, 0], stack[top + 1, 1] = far, j
+                top += 2
+    return keep

@@ -12,18 +12,18 @@ line, the higher across a concave one.  The face boundaries then follow the
 intersection lines (to the cell size) rather than the point pattern; a line
 that would put the points beside it under the other plane (two roof levels
 whose extended planes cross near their step) is not used.  The
-label raster is turned into polygons (``rasterio.features.shapes``), the
-shared boundaries are simplified together (``shapely.coverage_simplify``, so
-neighbours keep identical edges) at ``simplify`` cells, or, with
-``hold_simplification``, only as far as that moves no more labelled points
-under a face more than ``max_dz`` off their own plane than the raster has
-(straight edges along ridges, where the two planes agree, and the step edges
-kept where the points put them; about four times the vertices on AHN3
-roofs, so the pipeline holds it back only with ``[planes]
-hold_step_boundaries``), and each region is cut by the outline;
-slivers are merged into the neighbour they share most boundary with.  The
-faces therefore tile the outline exactly, and each face takes its Z from its
-plane.
+label raster is turned into polygons (``rasterio.features.shapes``) and
+each shared boundary, from node to node, is simplified once by its own rule
+(``boundaries='each'``): a ridge or valley, where the two planes meet, goes
+straight between its nodes; a height step only as far as it moves no more
+labelled points under a face more than ``max_dz`` off their own plane than
+the raster has.  The simplified boundaries are polygonised, so neighbours
+keep identical edges.  (``'held'`` simplifies all boundaries together,
+``shapely.coverage_simplify``, at one tolerance per roof held back by the
+same rule; ``'free'`` at ``simplify`` cells.)  Each region is cut by the
+outline; slivers are merged into the neighbour they share most boundary
+with.  The faces therefore tile the outline exactly, and each face takes its
+Z from its plane.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
 from rooftrace.graph import components
-from rooftrace.roof.face_kernels import cell_choice, cell_lines
+from rooftrace.roof.face_kernels import cell_choice, cell_lines, simplify_arcs
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
@@ -162,6 +162,134 @@ def _regularised(regions: list, ids: list, P: np.ndarray, lab: np.ndarray, plane
     return shapely.coverage_simplify(geoms, floor, simplify_boundary=False) if floor > 0 else geoms
 
 
+def _boundary_arcs(regions: np.ndarray) -> np.ndarray:
+    """The raster regions' boundaries as arcs: polylines between nodes (where three or more regions meet)."""
+    net = shapely.line_merge(shapely.union_all(shapely.boundary(regions)))
+    return np.asarray(shapely.get_parts(net), dtype=object)
+
+
+def _arc_sides(V: np.ndarray, vptr: np.ndarray, grid: np.ndarray, x0: float, y1: float, cell: float) -> np.ndarray:
+    """Labels (R, 2) left and right of each arc's first cell edge (``-2`` off the raster).
+
+    The arcs run along cell edges, so the cells beside the middle of the
+    first edge's first cell are the two regions the arc separates.
+    """
+    p0, p1 = V[vptr[:-1]], V[vptr[:-1] + 1]
+    u = (p1 - p0) / np.hypot(*(p1 - p0).T)[:, None]
+    mid = p0 + u * cell / 2
+    normal = np.column_stack([-u[:, 1], u[:, 0]]) * cell / 2
+    out = np.empty((len(p0), 2), dtype=np.int64)
+    for side, at in enumerate((mid + normal, mid - normal)):
+        col = np.floor((at[:, 0] - x0) / cell).astype(np.int64)
+        row = np.floor((y1 - at[:, 1]) / cell).astype(np.int64)
+        on = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
+        out[:, side] = -2
+        out[on, side] = grid[row[on], col[on]]
+    return out
+
+
+def _pair_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Height of plane ``planes[n]`` at ``xy[n]``, row by row."""
+    a, b, c, d = planes.T
+    return -(a * xy[:, 0] + b * xy[:, 1] + d) / c
+
+
+def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
+    """Per arc: False where it crosses itself or meets another arc anywhere but at ends of both."""
+    ok = shapely.is_simple(arcs)
+    i, j = shapely.STRtree(arcs).query(arcs, predicate="intersects")
+    keep = i < j
+    i, j = i[keep], j[keep]
+    ends = shapely.multipoints(np.stack([shapely.get_point(arcs, 0), shapely.get_point(arcs, -1)], axis=1))
+    extra = shapely.difference(shapely.intersection(arcs[i], arcs[j]), shapely.intersection(ends[i], ends[j]))
+    bad = ~shapely.is_empty(extra)
+    ok[i[bad]] = False
+    ok[j[bad]] = False
+    return ok
+
+
+def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: float, cell: float,
+                     P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *, tolerance: float, floor: float,
+                     max_dz: float, plane_sigma: np.ndarray | None = None, few: int = 0):
+    """Faces from the raster regions with each shared boundary simplified once, by its own rule.
+
+    Each boundary between two planes' regions, from node to node, is
+    simplified by :func:`rooftrace.roof.face_kernels.simplify_arcs`: where
+    the two planes meet along it (their heights within the crease tolerance
+    ``max(max_dz, 2 hypot(sigma_a, sigma_b))`` m at every vertex: a ridge or
+    valley) a chord between nodes replaces it whatever the points (the
+    faces' Z along it differs by no more than that tolerance, and
+    :func:`snap_to_lines` then puts it on the intersection line); elsewhere
+    (a height step, where a wall separates the planes) a chord replaces a
+    stretch only if it lies within ``tolerance`` (m) and moves at most
+    ``few`` more labelled points under a face more than ``max_dz`` (m) off
+    their own plane than the raster has.  Within ``floor`` (m) a chord
+    always replaces it (the raster's staircase).  Boundaries with the
+    outside are kept.  The simplified arcs are polygonised (every boundary
+    simplified once, so the faces share it vertex for vertex); an arc that
+    would cross another keeps its raster vertices.
+
+    Returns
+    -------
+    polygons : list of shapely Polygon
+    plane_ids : list of int
+    """
+    regions = np.asarray(regions, dtype=object)
+    ids = np.asarray(ids, dtype=np.int64)
+    arcs = _boundary_arcs(regions)
+    V, at = shapely.get_coordinates(arcs, return_index=True)
+    vptr = np.r_[0, np.cumsum(np.bincount(at, minlength=len(arcs)))]
+    sides = _arc_sides(V, vptr, grid, x0, y1, cell)
+    free = (sides >= 0).all(axis=1) & (sides[:, 0] != sides[:, 1])
+    # crease vertices: the two planes of the arc within the crease tolerance there
+    a, b = np.maximum(sides[at], 0).T
+    if plane_sigma is None:
+        tol = np.full(len(V), max_dz)
+    else:
+        tol = np.maximum(max_dz, 2 * np.hypot(plane_sigma[a], plane_sigma[b]))
+    crease = np.abs(_pair_height(planes[a], V) - _pair_height(planes[b], V)) <= tol
+    # the labelled points near each arc that can be moved, and what a move does to each
+    pi, ri = shapely.STRtree(arcs).query(shapely.points(P[:, :2]))
+    sel = free[ri]
+    pi, ri = pi[sel], ri[sel]
+    order = np.lexsort((pi, ri))
+    pi, ri = pi[order], ri[order]
+    pptr = np.r_[0, np.cumsum(np.bincount(ri, minlength=len(arcs)))]
+    xy = P[pi, :2]
+    col = np.clip(np.floor((xy[:, 0] - x0) / cell).astype(np.int64), 0, grid.shape[1] - 1)
+    row = np.clip(np.floor((y1 - xy[:, 1]) / cell).astype(np.int64), 0, grid.shape[0] - 1)
+    g = grid[row, col]
+    sa, sb = sides[ri, 0], sides[ri, 1]
+    foreign = (g != sa) & (g != sb)
+    za, zb = _pair_height(planes[sa], xy), _pair_height(planes[sb], xy)
+    own = _pair_height(planes[lab[pi]], xy)
+    now, other = np.where(g == sa, za, zb), np.where(g == sa, zb, za)
+    delta = (np.abs(own - other) > max_dz).astype(np.int64) - (np.abs(own - now) > max_dz)
+    keep = simplify_arcs(V, vptr, crease, xy, pptr, delta, foreign, free, floor, tolerance, few)
+    raw = np.zeros(len(arcs), dtype=bool)
+    for _ in range(8):
+        kept = keep | raw[at]
+        simplified = shapely.linestrings(V[kept], indices=at[kept])
+        ok = _meets_only_at_ends(simplified)
+        if ok.all():
+            break
+        raw |= ~ok
+    else:
+        simplified = arcs
+    faces = np.asarray(shapely.get_parts(shapely.polygonize(simplified)), dtype=object)
+    if abs(shapely.area(faces).sum() - shapely.area(regions).sum()) > 1e-6 * shapely.area(regions).sum():
+        log.debug("simplified face boundaries do not polygonise; raster faces kept")
+        faces = regions
+    # each face takes the plane of the raster region it overlaps most
+    fi, gi = shapely.STRtree(regions).query(faces, predicate="intersects")
+    share = shapely.area(shapely.intersection(faces[fi], regions[gi]))
+    best = np.lexsort((-share, fi))
+    first = best[np.r_[True, fi[best][1:] != fi[best][:-1]]]
+    label = np.full(len(faces), -1, dtype=np.int64)
+    label[fi[first]] = ids[gi[first]]
+    return list(faces), label.tolist()
+
+
 def partition_outline(
     outline,
     xyz: np.ndarray,
@@ -176,7 +304,8 @@ def partition_outline(
     simplify: float = 5.0,
     vote: bool = False,
     max_dz: float | None = 0.1,
-    hold_simplification: bool = True,
+    boundaries: str = "each",
+    plane_sigma: np.ndarray | None = None,
 ):
     """Split the outline among the planes.
 
@@ -207,16 +336,25 @@ def partition_outline(
         boundary off the points (see docs/design-notes.md, 3D models).
     max_dz : float or None
         Simplification may not put more labelled points under a face more
-        than this (m) off their own plane than the raster does (the
-        tolerance is halved until it does not, down to 0.75 cells, which only
-        straightens the raster's staircases), and a line whose rule puts
-        more than 5 % of the points near it that far off is not used; None:
-        every line, and simplify at ``simplify`` cells regardless.
-    hold_simplification : bool, default True
-        Hold the simplification back as ``max_dz`` says.  False simplifies
-        at ``simplify`` cells (the line rule of ``max_dz`` still applies):
-        about four times fewer face vertices on AHN3 roofs, but a boundary at
-        a height step may move by up to ``simplify`` cells.
+        than this (m) off their own plane than the raster does (see
+        ``boundaries``), and a line whose rule puts more than 5 % of the
+        points near it that far off is not used; None: every line, and
+        simplify at ``simplify`` cells regardless.
+    boundaries : {'each', 'held', 'free'}
+        How the shared face boundaries are simplified.  ``'each'``: every
+        boundary between two nodes by its own rule (a ridge or valley, where
+        the planes meet, straight from node to node; a height step only as
+        far as ``max_dz`` allows, at most ``simplify`` cells; see
+        :func:`_arcs_simplified`).  ``'held'``: all of a roof's boundaries
+        at one tolerance, halved from ``simplify`` cells until no more
+        points are misplaced than by the raster, down to 0.75 cells (about
+        four times the vertices of ``'free'`` on AHN3).  ``'free'``: at
+        ``simplify`` cells (a boundary at a height step may move by that
+        much; the line rule of ``max_dz`` still applies).
+    plane_sigma : ndarray of shape (K,), optional
+        Height residual (m) of each plane's points; with ``'each'`` the
+        crease tolerance of two planes is ``max(max_dz, 2 hypot(sigma_a,
+        sigma_b))``, without it ``max_dz``.
 
     Returns
     -------
@@ -293,8 +431,13 @@ def partition_outline(
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
         regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
-    if max_dz is None or not hold_simplification:
+    if boundaries not in ("each", "held", "free"):
+        raise ValueError(f"boundaries must be 'each', 'held' or 'free', got {boundaries!r}")
+    if max_dz is None or boundaries == "free":
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
+    elif boundaries == "each":
+        regions, ids = _arcs_simplified(regions, ids, grid, x0, y1, cell, P, lab, planes, tolerance=simplify * cell,
+                                        floor=min(0.75, simplify) * cell, max_dz=max_dz, plane_sigma=plane_sigma)
     else:
         # only points near a region boundary can change region: those whose
         # cell has another label within the tolerance (plus a cell)

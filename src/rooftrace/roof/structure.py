@@ -90,13 +90,15 @@ class RoofOptions:
         Smallest height jump (m) between neighbouring faces for a step edge.
     cell : float or None
         Raster cell (m) of the face partition; default ``s / 2``.
-    hold_step_boundaries : bool
-        Simplify the face boundaries only as far as it puts no more labelled
-        points under a face more than 0.1 m off their own plane than the
-        raster does, so a boundary stays on its height step (LoD 2.2 RMSE
-        of simulated terraced houses 0.19 -> 0.09 m).  Off by default: on
-        AHN3 Delft it gives 3.8 times the face vertices and makes the run
-        about 40 % slower for a 3 % lower RMSE (1.373 -> 1.329 m).
+    face_boundaries : {'each', 'held', 'free'}
+        How the face boundaries are simplified
+        (:func:`rooftrace.roof.faces.partition_outline`): ``'each'`` every
+        shared boundary by its own rule, ridges and valleys straight from
+        node to node, height steps only as far as no more labelled points
+        land under a face more than 0.1 m off their plane; ``'held'`` one
+        tolerance per roof, held back by that rule (3.8 times the face
+        vertices of ``'free'`` on AHN3 Delft, a 40 % slower run); ``'free'``
+        one tolerance of 5 cells (a boundary may leave its height step).
     hull_edge : float or None
         Longest triangle edge (m) of the point hull used when no outline is
         given; default ``max(3 s, 2 P95)``, ``P95`` the 95th percentile of
@@ -122,7 +124,7 @@ class RoofOptions:
     min_ridge_length: float = 1.0
     step_height: float = 0.5
     cell: float | None = None
-    hold_step_boundaries: bool = False
+    face_boundaries: str = "each"
     hull_edge: float | None = None
 
     def __post_init__(self) -> None:
@@ -140,6 +142,8 @@ class RoofOptions:
         for name in ("min_area", "min_ridge_length", "step_height"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.face_boundaries not in ("each", "held", "free"):
+            raise ValueError(f"face_boundaries must be 'each', 'held' or 'free', got {self.face_boundaries!r}")
         for f in dataclasses.fields(self):
             if f.default is None:
                 v = getattr(self, f.name)
@@ -355,7 +359,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
-            hold_simplification=opt.hold_step_boundaries,
+            boundaries=opt.face_boundaries, plane_sigma=fit.sigma,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
