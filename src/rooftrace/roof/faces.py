@@ -196,6 +196,8 @@ def _pair_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
     """Per arc: False where it crosses itself or meets another arc anywhere but at ends of both."""
+    if len(shapely.get_parts(shapely.node(shapely.multilinestrings(arcs)))) == len(arcs):
+        return np.ones(len(arcs), dtype=bool)  # noding split nothing: no arc meets another inside
     ok = shapely.is_simple(arcs)
     i, j = shapely.STRtree(arcs).query(arcs, predicate="intersects")
     keep = i < j
@@ -206,6 +208,28 @@ def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
     ok[i[bad]] = False
     ok[j[bad]] = False
     return ok
+
+
+def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """The label of each polygonised face: the side of the arc its exterior's first edge runs along.
+
+    Every face edge is an edge of one arc, in the arc's direction or
+    against it; with the exterior turned counter-clockwise the face lies on
+    its left.
+    """
+    V, at = shapely.get_coordinates(arcs, return_index=True)
+    same = np.r_[at[1:] == at[:-1], False]
+    edge = {(*V[k], *V[k + 1]): (at[k], 0) for k in np.flatnonzero(same)}
+    edge.update({(*V[k + 1], *V[k]): (at[k], 1) for k in np.flatnonzero(same)})
+    first = shapely.get_coordinates(shapely.get_exterior_ring(shapely.orient_polygons(faces)), return_index=True)
+    c, i = first
+    start = np.r_[0, np.flatnonzero(i[1:] != i[:-1]) + 1]
+    out = np.full(len(faces), -3, dtype=np.int64)  # -3: no arc found
+    for f, k in enumerate(start):
+        hit = edge.get((*c[k], *c[k + 1]))
+        if hit is not None:
+            out[f] = sides[hit[0], hit[1]]
+    return out
 
 
 def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: float, cell: float,
@@ -279,14 +303,14 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     faces = np.asarray(shapely.get_parts(shapely.polygonize(simplified)), dtype=object)
     if abs(shapely.area(faces).sum() - shapely.area(regions).sum()) > 1e-6 * shapely.area(regions).sum():
         log.debug("simplified face boundaries do not polygonise; raster faces kept")
-        faces = regions
-    # each face takes the plane of the raster region it overlaps most
-    fi, gi = shapely.STRtree(regions).query(faces, predicate="intersects")
-    share = shapely.area(shapely.intersection(faces[fi], regions[gi]))
-    best = np.lexsort((-share, fi))
-    first = best[np.r_[True, fi[best][1:] != fi[best][:-1]]]
-    label = np.full(len(faces), -1, dtype=np.int64)
-    label[fi[first]] = ids[gi[first]]
+        return list(regions), ids.tolist()
+    label = _face_labels(faces, simplified, sides)
+    if (lost := np.flatnonzero(label == -3)).size:
+        # not expected (every face edge is an arc's), but a face without a label must not leave a hole
+        fi, gi = shapely.STRtree(regions).query(faces[lost], predicate="intersects")
+        share = shapely.area(shapely.intersection(faces[lost][fi], regions[gi]))
+        for f in np.unique(fi):
+            label[lost[f]] = ids[gi[fi == f][np.argmax(share[fi == f])]]
     return list(faces), label.tolist()
 
 
