@@ -138,15 +138,15 @@ def simplify_arcs(V, vptr, crease, pts, pptr, delta, foreign, free, floor, cap, 
 
     Arc ``r`` is ``V[vptr[r]:vptr[r+1]]`` (its ends fixed; a closed arc is
     first split at its vertex farthest from its start), its points
-    ``pts[pptr[r]:pptr[r+1]]`` with the change ``delta`` (-1, 0, +1) in the
-    number of misplaced points should the arc's simplification move each
-    across it, and ``foreign`` for points in a third face.  A chord replaces
-    its stretch of arc when the stretch is within ``floor`` (m) of it (the
-    raster's own staircase), or when it moves no point of a third face and
-    either every vertex of the stretch is a ``crease`` (the two planes meet
-    there: a ridge or valley, which a chord between crease points keeps
-    within the crease tolerance) or it lies within ``cap`` (m) and misplaces
-    at most ``few`` points more than the stretch did.  Arcs not ``free``
+    ``pts[pptr[r]:pptr[r+1]]``, with ``delta`` the misplacements (1 or 0)
+    a move across the arc makes of each and ``foreign`` for points in a
+    third face.  A chord replaces its stretch of arc when the stretch is
+    within ``floor`` (m) of it (the raster's own staircase), or when it
+    moves no point of a third face and either every vertex of the stretch
+    is a ``crease`` (the two planes meet there: a ridge or valley, which a
+    chord between crease points keeps within the crease tolerance) or it
+    lies within ``cap`` (m) and the ``delta`` of the points it moves sum to
+    at most ``few``.  Arcs not ``free``
     keep every vertex.  Returns a keep mask over ``V``.
     """
     keep = np.zeros(len(V), dtype=np.bool_)

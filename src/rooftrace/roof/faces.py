@@ -246,8 +246,8 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     :func:`snap_to_lines` then puts it on the intersection line); elsewhere
     (a height step, where a wall separates the planes) a chord replaces a
     stretch only if it lies within ``tolerance`` (m) and moves at most
-    ``few`` more labelled points under a face more than ``max_dz`` (m) off
-    their own plane than the raster has.  Within ``floor`` (m) a chord
+    ``few`` labelled points from under their own plane's face (or one within
+    ``max_dz``) to under a face more than ``max_dz`` (m) off it.  Within ``floor`` (m) a chord
     always replaces it (the raster's staircase).  Boundaries with the
     outside are kept.  The simplified arcs are polygonised (every boundary
     simplified once, so the faces share it vertex for vertex); an arc that
@@ -288,8 +288,10 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     za, zb = _pair_height(planes[sa], xy), _pair_height(planes[sb], xy)
     own = _pair_height(planes[lab[pi]], xy)
     now, other = np.where(g == sa, za, zb), np.where(g == sa, zb, za)
-    delta = (np.abs(own - other) > max_dz).astype(np.int64) - (np.abs(own - now) > max_dz)
-    keep = simplify_arcs(V, vptr, crease, xy, pptr, delta, foreign, free, floor, tolerance, few)
+    # a move counts against the chord only where it misplaces a point, not where it mends one (a swap of
+    # misplaced points is no gain: the points lie where they lie)
+    newly = ((np.abs(own - other) > max_dz) & (np.abs(own - now) <= max_dz)).astype(np.int64)
+    keep = simplify_arcs(V, vptr, crease, xy, pptr, newly, foreign, free, floor, tolerance, few)
     raw = np.zeros(len(arcs), dtype=bool)
     for _ in range(8):
         kept = keep | raw[at]
