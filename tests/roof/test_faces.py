@@ -284,3 +284,16 @@ def test_a_step_boundary_is_straightened_only_where_no_point_crosses():
     assert kept([[5.0, 0.2]], [0], [True], crease=True).sum() > 2
     # a point beyond the zigzag is never moved
     assert np.flatnonzero(kept([[5.0, 0.5]], [1], [False])).tolist() == [0, 10]
+
+
+def test_an_unknown_boundary_rule_is_refused():
+    from rooftrace.roof import RoofOptions
+    from rooftrace.roof.faces import partition_outline
+
+    with pytest.raises(ValueError, match="face_boundaries"):
+        RoofOptions(face_boundaries="straight")
+    m = models.gable()
+    xyz, _ = models.sample_roof(m, 12, 0.03, seed=1)
+    with pytest.raises(ValueError, match="boundaries"):
+        partition_outline(m.outline, xyz, np.zeros(len(xyz), np.int64), np.array([[0, 0, 1, -5.0]]), cell=0.15,
+                          line_tolerance=1.0, boundaries="straight")

@@ -15,9 +15,9 @@ whose extended planes cross near their step) is not used.  The
 label raster is turned into polygons (``rasterio.features.shapes``) and
 each shared boundary, from node to node, is simplified once by its own rule
 (``boundaries='each'``): a ridge or valley, where the two planes meet, goes
-straight between its nodes; a height step only as far as it moves no more
-labelled points under a face more than ``max_dz`` off their own plane than
-the raster has.  The simplified boundaries are polygonised, so neighbours
+straight between its nodes; a height step only as far as it moves no
+labelled point to under a face more than ``max_dz`` off its own plane.  The
+simplified boundaries are polygonised, so neighbours
 keep identical edges.  (``'held'`` simplifies all boundaries together,
 ``shapely.coverage_simplify``, at one tolerance per roof held back by the
 same rule; ``'free'`` at ``simplify`` cells.)  Each region is cut by the
@@ -221,8 +221,7 @@ def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.n
     same = np.r_[at[1:] == at[:-1], False]
     edge = {(*V[k], *V[k + 1]): (at[k], 0) for k in np.flatnonzero(same)}
     edge.update({(*V[k + 1], *V[k]): (at[k], 1) for k in np.flatnonzero(same)})
-    first = shapely.get_coordinates(shapely.get_exterior_ring(shapely.orient_polygons(faces)), return_index=True)
-    c, i = first
+    c, i = shapely.get_coordinates(shapely.get_exterior_ring(shapely.orient_polygons(faces)), return_index=True)
     start = np.r_[0, np.flatnonzero(i[1:] != i[:-1]) + 1]
     out = np.full(len(faces), -3, dtype=np.int64)  # -3: no arc found
     for f, k in enumerate(start):
@@ -246,10 +245,10 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     :func:`snap_to_lines` then puts it on the intersection line); elsewhere
     (a height step, where a wall separates the planes) a chord replaces a
     stretch only if it lies within ``tolerance`` (m) and moves at most
-    ``few`` labelled points from under their own plane's face (or one within
-    ``max_dz``) to under a face more than ``max_dz`` (m) off it.  Within ``floor`` (m) a chord
-    always replaces it (the raster's staircase).  Boundaries with the
-    outside are kept.  The simplified arcs are polygonised (every boundary
+    ``few`` labelled points from under their own plane's face (or one
+    within ``max_dz``) to under a face more than ``max_dz`` (m) off it.
+    Within ``floor`` (m) a chord always replaces it (the raster's
+    staircase).  Boundaries with the outside are kept.  The simplified arcs are polygonised (every boundary
     simplified once, so the faces share it vertex for vertex); an arc that
     would cross another keeps its raster vertices.
 
@@ -387,6 +386,8 @@ def partition_outline(
     polygons : list of shapely Polygon (2D)
     plane_ids : list of int
     """
+    if boundaries not in ("each", "held", "free"):
+        raise ValueError(f"boundaries must be 'each', 'held' or 'free', got {boundaries!r}")
     outline = shapely.force_2d(outline)
     sel = labels >= 0
     P, lab = np.asarray(xyz)[sel], np.asarray(labels)[sel]
@@ -457,8 +458,6 @@ def partition_outline(
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
         regions.append(_polygon(geom["coordinates"]))
         ids.append(int(value))
-    if boundaries not in ("each", "held", "free"):
-        raise ValueError(f"boundaries must be 'each', 'held' or 'free', got {boundaries!r}")
     if max_dz is None or boundaries == "free":
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     elif boundaries == "each":
