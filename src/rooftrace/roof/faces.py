@@ -248,9 +248,11 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     ``few`` labelled points from under their own plane's face (or one
     within ``max_dz``) to under a face more than ``max_dz`` (m) off it.
     Within ``floor`` (m) a chord always replaces it (the raster's
-    staircase).  Boundaries with the outside are kept.  The simplified arcs are polygonised (every boundary
-    simplified once, so the faces share it vertex for vertex); an arc that
-    would cross another keeps its raster vertices.
+    staircase).  Boundaries with the outside (more than ``tolerance`` and a
+    cell beyond the outline) are simplified at ``tolerance``.  The
+    simplified arcs are polygonised (every boundary simplified once, so the
+    faces share it vertex for vertex); an arc that would cross another
+    keeps its raster vertices.
 
     Returns
     -------
@@ -263,17 +265,21 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     V, at = shapely.get_coordinates(arcs, return_index=True)
     vptr = np.r_[0, np.cumsum(np.bincount(at, minlength=len(arcs)))]
     sides = _arc_sides(V, vptr, grid, x0, y1, cell)
-    free = (sides >= 0).all(axis=1) & (sides[:, 0] != sides[:, 1])
+    inner = (sides >= 0).all(axis=1) & (sides[:, 0] != sides[:, 1])
+    # a boundary with the outside lies more than `tolerance` + a cell beyond the outline, which cuts it off: a
+    # chord within `tolerance` of it never reaches the outline, so it is simplified without points (fewer
+    # vertices for the noding, the polygonising and the cut)
+    outside = (sides == -1).any(axis=1) & (sides >= 0).any(axis=1)
     # crease vertices: the two planes of the arc within the crease tolerance there
     a, b = np.maximum(sides[at], 0).T
     if plane_sigma is None:
         tol = np.full(len(V), max_dz)
     else:
         tol = np.maximum(max_dz, 2 * np.hypot(plane_sigma[a], plane_sigma[b]))
-    crease = np.abs(_pair_height(planes[a], V) - _pair_height(planes[b], V)) <= tol
+    crease = (np.abs(_pair_height(planes[a], V) - _pair_height(planes[b], V)) <= tol) & inner[at]
     # the labelled points near each arc that can be moved, and what a move does to each
     pi, ri = shapely.STRtree(arcs).query(shapely.points(P[:, :2]))
-    sel = free[ri]
+    sel = inner[ri]
     pi, ri = pi[sel], ri[sel]
     order = np.lexsort((pi, ri))
     pi, ri = pi[order], ri[order]
@@ -290,7 +296,7 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     # a move counts against the chord only where it misplaces a point, not where it mends one (a swap of
     # misplaced points is no gain: the points lie where they lie)
     newly = ((np.abs(own - other) > max_dz) & (np.abs(own - now) <= max_dz)).astype(np.int64)
-    keep = simplify_arcs(V, vptr, crease, xy, pptr, newly, foreign, free, floor, tolerance, few)
+    keep = simplify_arcs(V, vptr, crease, xy, pptr, newly, foreign, inner | outside, floor, tolerance, few)
     raw = np.zeros(len(arcs), dtype=bool)
     for _ in range(8):
         kept = keep | raw[at]
