@@ -291,6 +291,49 @@ def _split_tilted(roofs: list[list[list[tuple]]], max_tilt: float) -> list[list[
     return out
 
 
+def _crossing_candidates(p: np.ndarray, q: np.ndarray, ex: float, ey: float, lattice: int,
+                         taken: dict) -> list[tuple[int, int]]:
+    """Lattice points that may stand for the crossing ``(ex, ey)`` (in lattice steps) of edge ``p -> q`` (grid units).
+
+    The free lattice points (not a vertex yet: a crossing within half a step
+    of a vertex would land on it) within a step of the exact crossing, nearest
+    first, whose projection falls strictly inside the edge: the edge bends by
+    at most a step there, in both faces.  A point beyond an end of the edge
+    would fold the ring back on itself (a spike: the surface's plan is no
+    longer a valid polygon and cannot be triangulated).
+    """
+    d = q - p
+    length2 = float(d @ d)
+    out = []
+    for x in range(int(np.floor(ex)) - 1, int(np.ceil(ex)) + 2):
+        for y in range(int(np.floor(ey)) - 1, int(np.ceil(ey)) + 2):
+            dist2 = (x - ex) ** 2 + (y - ey) ** 2
+            key = (x * lattice, y * lattice)
+            t = ((key[0] - p[0]) * d[0] + (key[1] - p[1]) * d[1]) / length2 if length2 > 0 else -1.0
+            if dist2 <= 2.0 and 0.0 < t < 1.0 and key not in taken:
+                out.append((dist2, key))
+    return [key for _, key in sorted(out)]
+
+
+def _simple_with(rings: list[list[int]], edge: tuple[int, int], point: tuple[int, int], xy: np.ndarray) -> bool:
+    """Whether the face of ``rings`` stays a valid polygon with ``point`` put into ``edge`` (either direction).
+
+    A lattice point near an end of a short edge can fold the ring back onto
+    the next edge (a spike), which no triangulation takes.
+    """
+    a, b = edge
+    coords = []
+    for ring in rings:
+        out = []
+        for j, v in enumerate(ring):
+            out.append(xy[v])
+            w = ring[(j + 1) % len(ring)]
+            if (v, w) in ((a, b), (b, a)):
+                out.append(np.asarray(point, dtype=np.float64))
+        coords.append(out)
+    return bool(shapely.Polygon(coords[0], coords[1:]).is_valid)
+
+
 def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
     """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
     out = []
@@ -475,12 +518,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
         exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for pp, qq, (ex, ey) in zip(p[cross].tolist(), q[cross].tolist(), exact.tolist()):
-            # the nearest lattice point that is not a vertex yet (a crossing within half a step of
-            # a vertex would land on it): the edge bends by at most a step there, in both faces
-            near = sorted(((x - ex) ** 2 + (y - ey) ** 2, x * lattice, y * lattice) for x in (np.floor(ex), np.ceil(ex))
-                          for y in (np.floor(ey), np.ceil(ey)))
-            free = [(int(x), int(y)) for _, x, y in near if (int(x), int(y)) not in table.index]
+        for k, pp, qq, (ex, ey) in zip(cross.tolist(), p[cross].tolist(), q[cross].tolist(), exact.tolist()):
+            free = [c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
+                    if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))]
             if not free:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
             crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free[0])
