@@ -154,9 +154,9 @@ def _above_ground(cells: list, ground: float, clearance: float = MIN_EAVES_HEIGH
         a, b, c, d = plane
         x0, y0, x1, y1 = poly.bounds
         box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-        # height above ground + clearance, a linear function of plan position: clip the box to >= 0
-        lift = -(a * box[:, 0] + b * box[:, 1] + d) / c - ground - clearance
-        if (lift >= 0).all():
+        # the plane's height over the clearance is linear in plan: the cut is one straight line
+        lift = -(a * box[:, 0] + b * box[:, 1] + d) / c - ground - clearance if abs(c) > 1e-9 else np.zeros(4)
+        if (lift >= 0).all():  # a vertical plane too: prism_solid says why it fails
             out.append((poly, plane))
             continue
         keep = []
@@ -168,7 +168,10 @@ def _above_ground(cells: list, ground: float, clearance: float = MIN_EAVES_HEIGH
                 keep.append(box[k] + lift[k] / (lift[k] - lift[j]) * (box[j] - box[k]))
         high = shapely.intersection(poly, shapely.Polygon(keep)) if len(keep) >= 3 else shapely.Polygon()
         pieces = [g for g in shapely.get_parts(high) if g.geom_type == "Polygon" and g.area > 0]
-        out.extend((g, plane) for g in pieces) if pieces else out.append((poly, plane))
+        if pieces:
+            out.extend((g, plane) for g in pieces)
+        else:
+            out.append((poly, plane))
     return out
 
 
