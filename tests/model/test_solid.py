@@ -172,3 +172,14 @@ def test_parts_cut_together_do_not_overlap_where_built_alone_they_do(step_y):
     near = [{tuple(v) for v in np.round(shapely.get_coordinates(p), 3).tolist()
              if wall.distance(shapely.Point(v)) < 1e-9} for p in plans]
     assert near[0] == near[1] and len(near[0]) >= 3
+
+
+def test_a_second_saddle_disk_is_sized_by_the_narrowest_sector_at_the_vertex():
+    from rooftrace.model.solid import _narrowest_sector
+
+    # vertex 0 at the origin; a face's wedge between edges to 1 and 2 (5 degrees), others wide
+    a = np.radians(5.0)
+    xy = np.array([[0, 0], [1, 0], [np.cos(a), np.sin(a)], [0, 1], [-1, 0]], dtype=float)
+    rings = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [4, 3, 2, 1]]
+    assert _narrowest_sector([0], rings, xy)[0] == pytest.approx(a)
+    assert _narrowest_sector([3], rings, xy)[0] == pytest.approx(np.radians(45.0))
