@@ -81,10 +81,12 @@ def _parts_table(title: str, geom, xyz, hag, returns, ours, ahn, layers: dict) -
         ring = np.asarray(shapely.minimum_rotated_rectangle(g).exterior.coords)
         sides = sorted(np.hypot(*np.diff(ring[:3], axis=0).T)) if len(ring) >= 4 else [0.0, 0.0]
         h = np.percentile(hag[idx], [50, 90]) if len(idx) else [np.nan, np.nan]
-        count = lambda c, keys: "/".join(str(int((c[idx] == k).sum())) for k in keys)  # noqa: E731
-        print(f"  {g.area:7.1f} {len(idx):4d} {h[0]:8.2f} {h[1]:5.2f} {np.mean(returns[idx]) if len(idx) else np.nan:8.2f}"
-              f" {planar:7.2f} {entropy:8.2f}  {under:22s} {count(ours, (6, 5, 2, 1)):18s} "
-              f"{count(ahn, (6, 1, 2, 26)):18s} {sides[0]:.1f} x {sides[1]:.1f}")
+        ours_count = "/".join(str(int((ours[idx] == k).sum())) for k in (6, 5, 2, 1))
+        ahn_count = "/".join(str(int((ahn[idx] == k).sum())) for k in (6, 1, 2, 26))
+        split = np.mean(returns[idx]) if len(idx) else np.nan
+        print(f"  {g.area:7.1f} {len(idx):4d} {h[0]:8.2f} {h[1]:5.2f} {split:8.2f}"
+              f" {planar:7.2f} {entropy:8.2f}  {under:22s} {ours_count:18s} "
+              f"{ahn_count:18s} {sides[0]:.1f} x {sides[1]:.1f}")
 
 
 def _wall_offsets(pand, aoi, outlines, xyz, building) -> dict[str, np.ndarray]:

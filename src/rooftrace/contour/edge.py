@@ -61,7 +61,7 @@ class EdgeContext:
         self.walls = cKDTree(walls) if walls is not None and len(walls) else None
 
     def on_wall(self, xy: np.ndarray) -> np.ndarray:
-        """Which of ``xy`` (boundary points, metres) are the building's own points below its roof (same plan position)."""
+        """Which of ``xy`` (boundary points, metres) are the building's own points below its roof."""
         if self.walls is None:
             return np.zeros(len(xy), bool)
         return np.isfinite(self.walls.query(xy, distance_upper_bound=1e-9)[0])

@@ -261,8 +261,9 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         raise GeometryError("too_few_points")
     context = None
     if options.regularize.method == "lines" and (context_xy is not None or below.any()):
-        context = EdgeContext(None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2],
-                              walls=pts[below, :2])
+        around = None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2]
+        # the building's own wall points on the boundary mark the edge (contour.edge)
+        context = EdgeContext(around, walls=pts[below, :2])
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(

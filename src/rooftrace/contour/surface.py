@@ -185,6 +185,7 @@ def outline_points(xyz: np.ndarray, options: SurfaceOptions | None = None,
         if spacing > 0:
             moved = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
                                  tolerance=options.tolerance)
+            # a flagged point with no roof point near keeps its height: it marks no wall
             lifted = moved[:, 2] != xyz[:, 2]
             xyz = moved
     # points sharing a plan position (a wall seen from two strips): keep the highest, it is the roof
