@@ -9,9 +9,11 @@ curve — and the shape is simplified while an information criterion (BIC)
 says the simpler model explains the points as well:
 
 - a segment is curved only if its spline beats the line by more than the
-  noise the point spacing implies (the boundary points of a straight edge
-  scatter over about one spacing, a standard deviation of ``noise_factor``
-  times the spacing, the floor of every residual variance below);
+  noise the sampling implies (a boundary point lies anywhere within one
+  sampling step across the edge, a standard deviation of ``noise_factor``
+  times that step, the floor of every residual variance below; the step is
+  measured behind each ring point, :func:`boundary_step`); a run of short
+  lines along one arc becomes a curve on the same criterion;
 - neighbouring lines merge, and short runs of segments (notches, small loops,
   cut corners) are dropped, when the simpler shape's BIC is lower;
 - walls take the building's dominant direction (or its perpendicular) when
@@ -35,6 +37,7 @@ import shapely
 from numba import njit
 from scipy.spatial import cKDTree
 
+from rooftrace.contour.cdspline import fit_cdspline
 from rooftrace.contour.corners import douglas_peucker
 from rooftrace.contour.edge import EdgeContext, edge_shift
 from rooftrace.errors import GeometryError
@@ -702,10 +705,10 @@ def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, den
     Arc pieces shorter than a few metres each stay within the noise of a
     line, so an arc becomes a polygon of many short walls.  Every run of
     lines turning the same way (:func:`_turning_runs`) is fitted as one
-    CD-spline segment; it becomes a curve when that segment (degree >= 2,
-    2·degree parameters plus its break point) explains the run's points
-    with a lower BIC than the run's lines (each with its parameters and
-    break point).
+    CD-spline segment (the iterative spline's degree, and 2 and 3); it
+    becomes a curve when that segment (2·degree parameters plus its break
+    point) explains the run's points with a lower BIC than the run's lines
+    (each with its parameters and break point).
 
     Parameters
     ----------
@@ -738,30 +741,41 @@ def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, den
             units.append([k])
     starts = np.array([int(segments[u[0]].idx[0]) for u in units])
     order = np.argsort(starts, kind="stable")
+    corners = starts[order]
     try:
-        spline = refit(starts[order])
+        spline = refit(corners)
     except GeometryError:
         return segments
-    verts, corner_index = spline.ring(densify)
-    corner_index = list(corner_index) + [len(verts)]
-    closed = np.vstack([verts, verts[:1]])
     rank = np.empty(len(units), np.int64)
     rank[order] = np.arange(len(units))
     replace = {}
     for u, unit in enumerate(units):
-        k = int(rank[u])
-        d = spline.degrees[k]
-        if len(unit) < 3 or d < 2:
+        if len(unit) < 3:
             continue
+        k = int(rank[u])
         lines = [segments[j] for j in unit]
         idx = np.concatenate([ln.idx for ln in lines])
-        arc = closed[corner_index[k]:corner_index[k + 1] + 1]
-        res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
         floor = _pooled(lines)
-        curve_bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
-        lines_bic = segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor)
-        if curve_bic < lines_bic:
-            replace[unit[0]] = (unit, Curve(idx, arc, d))
+        best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
+        # the spline's own degree for the run (its F-test) and the low degrees an arc piece takes: the
+        # same criterion as every other move decides, not the F-test alone
+        for d in sorted({int(spline.degrees[k]), 2, 3} - {1}):
+            if d == spline.degrees[k]:
+                fit = spline
+            else:
+                try:
+                    fit = fit_cdspline(points, corners, [d if j == k else g for j, g in enumerate(spline.degrees)])
+                except GeometryError:
+                    continue
+            verts, corner_index = fit.ring(densify)
+            corner_index = list(corner_index) + [len(verts)]
+            arc = np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]
+            res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
+            bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
+            if bic < best[0]:
+                best = (bic, Curve(idx, arc, d))
+        if best[1] is not None:
+            replace[unit[0]] = (unit, best[1])
     if not replace:
         return segments
     log.debug("lines: %d runs of short lines became curves", len(replace))
