@@ -282,18 +282,16 @@ def _pieces(ring, n_pieces):
 
 
 def test_short_lines_along_an_arc_become_curves_and_a_wobbly_wall_stays_straight():
-    from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
-
     rng = np.random.default_rng(0)
     t = np.linspace(0, 2 * np.pi, 170, endpoint=False)  # a round building, r 8 m, 0.3 m between ring points
     ring = np.column_stack([8 * np.cos(t), 8 * np.sin(t), np.full_like(t, 10.0)])
     ring[:, :2] += rng.normal(0, 0.03, (len(t), 2))
     lines = _pieces(ring, 24)  # 2.1 m pieces: each within a line's noise
-    out = curved_runs(ring, lines, lambda c: iterative_cdspline(ring, c, CDSplineOptions()), 0.03, 0.5)
+    out = curved_runs(ring, lines, 0.5)
     assert len(out) < 8 and all(not isinstance(s, Line) and s.degree >= 2 for s in out)
     # a rectangle's walls cut in two with a wobble: the turns alternate, nothing is a curve
     box = np.asarray(shapely.segmentize(shapely.box(0, 0, 20, 10).exterior, 0.3).coords)[:-1]
     box = np.column_stack([box + rng.normal(0, 0.03, box.shape), np.full(len(box), 10.0)])
     lines = _pieces(box, 8)
-    out = curved_runs(box, lines, lambda c: iterative_cdspline(box, c, CDSplineOptions()), 0.03, 0.5)
+    out = curved_runs(box, lines, 0.5)
     assert out == lines

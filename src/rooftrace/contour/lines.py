@@ -573,9 +573,8 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         segments = segments[first:] + segments[:first]  # the spline's corners increase
         segments = _curves_on(points, segments, refit(np.array([int(g.idx[0]) for g in segments])), sigma0,
                               trim, densify)
-    if refit is not None:
-        # short straight pieces of one arc, each within a line's noise: one curve if the BIC says so
-        segments = curved_runs(points, segments, refit, sigma0, densify)
+    # short straight pieces of one arc, each within a line's noise: one curve if the BIC says so
+    segments = curved_runs(points, segments, densify)
     theta = None
     if directions:
         segments, theta = constrain_directions(xy, segments, sigma0, trim)
@@ -699,16 +698,17 @@ def _turning_runs(segments: list) -> list[list[int]]:
     return runs
 
 
-def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, densify: float) -> list:
+def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
     """Replace runs of short lines along one arc by a curve where the BIC prefers it.
 
     Arc pieces shorter than a few metres each stay within the noise of a
     line, so an arc becomes a polygon of many short walls.  Every run of
     lines turning the same way (:func:`_turning_runs`) is fitted as one
-    CD-spline segment (the iterative spline's degree, and 2 and 3); it
-    becomes a curve when that segment (2·degree parameters plus its break
-    point) explains the run's points with a lower BIC than the run's lines
-    (each with its parameters and break point).
+    CD-spline segment of degree 2 or 3 (the BIC decides, as for every other
+    model here, not the F-test); it becomes a curve when that segment
+    (2·degree parameters plus its break point) explains the run's points
+    with a lower BIC than the run's lines (each with its parameters and
+    break point, at their pooled noise floor).
 
     Parameters
     ----------
@@ -716,10 +716,6 @@ def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, den
         Ring points.
     segments : list of Line or Curve
         In ring order, each segment's ring indices increasing.
-    refit : callable
-        ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring indices, increasing).
-    sigma0 : float or ndarray of shape (N,)
-        Noise floor, metres.
     densify : float
         Step of the curve samples, metres.
 
@@ -742,12 +738,17 @@ def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, den
     starts = np.array([int(segments[u[0]].idx[0]) for u in units])
     order = np.argsort(starts, kind="stable")
     corners = starts[order]
-    try:
-        spline = refit(corners)
-    except GeometryError:
-        return segments
     rank = np.empty(len(units), np.int64)
     rank[order] = np.arange(len(units))
+    is_run = np.array([len(units[u]) >= 3 for u in order])
+    fits = []
+    # every run at degree 2, then at 3 (the other segments straight): the pieces join with C0 only, so
+    # each run's curve barely depends on the others', and the BIC picks the degree run by run
+    for d in (2, 3):
+        try:
+            fits.append((d, fit_cdspline(points, corners, np.where(is_run, d, 1))))
+        except GeometryError:
+            continue
     replace = {}
     for u, unit in enumerate(units):
         if len(unit) < 3:
@@ -757,16 +758,7 @@ def curved_runs(points: np.ndarray, segments: list, refit: Callable, sigma0, den
         idx = np.concatenate([ln.idx for ln in lines])
         floor = _pooled(lines)
         best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
-        # the spline's own degree for the run (its F-test) and the low degrees an arc piece takes: the
-        # same criterion as every other move decides, not the F-test alone
-        for d in sorted({int(spline.degrees[k]), 2, 3} - {1}):
-            if d == spline.degrees[k]:
-                fit = spline
-            else:
-                try:
-                    fit = fit_cdspline(points, corners, [d if j == k else g for j, g in enumerate(spline.degrees)])
-                except GeometryError:
-                    continue
+        for d, fit in fits:
             verts, corner_index = fit.ring(densify)
             corner_index = list(corner_index) + [len(verts)]
             arc = np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]
