@@ -276,7 +276,7 @@ def _pieces(ring, n_pieces):
     """Lines fitted to ``n_pieces`` equal runs of a ring's points."""
     out = []
     for idx in np.array_split(np.arange(len(ring)), n_pieces):
-        point, direction, rss = fit_line(ring[idx], 0.03)
+        point, direction, rss = fit_line(ring[idx, :2], 0.03)
         out.append(Line(idx, point, direction, rss, span=1.0, noise2=0.03**2))
     return out
 
@@ -289,9 +289,14 @@ def test_short_lines_along_an_arc_become_curves_and_a_wobbly_wall_stays_straight
     lines = _pieces(ring, 24)  # 2.1 m pieces: each within a line's noise
     out = curved_runs(ring, lines, 0.5)
     assert len(out) < 8 and all(not isinstance(s, Line) and s.degree >= 2 for s in out)
-    # a rectangle's walls cut in two with a wobble: the turns alternate, nothing is a curve
-    box = np.asarray(shapely.segmentize(shapely.box(0, 0, 20, 10).exterior, 0.3).coords)[:-1]
+    # a wall bent to and fro (0.3 m over 5 m pieces): its breaks turn both ways, so it is no arc
+    zigzag = shapely.LineString([(0, 0), (5, -0.3), (10, 0), (15, -0.3), (20, 0), (20, 10), (0, 10), (0, 0)])
+    box = np.asarray(shapely.segmentize(zigzag, 0.3).coords)[:-1]
     box = np.column_stack([box + rng.normal(0, 0.03, box.shape), np.full(len(box), 10.0)])
-    lines = _pieces(box, 8)
+    corners = [0] + [int(np.argmin(np.linalg.norm(box[:, :2] - c, axis=1))) for c in
+                     [(5, -0.3), (10, 0), (15, -0.3), (20, 0), (20, 10), (0, 10)]] + [len(box)]
+    lines = [_pieces(box[a:b], 1)[0] for a, b in zip(corners[:-1], corners[1:])]
+    for ln, a in zip(lines, corners):
+        ln.idx = ln.idx + a
     out = curved_runs(box, lines, 0.5)
     assert out == lines
