@@ -158,4 +158,6 @@ def check_table(cls: type, section: str, table: dict[str, Any], where: str) -> N
         message = str(exc)
         if "required" in message and "argument" in message:
             return  # a dataclass that cannot be built from its table alone
-        raise InputError(f"{where}: [{section}] {message.removeprefix(f'{where}: ')}") from None
+        # the dataclass names its field as the API spells it (``classify.neighbours``); the table names the section
+        message = message.removeprefix(f"{where}: ").removeprefix(f"{section}.")
+        raise InputError(f"{where}: [{section}] {message}") from None

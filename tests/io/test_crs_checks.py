@@ -47,3 +47,28 @@ def test_wkt_without_authority_on_both_sides():
     check_same_crs(l93, CRS.from_wkt(DATUMLESS_L93), "cloud.laz", "ortho.tif")
     with pytest.raises(InputError):
         check_same_crs(l93, CRS("EPSG:27572"), "cloud.laz", "ortho.tif")
+
+
+def test_tiled_and_untiled_runs_take_the_same_crs_rule(tmp_path, caplog):
+    """A vertical component on one file only is one CRS for both paths; another projection is refused by both."""
+    from rooftrace.errors import OptionError
+    from rooftrace.io.points import common_crs, read_points
+    from rooftrace.tiling import TileOptions, run_tiled
+    from tests.cli.badfiles import scene_xyz, write_las_file
+
+    a = write_las_file(tmp_path / "a.laz", scene_xyz(seed=1))
+    b = write_las_file(tmp_path / "b.laz", scene_xyz(seed=2) + [0.0, 40.0, 0.0], crs="EPSG:7415")
+    c = write_las_file(tmp_path / "c.laz", scene_xyz(seed=3), crs="EPSG:2154")
+    d = write_las_file(tmp_path / "d.laz", scene_xyz(seed=4), crs=None)
+    with caplog.at_level("WARNING"):
+        assert read_points([a, b]).crs.equals(CRS("EPSG:28992"))
+    assert "b.laz: CRS" in caplog.text and "same plan coordinates" in caplog.text
+    tiled = run_tiled([a, b], tiling=TileOptions(tile_size=40.0, buffer=20.0))
+    assert tiled.crs.equals(CRS("EPSG:28992"))
+    for bad in (c, d):
+        with pytest.raises(OptionError, match=f"{bad.name}: CRS .* differs from"):
+            read_points([a, bad])
+        with pytest.raises(OptionError, match=f"{bad.name}: CRS .* differs from"):
+            run_tiled([a, bad], tiling=TileOptions(tile_size=40.0, buffer=20.0))
+    with pytest.raises(OptionError, match=r"c.laz: CRS \(RGF93 v1 / Lambert-93\) differs"):
+        common_crs([a, b, c], [CRS("EPSG:28992"), CRS("EPSG:7415"), CRS("EPSG:2154")])

@@ -13,7 +13,7 @@ import numpy as np
 
 from rooftrace.errors import InputError, OptionError
 
-__all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "check_image_covers", "check_image_size",
+__all__ = ["horizontal_crs", "require_metric_crs", "check_same_crs", "same_plan_crs", "check_image_covers", "check_image_size",
            "check_camera_has_image",
            "check_points", "check_footprints_overlap"]
 
@@ -82,11 +82,17 @@ def check_same_crs(a, b, what_a: str, what_b: str) -> None:
     """Refuse two CRSs that differ; a missing CRS on either side is accepted."""
     if a is None or b is None:
         return
-    if not a.equals(b, ignore_axis_order=True):
-        # a vertical component (e.g. EPSG:28992+5709) does not change planimetry
-        sa, sb = horizontal_crs(a), horizontal_crs(b)
-        if not sa.equals(sb, ignore_axis_order=True) and not _same_coordinates(sa, sb):
-            raise InputError(f"{what_a} ({a.name}) and {what_b} ({b.name}) have different CRSs; reproject one of them")
+    if not same_plan_crs(a, b):
+        raise InputError(f"{what_a} ({a.name}) and {what_b} ({b.name}) have different CRSs; reproject one of them")
+
+
+def same_plan_crs(a, b) -> bool:
+    """Whether two CRSs give the same plan coordinates: equal, equal but for a vertical component
+    (e.g. ``EPSG:28992`` and ``EPSG:28992+5709``), or the same projection written differently."""
+    if a.equals(b, ignore_axis_order=True):
+        return True
+    sa, sb = horizontal_crs(a), horizontal_crs(b)
+    return sa.equals(sb, ignore_axis_order=True) or _same_coordinates(sa, sb)
 
 
 def _same_coordinates(a, b, tolerance: float = 0.01) -> bool:

@@ -16,7 +16,7 @@ import pyproj
 
 from rooftrace.cloud import PointCloud
 from rooftrace.errors import InputError, OptionError
-from rooftrace.io.checks import horizontal_crs
+from rooftrace.io.checks import horizontal_crs, same_plan_crs
 from rooftrace.io.las import (
     LAS_SUFFIXES,
     check_finite,
@@ -230,14 +230,30 @@ def summarise_las(paths: Iterable[str | os.PathLike], crs: str | pyproj.CRS | No
 
 
 def common_crs(paths: list[Path], crss: list) -> pyproj.CRS | None:
-    """The one CRS of several files (after any ``--crs``); InputError naming the first file that differs."""
+    """The one CRS of several files (after any ``--crs``): the first file's.
+
+    CRSs that give the same plan coordinates are one CRS
+    (:func:`rooftrace.io.checks.same_plan_crs`: a vertical component on some
+    files only, or the same projection written differently); a warning names
+    the file.  The tiled and untiled runs both decide by this function.
+
+    Raises
+    ------
+    OptionError
+        A file whose CRS differs in plan from the first file's, or a file
+        with a CRS beside one without, naming both files.
+    """
     first = crss[0]
     for p, c in zip(paths[1:], crss[1:]):
-        if (first is None) != (c is None) or (first is not None and not first.equals(c, ignore_axis_order=True)):
+        if first is None and c is None:
+            continue
+        if first is None or c is None or not same_plan_crs(first, c):
             raise OptionError(
                 f"{p}: CRS ({_crs_name(c)}) differs from {paths[0]} ({_crs_name(first)}); "
                 "reproject one of them or assign one with {crs}", "crs"
             )
+        if not first.equals(c, ignore_axis_order=True):
+            log.warning("%s: CRS %s taken as %s of %s (same plan coordinates)", p, c.name, first.name, paths[0])
     return first
 
 

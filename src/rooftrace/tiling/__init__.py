@@ -361,8 +361,8 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
     (4, 1)
     """
     from rooftrace.config import RunOptions
-    from rooftrace.io.checks import check_same_crs, require_metric_crs
-    from rooftrace.io.points import parse_crs
+    from rooftrace.io.checks import require_metric_crs
+    from rooftrace.io.points import common_crs, parse_crs
 
     options = options if options is not None else RunOptions()
     tiling = tiling if tiling is not None else TileOptions()
@@ -379,10 +379,7 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
     user_crs = parse_crs(crs) if isinstance(crs, str) else crs
     crs_obj = user_crs or file_crss[0]
     if user_crs is None:
-        for p, c in zip(paths[1:], file_crss[1:]):
-            if (c is None) != (crs_obj is None):
-                raise OptionError(f"{p}: CRS differs from {paths[0]}; assign one with {{crs}}", "crs")
-            check_same_crs(crs_obj, c, str(paths[0]), str(p))
+        common_crs(paths, file_crss)
     b = head["bounds"]  # without a CRS, header bounds within a fraction of a unit of (lon, lat) are degrees
     require_metric_crs(crs_obj, str(paths[0]), np.array([[b[0], b[1]], [b[2], b[3]]]))
     cam = None
