@@ -60,14 +60,16 @@ def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: in
     return ok
 
 
-def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3):
+def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3,
+            min_density: float = 0.5):
     """Planes among the unassigned points: seeded RANSAC per 3D cluster.
 
     Clusters are connected within ``link`` m; in each, up to ``per_cluster``
-    planes are taken, best inlier count first: the largest plan-connected set of inliers
-    (height residual under ``distance``) with a plan hull of ``min_area``, at
-    least half the mean density, an RMS under ``distance / 2`` and a slope
-    under ``max_slope``.  Deterministic (fixed seed).
+    planes are taken, best inlier count first: the largest plan-connected
+    set of inliers (height residual under ``distance``) with a plan hull of
+    ``min_area``, at least ``min_density`` times the mean density
+    (``min_pts / min_area``), an RMS under ``distance / 2`` and a slope under
+    ``max_slope``.  Deterministic (fixed seed).
     """
     from scipy.spatial import ConvexHull, QhullError
 
@@ -122,7 +124,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             except QhullError:
                 break
             f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
-            if area < min_area or inl.sum() < 0.5 * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
+            if area < min_area or inl.sum() < min_density * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
                 break
             labels[idx[inl]] = nxt
             nxt, added = nxt + 1, True
@@ -419,8 +421,10 @@ def detail_planes(
         :func:`segment_planes` returned).
     min_area : float
         Smallest new plane (m², plan hull of its points); it must also hold
-        ``max(8, min_area / s²)`` points at half the mean density or more,
-        so at low density only planes that carry 8 points are found.
+        ``min_pts = max(8, min_area / s²)`` points at a density of at least
+        ``min_pts / (4 min_area)`` (a quarter of the mean density ``1 / s²``
+        when that is over ``16 pts/m²``), so at low density only planes that
+        carry 8 points are found.
     k : int
         Neighbours (``2 k`` are candidates while growing, as in
         :func:`segment_planes`).
@@ -452,7 +456,11 @@ def detail_planes(
     link = link or 2.5 * spacing
     min_pts = max(8, int(np.ceil(min_area / spacing**2)))
     first = int(labels.max()) + 1
-    labels, added = _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, per_cluster=8)
+    # A quarter of the mean density, not the rescue's half: a lower roof
+    # part seen by one strip only (scan lines a metre apart) is a plane too;
+    # the RMS test still keeps scattered clutter out.
+    labels, added = _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, per_cluster=8,
+                            min_density=0.25)
     if not added:
         return labels
     fit = fit_planes(xyz, labels)
