@@ -167,8 +167,8 @@ def flat_annex(*, chimney=True, stair_house=False, angle=0.0, offset=(0.0, 0.0))
     """Flat roof (14 m x 10 m, 9 m high) with a lower flat annex (6 m x 6 m, 5 m).
 
     ``chimney``: a 1 m x 1 m box to 10.2 m; ``stair_house``: a 2.5 m x 2.5 m
-    box to 11.5 m (its flat top is a plane of the truth's ``planes``' kind but
-    listed, like the chimney, as face ``-1``)."""
+    box to 11.5 m.  Both are boxes of the model's chimneys: not in ``planes``,
+    their points have face ``-1``."""
     planes = [(9.0, 0, 0), (5.0, 0, 0)]
     parts = [(0, 0, 14, 10, [0]), (14, 2, 20, 8, [1])]
     outline = [(0, 0), (14, 0), (14, 2), (20, 2), (20, 8), (14, 8), (14, 10), (0, 10)]
