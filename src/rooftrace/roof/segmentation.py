@@ -466,15 +466,18 @@ def detail_planes(
     fit = fit_planes(xyz, labels)
     planes = fit.planes.copy()
     planes[:first] = np.nan
-    n = len(xyz)
-    _, nn = cKDTree(xyz).query(xyz, k=min(2 * k, n))
-    nn = nn.reshape(n, -1)
+    # only the unassigned points can grow a plane: their neighbours, not
+    # every point's (a city block has 10^5 points and a few hundred left over)
+    un = np.flatnonzero(labels < 0)
+    _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
+    nn = nn.reshape(len(un), -1) + len(un)  # into [the unassigned points' own labels, every label]
     for _ in range(3):
-        grow = _best_candidate(xyz, nn, labels, planes, distance)
-        new = np.where(labels < 0, grow, labels)
-        if np.array_equal(new, labels):
+        grow = _best_candidate(xyz[un], nn, np.concatenate([labels[un], labels]), planes, distance)
+        grow = np.where(labels[un] < 0, grow, labels[un])
+        if np.array_equal(grow, labels[un]):
             break
-        labels = new
+        labels = labels.copy()
+        labels[un] = grow
     # Grown, a plane may tilt past the walls' slope or fit worse than the
     # tolerance: its points stay on none.  A new plane whose points a main
     # plane explains within twice the tolerance is a strip of that plane the
