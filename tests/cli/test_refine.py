@@ -71,7 +71,7 @@ def test_refine_writes_refined_layers_with_attributes(files, capsys):
     ("far", "does not cover"),
     ("nolayer", "no layer 'roof_outlines'"),
     ("suffix", "GeoPackage"),
-    ("config", "mrf.beta must be > 0"),
+    ("config", "[mrf] beta must be > 0"),
 ])
 def test_user_errors_exit_2(files, capsys, case, message):
     tmp, _, _ = files

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import shapely
@@ -57,14 +59,51 @@ def test_attributes(gable_roof):
     assert a["point_density"] == pytest.approx(len(xyz) / a["area"], rel=1e-2)
 
 
-def test_without_roof_faces_lod22_is_missing_with_the_reason():
+def test_without_roof_faces_lod22_is_the_flat_lod13_with_the_reason():
     rng = np.random.default_rng(0)
     xyz = np.column_stack([rng.uniform(0, 10, 500), rng.uniform(0, 8, 500), np.full(500, 7.0)])
     model = build_model(shapely.box(0, 0, 10, 8), None, xyz, 1.0)
-    assert model.attributes["status"] == "partial"
-    assert "lod22: no roof faces" in model.attributes["status_reason"]
-    assert set(model.parts[0].lods) == {"1.2", "1.3"}
-    assert solid_volume(model.parts[0].lods["1.2"]) == pytest.approx(80 * 6.0)
+    assert model.attributes["status"] == "flat_lod22"
+    assert model.attributes["status_reason"] == "lod22: flat, the LoD 1.3 roof: no roof faces (no roof structure)"
+    part = model.parts[0]
+    assert set(part.lods) == {"1.2", "1.3", "2.2"}
+    assert solid_errors(part.lods["2.2"]) == []
+    assert solid_volume(part.lods["2.2"]) == pytest.approx(80 * 6.0)
+    assert part.attributes["volume_lod22"] == pytest.approx(80 * 6.0)
+    assert {s.kind for s in part.lods["2.2"].surfaces} == {"RoofSurface", "WallSurface", "GroundSurface"}
+
+
+def test_a_failed_planar_lod22_falls_back_to_flat_and_a_missing_lod13_leaves_it_missing(gable_roof):
+    xyz, roof = gable_roof
+    ground = float(xyz[:, 2].min()) - 3.0
+    # roof planes 100 m down put the planar roof under the ground: the planar LoD 2.2 fails
+    planes = np.array(roof.planes, dtype=float)
+    planes[:, 3] += 100.0 * planes[:, 2]
+    model = build_model(roof.outline, dataclasses.replace(roof, planes=planes), xyz, ground)
+    assert model.attributes["status"] == "flat_lod22"
+    assert model.attributes["status_reason"].startswith("lod22: flat, the LoD 1.3 roof: a roof lies at or below")
+    assert model.parts[0].lods["2.2"] is model.parts[0].lods["1.3"]
+    # without LoD 1.3 (roof points only outside the part) nothing is made up
+    far = xyz + [1000.0, 0.0, 0.0]
+    model = build_model(roof.outline, roof, far, ground)
+    assert model.attributes["status"] == "no_model"
+    assert not model.parts[0].lods
+
+
+def test_a_steep_face_carried_below_the_ground_is_cut_and_its_neighbour_fills_in():
+    # a shed of two faces: a gentle one and a steep one whose plane reaches the ground inside the outline
+    gentle = np.array([0.0, 0.1, 1.0, -6.0])  # z = 6 - 0.1 y: 5.0 .. 6.0 m
+    steep = np.array([0.0, -2.0, 1.0, 12.0])  # z = 2 y - 12: -12 .. 8 m, below 1 m for y < 6.5
+    cells = [(shapely.box(0, 0, 10, 6), gentle), (shapely.box(0, 6, 10, 10), steep)]
+    roof = RoofStructure(building_id=1, planes=np.array([gentle, steep]), faces=[c for c, _ in cells],
+                         face_plane=[0, 1], outline=shapely.box(0, 0, 10, 10))
+    xyz = np.array([[x, y, 6.0] for x in range(1, 10) for y in range(1, 10)], dtype=float)
+    model = build_model(shapely.box(0, 0, 10, 10), roof, xyz, 0.0)
+    assert model.attributes["status"] == "ok", model.attributes["status_reason"]
+    solid = model.parts[0].lods["2.2"]
+    assert solid_errors(solid) == []
+    low = min(r[:, 2].min() for s in solid.surfaces if s.kind == "RoofSurface" for r in s.rings)
+    assert low >= 1.0 - 1e-6
 
 
 def test_no_outline_or_no_ground_is_no_model():

@@ -129,6 +129,24 @@ def test_planes_crossing_between_lattice_points_along_a_shared_edge(y0):
     assert len(at) and np.abs(at[:, 2] - 20.0).max() <= 0.03
 
 
+@pytest.mark.parametrize("at", [0.984, 0.99])
+def test_planes_crossing_a_lattice_step_from_the_end_of_a_slanted_shared_edge(at):
+    # face 1's edge B -> D is shared with a flat face 2; their planes cross at ``at`` of the edge,
+    # a centimetre from D: the lattice points around the crossing are D itself, points beyond D's
+    # end of the edge (a spike in the ring: no triangulation takes it; building 115 of Delft with
+    # the BGT footprints) and points the edge can bend to; only the last may be taken
+    b, d = np.array([0.27, 0.0]), np.array([0.0, 0.41])
+    e = (d - b) / np.linalg.norm(d - b)
+    cross = b + at * (d - b)
+    steep = np.array([2 * e[0], 2 * e[1], -1.0, 5.0 - 2 * (cross @ e)])  # z = 5 + 2 (p - cross) . e
+    face = shapely.Polygon([(0.14, 0), (0.27, 0), (0, 0.41), (0, 0.27), (-0.13, 0.27), (-0.13, 0.14)])
+    footprint = shapely.box(-0.13, 0, 1, 1)
+    solid = prism_solid([(face, steep), (footprint.difference(face), horizontal_plane(5.0))], 0.0,
+                        footprint=footprint)
+    assert solid_errors(solid) == []
+    assert solid_volume(solid) == pytest.approx(footprint.area * 5.0, rel=0.02)
+
+
 @pytest.mark.parametrize("step_y", [3.3372, 4.1234])
 def test_parts_cut_together_do_not_overlap_where_built_alone_they_do(step_y):
     from rooftrace.model.solid import party_walls
@@ -154,3 +172,14 @@ def test_parts_cut_together_do_not_overlap_where_built_alone_they_do(step_y):
     near = [{tuple(v) for v in np.round(shapely.get_coordinates(p), 3).tolist()
              if wall.distance(shapely.Point(v)) < 1e-9} for p in plans]
     assert near[0] == near[1] and len(near[0]) >= 3
+
+
+def test_a_second_saddle_disk_is_sized_by_the_narrowest_sector_at_the_vertex():
+    from rooftrace.model.solid import _narrowest_sector
+
+    # vertex 0 at the origin; a face's wedge between edges to 1 and 2 (5 degrees), others wide
+    a = np.radians(5.0)
+    xy = np.array([[0, 0], [1, 0], [np.cos(a), np.sin(a)], [0, 1], [-1, 0]], dtype=float)
+    rings = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [4, 3, 2, 1]]
+    assert _narrowest_sector([0], rings, xy)[0] == pytest.approx(a)
+    assert _narrowest_sector([3], rings, xy)[0] == pytest.approx(np.radians(45.0))

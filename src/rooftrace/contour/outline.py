@@ -253,15 +253,17 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         raise ValueError(f"trace_outline: xyz must have shape (N, 3), not {xyz.shape}")
     if not np.isfinite(xyz).all():
         raise GeometryError("non_finite")
-    pts = outline_points(xyz, options.surface, mean_spacing)
+    pts, below = outline_points(xyz, options.surface, mean_spacing, walls=True)
     # work near the origin: map coordinates (1e5 m) cost the least-squares fits digits
     origin = np.append(np.floor(xyz[:, :2].min(axis=0)), 0.0)
     pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
     context = None
-    if context_xy is not None and options.regularize.method == "lines":
-        context = EdgeContext(np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2])
+    if options.regularize.method == "lines" and (context_xy is not None or below.any()):
+        around = None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2]
+        # the building's own wall points on the boundary mark the edge (contour.edge)
+        context = EdgeContext(around, walls=pts[below, :2])
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(

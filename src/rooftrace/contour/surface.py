@@ -157,7 +157,7 @@ def _below(xyz: np.ndarray, radius: float, max_slope: float, tolerance: float):
 
 
 def outline_points(xyz: np.ndarray, options: SurfaceOptions | None = None,
-                   mean_spacing: float | None = None) -> np.ndarray:
+                   mean_spacing: float | None = None, *, walls: bool = False):
     """The points an outline is traced from: one per plan position (the highest), at roof height.
 
     Parameters
@@ -167,23 +167,33 @@ def outline_points(xyz: np.ndarray, options: SurfaceOptions | None = None,
     options : SurfaceOptions, optional
     mean_spacing : float, optional
         Point spacing (m); estimated from nearest neighbours when not given.
+    walls : bool, default False
+        Also return which of the points were below the roof (lifted to it):
+        walls, points under eaves, clutter taken in at a wall's foot.
 
     Returns
     -------
-    ndarray of shape (M, 3), M <= N
+    points : ndarray of shape (M, 3), M <= N
         In input order.
+    below : ndarray of shape (M,), bool
+        Only with ``walls``: True for the points lifted to the roof.
     """
     options = options or SurfaceOptions()
+    lifted = np.zeros(len(xyz), bool)
     if options.enabled and len(xyz) >= 4:
         spacing = mean_spacing if mean_spacing else _nn_spacing(xyz[:, :2])
         if spacing > 0:
-            xyz = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
-                               tolerance=options.tolerance)
+            moved = lift_to_roof(xyz, options.radius_factor * spacing, max_slope=options.max_slope,
+                                 tolerance=options.tolerance)
+            # a flagged point with no roof point near keeps its height: it marks no wall
+            lifted = moved[:, 2] != xyz[:, 2]
+            xyz = moved
     # points sharing a plan position (a wall seen from two strips): keep the highest, it is the roof
     order = np.lexsort((-xyz[:, 2], xyz[:, 1], xyz[:, 0]))
     keep = np.ones(len(order), bool)
     keep[1:] = np.any(xyz[order][1:, :2] != xyz[order][:-1, :2], axis=1)
-    return xyz[np.sort(order[keep])]
+    kept = np.sort(order[keep])
+    return (xyz[kept], lifted[kept]) if walls else xyz[kept]
 
 
 def _nn_spacing(xy: np.ndarray) -> float:

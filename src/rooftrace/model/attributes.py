@@ -23,8 +23,9 @@ attribute          meaning                                 3DBAG counterpart
 ``n_points``       roof points
 ``point_density``  roof points per m² of footprint         ``b3_pw_dichtheid``
 ``area``           footprint area (m²)
-``status``,        ``ok``, ``partial`` or ``no_model``,    ``b3_reconstructie_
-``status_reason``  and which level failed and why          onvolledig``
+``status``,        ``ok``, ``flat_lod22``, ``partial`` or  ``b3_reconstructie_
+``status_reason``  ``no_model``, and which level failed    onvolledig``
+                   or is flat, and why
 =================  ======================================  =====================
 
 Missing values are ``None`` (JSON null).

@@ -16,7 +16,10 @@ planes and faces, the roof points) and the ground height, and returns a
 Every solid comes from :func:`rooftrace.model.solid.prism_solid` and is
 checked by :func:`rooftrace.model.validity.solid_errors`; a level that
 cannot be built or is not valid is left out and the building's ``status``
-and ``status_reason`` say which and why (never an invalid solid).
+and ``status_reason`` say which and why (never an invalid solid).  LoD 2.2
+is never left out where LoD 1.3 stands: without roof faces, or when the
+planar solid fails, it is the LoD 1.3 solid (flat roofs, as 3DBAG's roofer
+models a roof without planes), status ``flat_lod22``.
 
 Building parts (``parts``: plan polygons, e.g. cadastral footprints of a
 terraced row, or the split of one LiDAR building) each get their own
@@ -131,6 +134,47 @@ def _roof_cells(roof) -> list[tuple[Any, np.ndarray]]:
             for f, k in zip(roof.faces, roof.face_plane)]
 
 
+#: no roof comes closer to the ground than this (m): a face that does is a steep plane carried
+#: beyond its points, and the part of it lower than this is left to its neighbours
+MIN_EAVES_HEIGHT = 1.0
+
+
+def _above_ground(cells: list, ground: float, clearance: float = MIN_EAVES_HEIGHT) -> list:
+    """The cells cut to where their plane is at least ``clearance`` above ``ground`` (m).
+
+    :func:`~rooftrace.model.solid.prism_solid` refuses a roof at or below
+    the ground; a steep face (a dormer's cheek, a plane fitted to a wall)
+    carried by the face partition past its points can reach it.  The part
+    cut off becomes a gap of the partition, which ``prism_solid`` gives to
+    the neighbouring face.  Cells entirely that low are kept as they are
+    (the roof then is under the ground and the level fails with that reason).
+    """
+    out = []
+    for poly, plane in cells:
+        a, b, c, d = plane
+        x0, y0, x1, y1 = poly.bounds
+        box = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        # the plane's height over the clearance is linear in plan: the cut is one straight line
+        lift = -(a * box[:, 0] + b * box[:, 1] + d) / c - ground - clearance if abs(c) > 1e-9 else np.zeros(4)
+        if (lift >= 0).all():  # a vertical plane too: prism_solid says why it fails
+            out.append((poly, plane))
+            continue
+        keep = []
+        for k in range(4):
+            j = (k + 1) % 4
+            if lift[k] >= 0:
+                keep.append(box[k])
+            if (lift[k] >= 0) != (lift[j] >= 0):
+                keep.append(box[k] + lift[k] / (lift[k] - lift[j]) * (box[j] - box[k]))
+        high = shapely.intersection(poly, shapely.Polygon(keep)) if len(keep) >= 3 else shapely.Polygon()
+        pieces = [g for g in shapely.get_parts(high) if g.geom_type == "Polygon" and g.area > 0]
+        if pieces:
+            out.extend((g, plane) for g in pieces)
+        else:
+            out.append((poly, plane))
+    return out
+
+
 def _clip(cells: list, footprint) -> list:
     """The cells cut to ``footprint`` (a polygon each, with its plane)."""
     if not cells:
@@ -239,6 +283,8 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             part.lods["1.3"] = part.lods["1.2"]  # one height level is all there is
         else:
             why["1.3"] = why["1.2"]
+        _flat_lod22(part, why, lods)
+        _volumes(part)
         return part, why
     kw["footprint"] = _with_face_corners(footprint, cells)
     if "1.3" in lods:
@@ -258,9 +304,33 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
+            _flat_lod22(part, why, lods)
+    _volumes(part)
+    return part, why
+
+
+#: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
+FLAT = "flat, the LoD 1.3 roof: "
+
+
+def _flat_lod22(part: PartModel, why: dict[str, str], lods: tuple[str, ...]) -> None:
+    """LoD 2.2 from what there is when the roof faces give none: the LoD 1.3 solid, its roofs flat.
+
+    As 3DBAG's roofer, every building with points gets a LoD 2.2: with no
+    roof planes (too few points, no planar region) or a planar roof that
+    failed, its roof surfaces are LoD 1.3's (one flat roof per height level,
+    each at the ``roof_percentile`` of its points): a closed, checked solid
+    with ``RoofSurface`` semantics.  ``why["2.2"]`` keeps the cause, marked
+    :data:`FLAT` so that the status can tell a flat LoD 2.2 from a missing one.
+    """
+    if "2.2" in lods and "2.2" in why and "1.3" in part.lods:
+        part.lods["2.2"] = part.lods["1.3"]
+        why["2.2"] = FLAT + why["2.2"]
+
+
+def _volumes(part: PartModel) -> None:
     for lod, solid in part.lods.items():
         part.attributes[f"volume_lod{lod.replace('.', '')}"] = round(solid_volume(solid), 3)
-    return part, why
 
 
 def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
@@ -323,7 +393,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         outline, or a footprint.
     roof : RoofStructure or None
         Roof planes and faces (:func:`rooftrace.roof.roof_structure`);
-        without faces there is no LoD 2.2 and LoD 1.3 is LoD 1.2.
+        without faces LoD 1.3 is LoD 1.2 and LoD 2.2 is LoD 1.3.
     xyz : ndarray of shape (N, 3), float64
         The building's roof points (m), for the flat roof heights.
     ground : float
@@ -337,7 +407,8 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     Returns
     -------
     BuildingModel
-        ``attributes`` holds ``status`` (``ok``; ``partial`` when a level of
+        ``attributes`` holds ``status`` (``ok``; ``flat_lod22`` when LoD 2.2
+        is the flat LoD 1.3 solid in some part; ``partial`` when a level of
         detail is missing in some part; ``no_model`` when no solid could be
         built) and ``status_reason``.
 
@@ -348,7 +419,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     >>> xyz = np.column_stack([rng.uniform(0, 10, 500), rng.uniform(0, 8, 500), np.full(500, 7.0)])
     >>> model = build_model(shapely.box(0, 0, 10, 8), None, xyz, 1.0, building_id=3)
     >>> sorted(model.parts[0].lods), model.attributes["status"]
-    (['1.2', '1.3'], 'partial')
+    (['1.2', '1.3', '2.2'], 'flat_lod22')
     """
     opt = options or ModelOptions()
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
@@ -361,7 +432,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     footprints = [poly] if parts is None else [
         g for p in parts for g in shapely.get_parts(shapely.intersection(shapely.force_2d(p), poly))
         if g.geom_type == "Polygon" and g.area > 0]
-    cells = _roof_cells(roof)
+    cells = _above_ground(_roof_cells(roof), float(ground))
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
     cut = _cut(footprints, cells, opt.snap)
     whys = []
@@ -377,7 +448,8 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
             reasons.append(f"lod{lod.replace('.', '')}" + (f" part {k}" if len(footprints) > 1 else "")
                            + f": {reason}")
     built = any(p.lods for p in model.parts)
-    status = "ok" if not reasons else ("partial" if built else "no_model")
+    missing = [r for r in reasons if FLAT not in r]
+    status = "ok" if not reasons else "flat_lod22" if not missing else "partial" if built else "no_model"
     model.attributes.update(status=status, status_reason="; ".join(reasons) or None)
     if reasons:
         log.debug("building %d: %s", building_id, "; ".join(reasons))

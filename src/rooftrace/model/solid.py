@@ -291,6 +291,49 @@ def _split_tilted(roofs: list[list[list[tuple]]], max_tilt: float) -> list[list[
     return out
 
 
+def _crossing_candidates(p: np.ndarray, q: np.ndarray, ex: float, ey: float, lattice: int,
+                         taken: dict) -> list[tuple[int, int]]:
+    """Lattice points that may stand for the crossing ``(ex, ey)`` (in lattice steps) of edge ``p -> q`` (grid units).
+
+    The free lattice points (not a vertex yet: a crossing within half a step
+    of a vertex would land on it) within a step of the exact crossing, nearest
+    first, whose projection falls strictly inside the edge: the edge bends by
+    at most a step there, in both faces.  A point beyond an end of the edge
+    would fold the ring back on itself (a spike: the surface's plan is no
+    longer a valid polygon and cannot be triangulated).
+    """
+    d = q - p
+    length2 = float(d @ d)
+    out = []
+    for x in range(int(np.floor(ex)) - 1, int(np.ceil(ex)) + 2):
+        for y in range(int(np.floor(ey)) - 1, int(np.ceil(ey)) + 2):
+            dist2 = (x - ex) ** 2 + (y - ey) ** 2
+            key = (x * lattice, y * lattice)
+            t = ((key[0] - p[0]) * d[0] + (key[1] - p[1]) * d[1]) / length2 if length2 > 0 else -1.0
+            if dist2 <= 2.0 and 0.0 < t < 1.0 and key not in taken:
+                out.append((dist2, key))
+    return [key for _, key in sorted(out)]
+
+
+def _simple_with(rings: list[list[int]], edge: tuple[int, int], point: tuple[int, int], xy: np.ndarray) -> bool:
+    """Whether the face of ``rings`` stays a valid polygon with ``point`` put into ``edge`` (either direction).
+
+    A lattice point near an end of a short edge can fold the ring back onto
+    the next edge (a spike), which no triangulation takes.
+    """
+    a, b = edge
+    coords = []
+    for ring in rings:
+        out = []
+        for j, v in enumerate(ring):
+            out.append(xy[v])
+            w = ring[(j + 1) % len(ring)]
+            if (v, w) in ((a, b), (b, a)):
+                out.append(np.asarray(point, dtype=np.float64))
+        coords.append(out)
+    return bool(shapely.Polygon(coords[0], coords[1:]).is_valid)
+
+
 def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
     """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
     out = []
@@ -361,9 +404,13 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         except _Saddle as saddle:
             if attempt == 3:
                 raise GeometryError(f"roof faces meet at {len(saddle.points)} saddle or pinch vertices") from None
-            # two lattice steps, then wider when a disk's own edge made a new one
-            cells = _open_saddles(cells, saddle.points, saddle.faces, 2 * snap * 4**attempt,
-                                  small=0.0 if attempt == 0 else 1.0)
+            if attempt == 0:  # two lattice steps
+                radius, small = 2 * snap, 0.0
+            elif attempt == 1:  # a disk's own edge made a new one: cut the narrowest sector two steps wide
+                radius, small = np.clip(snap / np.sin(saddle.angles / 2), 4 * snap, 25 * snap), 0.0
+            else:
+                radius, small = 2 * snap * 4 ** (attempt - 1), 1.0
+            cells = _open_saddles(cells, saddle.points, saddle.faces, radius, small=small)
     raise AssertionError("unreachable")
 
 
@@ -371,12 +418,24 @@ class _Saddle(Exception):
     """A vertex where the shell would not be 2-manifold: four or more walls sharing a vertical
     edge (faces high, low, high, low around it), or a face touching itself."""
 
-    def __init__(self, points: np.ndarray, faces: list[int]):
+    def __init__(self, points: np.ndarray, faces: list[int], angles: np.ndarray):
         super().__init__(f"{len(points)} saddle vertices")
-        self.points, self.faces = points, faces
+        self.points, self.faces, self.angles = points, faces, angles
 
 
-def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: float, small: float = 0.0) -> list:
+def _narrowest_sector(vertices: list[int], rings: list[list[int]], xy: np.ndarray) -> np.ndarray:
+    """Per vertex, the smallest angle (radians) between two consecutive ring edges leaving it in plan."""
+    out = []
+    for v in vertices:
+        ends = {r[(k + d) % len(r)] for r in rings for k in np.flatnonzero(np.asarray(r) == v) for d in (-1, 1)}
+        d = xy[sorted(ends)] - xy[v]
+        theta = np.sort(np.arctan2(d[:, 1], d[:, 0]))
+        gaps = np.diff(np.r_[theta, theta[0] + 2 * np.pi]) if len(theta) > 1 else np.array([2 * np.pi])
+        out.append(float(np.clip(gaps.min(), 1e-3, np.pi)))
+    return np.asarray(out)
+
+
+def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius, small: float = 0.0) -> list:
     """Give a cell a small disk around each vertex: at a saddle the highest cell, so that its high
     neighbours join it through an edge and the low ones stay apart (two walls per vertical edge); at
     a pinch the cell touching itself, which then surrounds the vertex.  Cells under ``small`` m² at
@@ -384,12 +443,12 @@ def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius: flo
     fill the gap, and the next attempt opens what is left."""
     cells = list(cells)
     if small > 0:
-        near = shapely.multipoints(points).buffer(radius)
+        near = shapely.union_all(shapely.buffer(shapely.points(points), radius))
         keep = [not (poly.area < small and poly.intersects(near)) for poly, _ in cells]
         if not all(keep) and any(keep):
             return [c for c, k in zip(cells, keep) if k]  # the next attempt finds what is left
-    for (x, y), c in zip(points, faces):
-        disk = shapely.Point(x, y).buffer(radius, quad_segs=2)
+    for (x, y), c, r in zip(points, faces, np.broadcast_to(radius, len(points))):
+        disk = shapely.Point(x, y).buffer(r, quad_segs=2)
         cells = [(shapely.difference(poly, disk) if i != c else shapely.union(poly, disk), plane)
                  for i, (poly, plane) in enumerate(cells)]
     return [(poly, plane) for poly, plane in cells if not poly.is_empty]
@@ -454,7 +513,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
              for v, n in zip(*np.unique(np.concatenate(rings), return_counts=True)) if n > 1]
     if pinch:
         xy = np.asarray(table.xy, dtype=np.float64)
-        raise _Saddle(xy[[v for v, _ in pinch]] * grid, [face_cell[i] for _, i in pinch])
+        at = [v for v, _ in pinch]
+        raise _Saddle(xy[at] * grid, [face_cell[i] for _, i in pinch],
+                      _narrowest_sector(at, [r for rings in face_rings for r in rings] + ground_rings, xy))
     # where two neighbouring planes cross along their shared edge the wall
     # between them changes side: put the crossing point into both rings
     for _ in range(4):
@@ -475,12 +536,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
         exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for pp, qq, (ex, ey) in zip(p[cross].tolist(), q[cross].tolist(), exact.tolist()):
-            # the nearest lattice point that is not a vertex yet (a crossing within half a step of
-            # a vertex would land on it): the edge bends by at most a step there, in both faces
-            near = sorted(((x - ex) ** 2 + (y - ey) ** 2, x * lattice, y * lattice) for x in (np.floor(ex), np.ceil(ex))
-                          for y in (np.floor(ey), np.ceil(ey)))
-            free = [(int(x), int(y)) for _, x, y in near if (int(x), int(y)) not in table.index]
+        for k, pp, qq, (ex, ey) in zip(cross.tolist(), p[cross].tolist(), q[cross].tolist(), exact.tolist()):
+            free = [c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
+                    if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))]
             if not free:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
             crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free[0])
@@ -537,7 +595,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     if saddles:
         at = [table.index[s] for s in saddles]
         highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]
-        raise _Saddle(np.asarray(saddles, dtype=np.float64) * grid, [face_cell[i] for i in highest])
+        raise _Saddle(np.asarray(saddles, dtype=np.float64) * grid, [face_cell[i] for i in highest],
+                      _narrowest_sector(at, [r for rings in face_rings for r in rings] + ground_rings,
+                                        np.asarray(table.xy, dtype=np.float64)))
     ground = [[point(v, g) for v in r[::-1]] for r in ground_rings]
 
     def surface(rings, kind):

@@ -28,15 +28,18 @@ Flow (each step restartable):
    (``RUN/derived.json``).
 3. ``process``: run :func:`rooftrace.pipeline.run_pipeline` per tile with
    those parameters, keep the buildings whose centre lies in the tile core
-   and store them as ``RUN/results/<i>_<j>.pkl``.  Tiles run in-process
-   (``workers=1``), on a Dask LocalCluster or on a Dask cluster
+   and store them as ``RUN/results/<i>_<j>.pkl``, their 3D models beside
+   it in ``<i>_<j>.models`` (:mod:`rooftrace.tiling.models`).  Tiles run
+   in-process (``workers=1``), on a Dask LocalCluster or on a Dask cluster
    (``--scheduler``; the run folder must be on a file system every worker
    sees).
 4. ``merge``: join the tile results and number the buildings by their
    lowest (x, y, z) point like the untiled detection does.  With an image,
    the parent then refines all the merged buildings in one pass, as the
    untiled run does; the image is checked before step 1 and never goes to
-   the tiles (:mod:`rooftrace.tiling.image`).
+   the tiles (:mod:`rooftrace.tiling.image`).  The models are not merged
+   in memory: they stream from the tiles' files in building order as the
+   writer takes them.
 
 :func:`run_tiled` returns the merged layers and models
 (:class:`TiledRunResult`); writing them is the caller's, as for
@@ -60,7 +63,7 @@ import pickle
 import shutil
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -194,8 +197,12 @@ class TiledRunResult:
     layers : dict of str to Layer
         The output layers, as :attr:`rooftrace.pipeline.RunResult.layers`
         of an untiled run (same names, order and numbering).
-    models : list of BuildingModel
-        3D models of every outlined building, in building-id order.
+    models : iterable of BuildingModel
+        3D models of every outlined building, in building-id order.  With
+        a ``run_dir`` a :class:`~rooftrace.tiling.models.ModelStream` that
+        reads them from the tiles' files as it is iterated (a city's models
+        are never all in memory; read it before the folder is removed),
+        else a list.
     refined : RefineResult or None
         Image refinement of the merged buildings, when an image was given.
     crs : pyproj.CRS or None
@@ -224,7 +231,7 @@ class TiledRunResult:
     """
 
     layers: dict[str, Layer]
-    models: list[BuildingModel]
+    models: Iterable[BuildingModel]
     refined: RefineResult | None
     crs: Any
     points: int
@@ -392,6 +399,8 @@ def run_tiled(inputs: Sequence[os.PathLike], options: RunOptions | None = None, 
     try:
         result = _run_in(run_dir, paths, head, options, tiling, crs_obj, image, camera, cam, seed,
                          reporter or Reporter(), classified, refine_context, footprints)
+        if temporary:  # the tiles' model files go with the folder: read them now
+            result.models = list(result.models)
     finally:
         if temporary:
             shutil.rmtree(run_dir, ignore_errors=True)
@@ -461,7 +470,7 @@ def _run_in(run_dir: Path, paths: list[Path], head: dict, options: RunOptions, t
     for name, layer in empty.items():
         layers.setdefault(name, layer)
     layers = {name: layers[name] for name in empty}  # the untiled run's layer order
-    models = merged_models(results)
+    models = merged_models(results, result_paths)
     timings["merge"] = time.perf_counter() - t0
     refined = None
     if cam is not None and len(layers["roof_outlines"]):

@@ -17,6 +17,7 @@ from rooftrace.footprints import Footprints
 from rooftrace.io.vector import Layer
 from rooftrace.lidar.detect import DerivedParams, DetectOptions
 from rooftrace.model.types import BuildingModel
+from rooftrace.tiling.models import ModelStream, save_models
 from rooftrace.tiling.split import load_tile_points, near_open_side, tile_grid
 
 if TYPE_CHECKING:  # rooftrace.config imports TileOptions from this package
@@ -206,7 +207,13 @@ class TileResult:
     building_keys : ndarray of shape (B, 3), float64
         Their sort keys (:func:`owned_buildings`): the merge numbers by them.
     models : list of BuildingModel
-        3D models of the owned buildings, with the tile's ids.
+        3D models of the owned buildings, with the tile's ids, when held in
+        memory; :func:`process_tile` writes them to ``models_file`` instead
+        and leaves this empty.
+    models_file : str or None
+        Name, in the result's folder, of the file holding the owned
+        buildings' models (:func:`rooftrace.tiling.models.save_models`), in
+        the merge's order.
     timings : dict of str to float
         Seconds per pipeline stage.
     edge_buildings : ndarray of shape (E, 4), float64
@@ -230,6 +237,7 @@ class TileResult:
     building_ids: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     building_keys: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
     models: list[BuildingModel] = dataclasses.field(default_factory=list)
+    models_file: str | None = None
     timings: dict[str, float] = dataclasses.field(default_factory=dict)
     edge_buildings: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 4)))
     core_points: int = 0
@@ -309,8 +317,14 @@ def process_tile(task: TileTask) -> str:
                         "cut; rerun with a larger buffer", key, *b)
         result.layers = {name: _owned_features(layer, keep_ids) for name, layer in run_out.layers.items()}
         result.building_ids, result.building_keys = keep_ids, keys[owned]
-        keep = set(keep_ids.tolist())
-        result.models = [m for m in run_out.models if m.building_id in keep]
+        # the models go to a file of their own in the merge's order (sort key, then id), so that the
+        # parent streams them instead of holding every tile's (tiling.models)
+        rank = {int(b): (tuple(k), int(b)) for b, k in zip(keep_ids.tolist(), keys[owned].tolist())}
+        models = sorted((m for m in run_out.models if m.building_id in rank), key=lambda m: rank[m.building_id])
+        result.models_file = out.with_suffix(".models").name
+        out.parent.mkdir(parents=True, exist_ok=True)
+        save_models(out.with_suffix(".models"), models)
+        del models
         if task.refine_context is not None:
             _keep_for_refinement(result, cloud, run_out, keep_ids, task.refine_context)
         result.timings = {**det.timings, **run_out.timings}
@@ -468,15 +482,22 @@ def building_numbers(results: Sequence[TileResult]) -> list[tuple[tuple, int, in
     return [(k, t, old, n + 1) for n, (k, t, old) in enumerate(entries)]
 
 
-def merged_models(results: Sequence[TileResult]) -> list[BuildingModel]:
-    """The tiles' 3D models, renumbered as :func:`merge_tiles` numbers the buildings and in that order."""
+def merged_models(results: Sequence[TileResult], result_paths: Sequence[str] | None = None) -> ModelStream:
+    """The tiles' 3D models, renumbered as :func:`merge_tiles` numbers the buildings and in that order.
+
+    Streamed (:class:`~rooftrace.tiling.models.ModelStream`): a tile's
+    models are read from its ``models_file`` (beside its result in
+    ``result_paths``) one at a time as the stream is iterated, or taken from
+    ``models`` when it holds them.  The files must stay until it is read.
+    """
     new_id = {(t, old): n for _, t, old, n in building_numbers(results)}
-    models = []
+    sources = []
     for t, res in enumerate(results):
-        for m in res.models:
-            m.building_id = new_id[(t, m.building_id)]
-            models.append(m)
-    return sorted(models, key=lambda m: m.building_id)
+        if res.models_file is not None and result_paths is not None:
+            sources.append(str(Path(result_paths[t]).with_name(res.models_file)))
+        else:
+            sources.append(sorted(res.models, key=lambda m: new_id[(t, m.building_id)]))
+    return ModelStream(sources, new_id)
 
 
 def merge_tiles(results: Sequence[TileResult]) -> dict[str, Layer]:
