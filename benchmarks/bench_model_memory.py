@@ -43,14 +43,20 @@ from rooftrace.synth import SceneOptions, simulate_scene
 from rooftrace.tiling import TileOptions, run_tiled
 
 
-def _peak_mib(write) -> float:
+def _peak_mib(write, *args, **kwargs) -> float:
+    """Peak Python memory (MiB) of one call ``write(*args, **kwargs)`` above what was held before it."""
     tracemalloc.start()
     tracemalloc.reset_peak()
     base = tracemalloc.get_traced_memory()[0]
-    write()
+    write(*args, **kwargs)
     peak = tracemalloc.get_traced_memory()[1] - base
     tracemalloc.stop()
     return peak / 2**20
+
+
+def _write_held(out, models, crs) -> None:
+    """Write the models after holding all of them in a list, as before they were streamed."""
+    write_models(out, list(models), crs, overwrite=True)
 
 
 def main() -> None:
@@ -73,10 +79,10 @@ def main() -> None:
             layers_mib = len(pickle.dumps(result.layers)) / 2**20
             run_s = time.perf_counter() - t0
             out = [tmp / f"b{scale}.city.jsonl", tmp / f"b{scale}.city.json"]
-            streamed = _peak_mib(lambda: write_models(out, result.models, result.crs, overwrite=True))
+            streamed = _peak_mib(write_models, out, result.models, result.crs, overwrite=True)
             n = sum(1 for _ in result.models)
             held_size = sum(len(pickle.dumps(m)) for m in result.models) / 2**20
-            held = _peak_mib(lambda: write_models(out, list(result.models), result.crs, overwrite=True))
+            held = _peak_mib(_write_held, out, result.models, result.crs)
             tag = f"x{scale * scale}"
             print(f"block {size:.0f} m ({result.tiles} tiles, {run_s:.0f} s): {n} buildings, models "
                   f"{held_size:.1f} MiB pickled; write peak streamed {streamed:.1f} MiB, held {held:.1f} MiB; "

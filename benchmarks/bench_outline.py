@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_outline.py city3d      # 50 AHN3 single buildings vs footprints
     .venv/bin/python benchmarks/bench_outline.py shapes      # lines vs cdspline vs peers, with corner measures
     .venv/bin/python benchmarks/bench_outline.py simulator   # simulated scenes at 12 pts/m² vs true roof outlines
+    .venv/bin/python benchmarks/bench_outline.py simulator-check  # the default on other seeds, densities, scan patterns
     .venv/bin/python benchmarks/bench_outline.py delft       # AHN3 class 6 of both tiles vs BGT pand
     .venv/bin/python benchmarks/bench_outline.py synthetic   # curved shapes with exact truth
     .venv/bin/python benchmarks/bench_outline.py speed       # 1,000-point building, outline time
@@ -281,13 +282,13 @@ def shapes() -> None:
 CURVED_KINDS = ("round", "stadium", "arc")
 
 
-def _simulated_buildings(seeds, density: float = 12.0):
+def _simulated_buildings(seeds, density: float = 12.0, scan_pattern: str = "zigzag"):
     """Per simulated building: its class-6 truth points, the other points near it, its true outline, curved or not."""
     from rooftrace.synth import SceneOptions, simulate_scene
 
     out = []
     for seed in seeds:
-        scene = simulate_scene(SceneOptions(seed=seed, density=density, image=False))
+        scene = simulate_scene(SceneOptions(seed=seed, density=density, image=False, scan_pattern=scan_pattern))
         xyz = scene.cloud.xyz
         cls = np.asarray(scene.cloud.fields["truth_class"])
         bid = np.asarray(scene.cloud.fields["truth_building_id"])
@@ -333,7 +334,36 @@ def simulator() -> None:
     record("outline", "simulator_12ppm", rows)
 
 
+#: scenes the method was not tuned on: (seeds, pts/m², scan pattern)
+INDEPENDENT = (((4, 5, 6), 12.0, "zigzag"), ((1, 2), 8.0, "zigzag"), ((1, 2), 20.0, "zigzag"),
+               ((1, 2), 12.0, "parallel"), ((1, 2), 12.0, "random"))
+
+
+def simulator_check() -> None:
+    """The default on simulated scenes other than the tuning set: other seeds, densities and scan patterns."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _results import record
+
+    options = OutlineOptions.from_config({})
+    rows = []
+    print(f"columns: {_HEADER} PoLiS_straight right_corners_straight PoLiS_curved time_s")
+    for seeds, density, pattern in INDEPENDENT:
+        buildings = _simulated_buildings(seeds, density, pattern)
+        name = f"lines (default), seeds {'-'.join(map(str, seeds))}, {density:g} pts/m², {pattern}"
+        curved = [b[3] for b in buildings]
+        t0 = time.perf_counter()
+        outs = [trace_outline(xyz, options, context_xy=ctx) for xyz, ctx, _, _ in buildings]
+        rows += _shape_rows(name, [o.polygon for o in outs], [b[2] for b in buildings], time.perf_counter() - t0,
+                            curved=curved)
+        deg = np.array([max(max(d) for d in o.degrees) >= 2 for o, c in zip(outs, curved) if c])
+        rows += [dict(method=name, metric="curved_degree_at_least_2", value=float(deg.mean())),
+                 dict(method=name, metric="buildings", value=len(buildings)),
+                 dict(method=name, metric="curved_buildings", value=int(sum(curved)))]
+        print(f"{'':42s} curved buildings with a segment of degree >= 2: {deg.sum()} of {len(deg)}")
+    record("outline", "simulator_independent", rows)
+
+
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "city3d"
     {"city3d": city3d, "shapes": shapes, "simulator": simulator, "delft": delft, "synthetic": synthetic,
-     "speed": speed}[what]()
+     "speed": speed, "simulator-check": simulator_check}[what]()

@@ -16,13 +16,36 @@ from rooftrace.contour.buildings import classified_buildings
 from rooftrace.contour.spacing import building_mean_spacing
 from tests.conftest import CITY3D, DELFT, IGN
 
-__all__ = ["DELFT", "CITY3D", "IGN", "class6_buildings", "delft_cloud", "thinned", "ign_tiles", "city3d_buildings"]
+__all__ = ["DELFT", "CITY3D", "IGN", "class6_buildings", "delft_cloud", "thinned", "ign_tiles", "city3d_buildings",
+           "local_alpha"]
 
 
 def class6_buildings(cloud) -> tuple[np.ndarray, np.ndarray, float]:
     """(xyz, building ids, s_avg) of a cloud's class-6 points."""
     xyz, ids = classified_buildings(cloud.xyz, cloud.fields["classification"])
     return xyz, ids, building_mean_spacing(xyz[:, :2])
+
+
+def local_alpha(outline, xy: np.ndarray) -> np.ndarray:
+    """Each point's alpha radius (m) in ``outline``'s alpha shape: the invariant's tolerance.
+
+    For the point strategy (S3) a point's alpha is its own ps_avg scaled as
+    the outline's shape was (``outline.alpha`` is the median over the
+    Delaunay edges of the scaled edge alphas); for the others it is one value.
+    Recomputed here from the points, not read from the pipeline.
+    """
+    from rooftrace.contour.alpha_shape import AlphaOptions
+    from rooftrace.contour.spacing import delaunay_mesh, point_spacing
+
+    xy = np.asarray(xy, dtype=np.float64)[:, :2]
+    if outline.alpha_strategy != "point":
+        return np.full(len(xy), outline.alpha)
+    # points sharing a plan position count once in the shape (the highest is its roof point)
+    plan, inverse = np.unique(xy, axis=0, return_inverse=True)
+    edges, lengths, _, _ = delaunay_mesh(plan)
+    spacing = point_spacing(plan, edges, lengths, AlphaOptions().radius)
+    unscaled = float(np.median(0.5 * (spacing[edges[:, 0]] + spacing[edges[:, 1]])))
+    return spacing[inverse.ravel()] * (outline.alpha / unscaled)
 
 
 def delft_cloud():

@@ -5,8 +5,8 @@ import pytest
 
 from rooftrace.errors import GeometryError
 from rooftrace.roof import models
-from rooftrace.roof.planes import estimate_spacing, fit_planes, plane_height, point_normals
-from rooftrace.roof.segmentation import segment_planes
+from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted, plane_height, point_normals
+from rooftrace.roof.segmentation import detail_planes, segment_planes
 
 
 def _truth_match(labels, face, K):
@@ -205,3 +205,40 @@ def test_fit_planes_sums_as_bincount():
     dx, dy = P[:, 0] - centre[lab, 0], P[:, 1] - centre[lab, 1]
     res = P[:, 2] - (fit.pqr[lab, 0] * dx + fit.pqr[lab, 1] * dy + fit.pqr[lab, 2])
     assert np.array_equal(fit.sigma, np.sqrt(np.bincount(lab, res * res, minlength=6) / np.maximum(n - 3, 1)))
+
+
+def test_detail_planes_take_the_chimney_and_leave_the_main_planes():
+    """A flat roof with a 1 m² chimney (10.2 m) and a stair house: the first pass leaves the chimney top on no
+    plane (under its 2 m²); the second pass makes it a plane of exactly its points, the main labels unchanged."""
+    m = models.flat_annex(stair_house=True, angle=21, offset=(85000.0, 447000.0))
+    xyz, face = models.sample_roof(m, 16, 0.03, seed=2)
+    s = estimate_spacing(xyz)
+    labels, fit, tol = segment_planes(xyz, s)
+    chimney = (face < 0) & (np.abs(xyz[:, 2] - 10.2) < 0.2)
+    assert chimney.sum() >= 12 and (labels[chimney] < 0).all()
+    more = detail_planes(xyz, labels, s, distance=tol)
+    assert np.array_equal(more[labels >= 0], labels[labels >= 0])
+    new = np.unique(more[more > labels.max()])
+    assert len(new) == 1 and np.mean(more[chimney] == new[0]) > 0.9 and (chimney[more == new[0]]).all()
+    # deterministic, and no second pass finds nothing new where every point is on a plane
+    assert np.array_equal(detail_planes(xyz, labels, s, distance=tol), more)
+    assert np.array_equal(detail_planes(xyz[~chimney], labels[~chimney], s, distance=tol), labels[~chimney])
+    with pytest.raises(ValueError, match="distance"):
+        detail_planes(xyz, labels, s, distance=0.0)
+    with pytest.raises(ValueError, match="do not match"):
+        detail_planes(xyz, labels[:-1], s, distance=tol)
+
+
+def test_level_untilted_levels_only_what_the_points_do_not_tilt():
+    rng = np.random.default_rng(7)
+    xy = rng.uniform(0, 1, (12, 2))
+    flat = np.column_stack([xy, 10 + rng.normal(0, 0.03, 12)])
+    tilted = np.column_stack([xy + 5, 10 + 0.2 * xy[:, 0] + rng.normal(0, 0.03, 12)])
+    xyz, lab = np.vstack([flat, tilted]), np.repeat([0, 1], 12)
+    fit = fit_planes(xyz, lab)
+    out = level_untilted(xyz, lab, fit, np.array([True, True]))
+    assert np.allclose(out.planes[0], [0, 0, 1, -flat[:, 2].mean()]) and out.sigma[0] > 0
+    assert np.array_equal(out.planes[1], fit.planes[1])  # 11° is far outside its error ellipse
+    assert np.array_equal(level_untilted(xyz, lab, fit, np.array([False, True])).planes[0], fit.planes[0])
+    with pytest.raises(ValueError, match="candidates"):
+        level_untilted(xyz, lab, fit, np.array([True]))

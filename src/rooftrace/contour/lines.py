@@ -9,9 +9,11 @@ curve — and the shape is simplified while an information criterion (BIC)
 says the simpler model explains the points as well:
 
 - a segment is curved only if its spline beats the line by more than the
-  noise the point spacing implies (the boundary points of a straight edge
-  scatter over about one spacing, a standard deviation of ``noise_factor``
-  times the spacing, the floor of every residual variance below);
+  noise the sampling implies (a boundary point lies anywhere within one
+  sampling step across the edge, a standard deviation of ``noise_factor``
+  times that step, the floor of every residual variance below; the step is
+  measured behind each ring point, :func:`boundary_step`); a run of short
+  lines along one arc becomes a curve on the same criterion;
 - neighbouring lines merge, and short runs of segments (notches, small loops,
   cut corners) are dropped, when the simpler shape's BIC is lower;
 - walls take the building's dominant direction (or its perpendicular) when
@@ -35,11 +37,14 @@ import shapely
 from numba import njit
 from scipy.spatial import cKDTree
 
+from rooftrace.contour.cdspline import fit_cdspline
 from rooftrace.contour.corners import douglas_peucker
 from rooftrace.contour.edge import EdgeContext, edge_shift
+from rooftrace.errors import GeometryError
 
 __all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets",
-           "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners"]
+           "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners", "boundary_step",
+           "curved_runs"]
 
 log = logging.getLogger(__name__)
 
@@ -516,7 +521,8 @@ def _curve_normals(v: np.ndarray) -> np.ndarray:
 
 def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: float, edge_factor: float,
                  directions: bool = True, context: EdgeContext | None = None, densify: float = 0.5,
-                 z_tolerance: float = 0.3, refit: Callable | None = None) -> LineOutline:
+                 z_tolerance: float = 0.3, refit: Callable | None = None,
+                 roof_xy: np.ndarray | None = None) -> LineOutline:
     """Building-shaped ring from the ring points and the CD-spline fitted to them.
 
     Parameters
@@ -544,21 +550,17 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring
         indices, increasing): the spline fitted again when a simplified line
         bends beyond the noise.
+    roof_xy : ndarray of shape (M, 2) float64, optional
+        All the roof's points (the ring points among them), in the ring's
+        frame: the sampling step across the edge is measured on them
+        (:func:`boundary_step`).
 
     Returns
     -------
     LineOutline
     """
     xy = points[:, :2]
-    # the boundary scatters over the gaps between the points it runs through: the mean spacing for an
-    # even sampling, but the scan-line distance where the lines end at a roof edge (a saw-tooth)
-    gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
-    step = 0.5 * (gap + np.roll(gap, 1))
-    # per point, smoothed along the ring over a few neighbours: a saw-tooth alternates long and short gaps
-    width = 5
-    kernel = np.ones(width) / width
-    step = np.convolve(np.concatenate([step[-width:], step, step[:width]]), kernel, mode="same")[width:-width]
-    sigma0 = noise_factor * np.maximum(spacing, step)
+    sigma0 = noise_factor * boundary_step(xy, spacing, roof_xy)
     trim = 1
     segments = _curves_on(points, None, spline, sigma0, trim, densify)
     if len(segments) < 3:
@@ -571,6 +573,8 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         segments = segments[first:] + segments[:first]  # the spline's corners increase
         segments = _curves_on(points, segments, refit(np.array([int(g.idx[0]) for g in segments])), sigma0,
                               trim, densify)
+    # short straight pieces of one arc, each within a line's noise: one curve if the BIC says so
+    segments = curved_runs(points, segments, densify)
     theta = None
     if directions:
         segments, theta = constrain_directions(xy, segments, sigma0, trim)
@@ -590,6 +594,186 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     ring, corners, degrees = _assemble(xy, points[:, 2], shifted, max(2.0, 5.0 * spacing), z_tolerance)
     rms = float(np.sqrt(np.mean(np.concatenate([r for r, _ in residual_fit]) ** 2)))
     return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
+
+
+def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | None = None,
+                  window: float = 2.0) -> np.ndarray:
+    """The sampling step across the edge at each ring point: how far its position is uncertain, metres.
+
+    The roof edge lies somewhere between a boundary point and the next roof
+    position the sampling could have put beyond it, so a boundary point's
+    position across the edge is uncertain by the step to the next row of
+    roof points behind it, measured across the edge (σ = step / √12 for a
+    uniform position).  Along an even sampling that is the mean spacing; where
+    the scan lines run nearly parallel to a wall the ring follows one scan
+    line until the next reaches the wall (a saw-tooth), and the step is the
+    scan-line distance, however short the gaps along the ring are.
+
+    Parameters
+    ----------
+    ring_xy : ndarray of shape (N, 2) float64
+        Ring points in order, roof on the left, metres.
+    spacing : float
+        Local mean point spacing, metres: the step where no roof point lies
+        behind a ring point, and the least step counted as a row behind.
+    roof_xy : ndarray of shape (M, 2) float64, optional
+        The roof's points.  Without them, the step is the mean gap between
+        ring neighbours (never below ``spacing``).
+    window : float
+        Length of ring (in spacings) whose chord gives the edge's direction at a point.
+
+    Returns
+    -------
+    ndarray of shape (N,) float64
+        Metres, smoothed along the ring over five points (a saw-tooth
+        alternates rows).
+    """
+    xy = np.asarray(ring_xy, dtype=np.float64)
+    n = len(xy)
+    gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
+    if roof_xy is None or len(roof_xy) < 4 or n < 4:
+        step = np.maximum(spacing, 0.5 * (gap + np.roll(gap, 1)))
+    else:
+        # the edge's direction at each point: the chord over about `window` spacings of ring
+        along = np.concatenate([[0.0], np.cumsum(gap)])
+        total = along[-1]
+        ext = np.concatenate([along[:-1] - total, along[:-1], along[:-1] + total])
+        half = 0.5 * window * spacing
+        lo = np.searchsorted(ext, along[:-1] - half, side="left") % n
+        hi = (np.searchsorted(ext, along[:-1] + half, side="right") - 1) % n
+        t = xy[hi] - xy[lo]
+        t /= np.maximum(np.linalg.norm(t, axis=1), 1e-12)[:, None]
+        inward = np.column_stack([-t[:, 1], t[:, 0]])  # the roof is on the left
+        roof = np.asarray(roof_xy, dtype=np.float64)[:, :2]
+        k = min(24, len(roof))
+        _, nb = cKDTree(roof).query(xy, k=k)
+        rel = roof[nb] - xy[:, None, :]
+        depth = np.einsum("nkj,nj->nk", rel, inward)
+        side = np.abs(np.einsum("nkj,nj->nk", rel, t))
+        # the next row behind: more behind the point than beside it (a scan line running nearly
+        # along the edge is the point's own row, however short its gaps), and at least one mean
+        # spacing in, the step of an even sampling (nearer points are neighbours in the same row,
+        # set slightly in where rows are slanted to the edge, or wall points below the eave)
+        behind = (depth >= spacing) & (side <= depth)
+        step = np.where(behind, depth, np.inf).min(axis=1)
+        step = np.where(np.isfinite(step), step, spacing)
+    width = 5
+    kernel = np.ones(width) / width
+    return np.convolve(np.concatenate([step[-width:], step, step[:width]]), kernel, mode="same")[width:-width]
+
+
+def _turning_runs(segments: list) -> list[list[int]]:
+    """Runs of consecutive lines that turn the same way by less than a corner's angle, each turning <= 90°.
+
+    Short straight pieces of one arc (each within the noise of a line) turn
+    by a few degrees at every break, all the same way; a straight wall's
+    wobbles and steps turn both ways.  Returns segment positions per run,
+    three lines at least; a run round the whole ring is cut where its
+    turning passes 90° (one spline segment does not turn farther).
+    """
+    m = len(segments)
+    turn = np.full(m, np.nan)  # at break k, from segment k - 1 to segment k, degrees (left positive)
+    for k in range(m):
+        a, b = segments[k - 1], segments[k]
+        if isinstance(a, Line) and isinstance(b, Line):
+            cross = a.direction[0] * b.direction[1] - a.direction[1] * b.direction[0]
+            turn[k] = np.degrees(np.arctan2(cross, np.dot(a.direction, b.direction)))
+    smooth = np.abs(turn) < _CORNER_DEG  # nan (a curve on either side) is False
+    # start where the ring does not run smoothly on: a corner or a curve (else anywhere)
+    starts = np.flatnonzero(~smooth)
+    first = int(starts[0]) if len(starts) else 0
+    runs, cur, total, sense = [], [first], 0.0, 0.0
+    for j in range(1, m + 1):
+        k = (first + j) % m
+        t = turn[k]
+        same = bool(smooth[k]) and (sense == 0.0 or np.sign(t) == sense)
+        if same and abs(total + t) <= 90.0 and j < m:
+            cur.append(k)
+            total += t
+            sense = float(np.sign(t))
+            continue
+        if len(cur) >= 3:
+            runs.append(cur)
+        cur, total, sense = [k], 0.0, 0.0
+    return runs
+
+
+def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
+    """Replace runs of short lines along one arc by a curve where the BIC prefers it.
+
+    Arc pieces shorter than a few metres each stay within the noise of a
+    line, so an arc becomes a polygon of many short walls.  Every run of
+    lines turning the same way (:func:`_turning_runs`) is fitted as one
+    CD-spline segment of degree 2 or 3 (the BIC decides, as for every other
+    model here, not the F-test); it becomes a curve when that segment
+    (2·degree parameters plus its break point) explains the run's points
+    with a lower BIC than the run's lines (each with its parameters and
+    break point, at their pooled noise floor).
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 3) float64
+        Ring points.
+    segments : list of Line or Curve
+        In ring order, each segment's ring indices increasing.
+    densify : float
+        Step of the curve samples, metres.
+
+    Returns
+    -------
+    list of Line or Curve
+    """
+    runs = _turning_runs(segments)
+    if not runs:
+        return segments
+    xy = points[:, :2]
+    in_run = {k: r for r in runs for k in r}
+    units = []  # (segment positions) per spline segment, in ring order
+    for k in range(len(segments)):
+        if k in in_run:
+            if in_run[k][0] == k:
+                units.append(in_run[k])
+        else:
+            units.append([k])
+    starts = np.array([int(segments[u[0]].idx[0]) for u in units])
+    order = np.argsort(starts, kind="stable")
+    corners = starts[order]
+    rank = np.empty(len(units), np.int64)
+    rank[order] = np.arange(len(units))
+    is_run = np.array([len(units[u]) >= 3 for u in order])
+    fits = []
+    # every run at degree 2, then at 3 (the other segments straight): the pieces join with C0 only, so
+    # each run's curve barely depends on the others', and the BIC picks the degree run by run
+    for d in (2, 3):
+        try:
+            fits.append((d, fit_cdspline(points, corners, np.where(is_run, d, 1))))
+        except GeometryError:
+            continue
+    replace = {}
+    for u, unit in enumerate(units):
+        if len(unit) < 3:
+            continue
+        k = int(rank[u])
+        lines = [segments[j] for j in unit]
+        idx = np.concatenate([ln.idx for ln in lines])
+        floor = _pooled(lines)
+        best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
+        for d, fit in fits:
+            verts, corner_index = fit.ring(densify)
+            corner_index = list(corner_index) + [len(verts)]
+            arc = np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]
+            res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
+            bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
+            if bic < best[0]:
+                best = (bic, Curve(idx, arc, d))
+        if best[1] is not None:
+            replace[unit[0]] = (unit, best[1])
+    if not replace:
+        return segments
+    log.debug("lines: %d runs of short lines became curves", len(replace))
+    drop = {j for unit, _ in replace.values() for j in unit}
+    return [replace[k][1] if k in replace else segments[k] for k in range(len(segments))
+            if k in replace or k not in drop]
 
 
 def _bends(xy: np.ndarray, line: Line) -> bool:

@@ -151,7 +151,8 @@ class RoofOutline:
 
 
 def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, outer: bool = True,
-                  context: EdgeContext | None = None) -> tuple[np.ndarray, np.ndarray, list[int], float]:
+                  context: EdgeContext | None = None,
+                  roof_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[int], float]:
     if len(xyz) < 4:
         return xyz, np.arange(len(xyz)), [1] * len(xyz), 0.0
     reg = options.regularize
@@ -168,7 +169,8 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, o
             shape = line_outline(xyz, spline, spacing, noise_factor=reg.noise_factor, edge_factor=reg.edge_factor,
                                  directions=reg.directions, context=context, densify=options.cdspline.densify,
                                  z_tolerance=options.corners.t_dist,
-                                 refit=lambda knots: iterative_cdspline(xyz, knots, options.cdspline))
+                                 refit=lambda knots: iterative_cdspline(xyz, knots, options.cdspline),
+                                 roof_xy=roof_xy)
         except ValueError:
             shape = None
         if shape is not None and _simple(shape.vertices):
@@ -355,7 +357,7 @@ def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str
         if regularise:
             try:
                 vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options, outer=i == 0,
-                                                               context=context)
+                                                               context=context, roof_xy=pts[:, :2])
             except GeometryError:
                 vertices = None
         if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:

@@ -45,9 +45,10 @@ class RegularizeOptions:
         ``snap`` and the outward shift by ``offset_factor`` below.
     noise_factor : float
         'lines': standard deviation of the boundary points about a straight
-        edge, in local spacings (σ0, the floor of every residual variance in
-        the model choice).  The outermost points of a uniform sampling lie
-        0-1 spacing inside the edge: 1/√12 ≈ 0.29.
+        edge, in sampling steps across the edge (σ0, the floor of every
+        residual variance in the model choice;
+        :func:`rooftrace.contour.lines.boundary_step`).  A boundary point lies
+        anywhere between the edge and one step inside it: 1/√12 ≈ 0.29.
     edge_factor : float
         'lines': half the sampling step across a roof edge, in local
         spacings: the outward shift of the fitted boundary to the roof edge

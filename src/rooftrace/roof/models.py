@@ -163,12 +163,17 @@ def l_hip(length_a=18.0, length_b=15.0, width=8.0, eave=5.0, slope=30.0, *, angl
     return _build("l_hip", outline, planes, parts, ridges, kinds, (), angle, offset)
 
 
-def flat_annex(*, chimney=True, angle=0.0, offset=(0.0, 0.0)):
-    """Flat roof (14 m x 10 m, 9 m high) with a lower flat annex (6 m x 6 m, 5 m)."""
+def flat_annex(*, chimney=True, stair_house=False, angle=0.0, offset=(0.0, 0.0)):
+    """Flat roof (14 m x 10 m, 9 m high) with a lower flat annex (6 m x 6 m, 5 m).
+
+    ``chimney``: a 1 m x 1 m box to 10.2 m; ``stair_house``: a 2.5 m x 2.5 m
+    box to 11.5 m.  Both are boxes of the model's chimneys: not in ``planes``,
+    their points have face ``-1``."""
     planes = [(9.0, 0, 0), (5.0, 0, 0)]
     parts = [(0, 0, 14, 10, [0]), (14, 2, 20, 8, [1])]
     outline = [(0, 0), (14, 0), (14, 2), (20, 2), (20, 8), (14, 8), (14, 10), (0, 10)]
     ch = [(3, 3, 4, 4, 10.2)] if chimney else []
+    ch += [(8, 4, 10.5, 6.5, 11.5)] if stair_house else []
     return _build("flat_annex", outline, planes, parts, [[(14, 2, 9.0), (14, 8, 9.0)]], ["step"], ch, angle, offset)
 
 

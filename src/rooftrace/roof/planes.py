@@ -27,6 +27,7 @@ __all__ = [
     "fit_planes",
     "plane_height",
     "neighbourhood_normals",
+    "level_untilted",
 ]
 
 log = logging.getLogger(__name__)
@@ -171,3 +172,70 @@ def plane_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
     if planes.ndim == 2 and xy.ndim == 2 and planes.shape[0] != xy.shape[0]:
         return -(xy[:, :1] * planes[:, 0] + xy[:, 1:2] * planes[:, 1] + planes[:, 3]) / planes[:, 2]
     return -(xy[..., 0] * planes[..., 0] + xy[..., 1] * planes[..., 1] + planes[..., 3]) / planes[..., 2]
+
+
+def level_untilted(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, candidates: np.ndarray,
+                   chi2: float = 9.21) -> PlaneFit:
+    """The planes among ``candidates`` whose tilt their points do not support, made horizontal.
+
+    A plane of a dozen points (a chimney top) has a slope error of a few
+    degrees; when its fitted slopes ``(p, q)`` are within the 99 % ellipse
+    of their covariance (``(p, q) C⁻¹ (p, q)ᵀ < chi2``, ``chi2(2)`` at 0.99
+    = 9.21) it is taken as horizontal at its points' mean height, which is
+    the least-squares horizontal plane.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` for none (the labels ``fit`` was made from).
+    fit : PlaneFit
+    candidates : ndarray of shape (K,), bool
+        Planes that may be levelled.
+    chi2 : float
+        Threshold of the tilt's squared Mahalanobis norm.
+
+    Returns
+    -------
+    PlaneFit
+        A copy; levelled planes have ``p = q = 0``, ``r`` the mean height,
+        ``sigma`` with ``n - 1`` degrees of freedom and only ``var(r) = sigma² / n``.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> xyz = np.column_stack([rng.uniform(0, 1, (12, 2)), 10 + rng.normal(0, 0.03, 12)])
+    >>> lab = np.zeros(12, dtype=np.int64)
+    >>> level_untilted(xyz, lab, fit_planes(xyz, lab), np.array([True])).planes.round(3).tolist()
+    [[0.0, 0.0, 1.0, -9.997]]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    K = len(fit.planes)
+    candidates = np.asarray(candidates, dtype=bool)
+    if candidates.shape != (K,):
+        raise ValueError(f"level_untilted: candidates has shape {candidates.shape}, expected ({K},)")
+    pq = fit.pqr[:, :2]
+    C = fit.cov[:, :2, :2]
+    det = C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] ** 2
+    ok = candidates & np.isfinite(pq).all(axis=1) & np.isfinite(det) & (det > 0)
+    t2 = np.full(K, np.inf)
+    # (p, q) C^-1 (p, q)^T with the 2 x 2 inverse written out
+    t2[ok] = (C[ok, 1, 1] * pq[ok, 0] ** 2 - 2 * C[ok, 0, 1] * pq[ok, 0] * pq[ok, 1]
+              + C[ok, 0, 0] * pq[ok, 1] ** 2) / det[ok]
+    flat = ok & (t2 < chi2)
+    out = PlaneFit(fit.planes.copy(), fit.pqr.copy(), fit.centre.copy(), fit.cov.copy(), fit.sigma.copy(),
+                   fit.n.copy())
+    if not flat.any():
+        return out
+    on = labels >= 0
+    n = np.bincount(labels[on], minlength=K).astype(np.float64)
+    mean = np.bincount(labels[on], weights=xyz[on, 2], minlength=K) / np.maximum(n, 1)
+    rss = np.bincount(labels[on], weights=(xyz[on, 2] - mean[labels[on]]) ** 2, minlength=K)
+    sigma = np.sqrt(rss / np.maximum(n - 1, 1))
+    out.pqr[flat] = np.column_stack([np.zeros(flat.sum()), np.zeros(flat.sum()), mean[flat]])
+    out.planes[flat] = np.column_stack([np.zeros((flat.sum(), 2)), np.ones(flat.sum()), -mean[flat]])
+    out.sigma[flat] = sigma[flat]
+    out.cov[flat] = 0.0
+    out.cov[flat, 2, 2] = sigma[flat] ** 2 / n[flat]
+    return out

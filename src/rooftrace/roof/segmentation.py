@@ -27,7 +27,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, fit_planes, neighbourhood_normals, plane_height
 
-__all__ = ["segment_planes"]
+__all__ = ["segment_planes", "detail_planes"]
 
 log = logging.getLogger(__name__)
 
@@ -60,14 +60,16 @@ def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: in
     return ok
 
 
-def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64):
+def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3,
+            min_density: float = 0.5):
     """Planes among the unassigned points: seeded RANSAC per 3D cluster.
 
-    Clusters are connected within ``link`` m; in each, up to three planes are
-    taken, best inlier count first: the largest plan-connected set of inliers
-    (height residual under ``distance``) with a plan hull of ``min_area``, at
-    least half the mean density, an RMS under ``distance / 2`` and a slope
-    under ``max_slope``.  Deterministic (fixed seed).
+    Clusters are connected within ``link`` m; in each, up to ``per_cluster``
+    planes are taken, best inlier count first: the largest plan-connected
+    set of inliers (height residual under ``distance``) with a plan hull of
+    ``min_area``, at least ``min_density`` times the mean density
+    (``min_pts / min_area``), an RMS under ``distance / 2`` and a slope under
+    ``max_slope``.  Deterministic (fixed seed).
     """
     from scipy.spatial import ConvexHull, QhullError
 
@@ -83,7 +85,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
     cos_max = np.cos(np.radians(max_slope))
     for c in np.flatnonzero(np.bincount(comp) >= floor):
         idx = un[comp == c]
-        for _ in range(3):
+        for _ in range(per_cluster):
             if len(idx) < floor:
                 break
             P = xyz[idx]
@@ -122,7 +124,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             except QhullError:
                 break
             f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
-            if area < min_area or inl.sum() < 0.5 * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
+            if area < min_area or inl.sum() < min_density * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
                 break
             labels[idx[inl]] = nxt
             nxt, added = nxt + 1, True
@@ -382,3 +384,114 @@ def segment_planes(
         labels = _compact(labels, ~bad)
         fit = fit_planes(xyz, labels)
     return labels, fit, float(distance)
+
+
+def detail_planes(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    spacing: float,
+    *,
+    distance: float,
+    min_area: float = 0.5,
+    k: int = 16,
+    max_slope: float = 75.0,
+    link: float | None = None,
+) -> np.ndarray:
+    """A second pass of the segmentation: small planes among the points left on no plane.
+
+    The region graph of :func:`segment_planes` needs planar neighbourhoods of
+    ``k`` points, which a chimney top or a dormer cheek of a square metre
+    does not have, and it drops regions under its ``min_area``.  Here RANSAC
+    per 3D cluster of the leftover points (up to 8 planes each, the
+    segmentation's rescue step) takes the planes the leftovers support, then
+    each new plane grows into its unassigned neighbours.  Points already on
+    a plane keep it, and only the new planes are candidates while growing:
+    a main plane does not creep along its extension into the leftovers.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        One building's roof points (m).
+    labels : ndarray of shape (N,), int
+        The planes of :func:`segment_planes`, ``-1`` for none.
+    spacing : float
+        Mean point spacing ``s`` (m).
+    distance : float
+        Largest height residual (m) of a point to its plane (the one
+        :func:`segment_planes` returned).
+    min_area : float
+        Smallest new plane (m², plan hull of its points); it must also hold
+        ``min_pts = max(8, min_area / s²)`` points at a density of at least
+        ``min_pts / (4 min_area)`` (a quarter of the mean density ``1 / s²``
+        when that is over ``16 pts/m²``), so at low density only planes that
+        carry 8 points are found.
+    k : int
+        Neighbours (``2 k`` are candidates while growing, as in
+        :func:`segment_planes`).
+    max_slope : float
+        Steeper planes (deg) are walls and are not taken.
+    link : float, optional
+        3D distance (m) linking leftover points into clusters; default ``2.5 s``.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        ``labels`` with the new planes numbered after the old ones.
+
+    Examples
+    --------
+    >>> from rooftrace.roof.models import flat_annex, sample_roof
+    >>> xyz, face = sample_roof(flat_annex(chimney=True), density=12, noise=0.03, seed=1)
+    >>> labels, fit, tol = segment_planes(xyz, 0.29)
+    >>> int(labels.max()) + 1, int(detail_planes(xyz, labels, 0.29, distance=tol).max()) + 1
+    (2, 3)
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3 or len(labels) != len(xyz):
+        raise ValueError(f"detail_planes: xyz {xyz.shape} and labels {labels.shape} do not match")
+    if not spacing > 0 or not distance > 0 or not min_area > 0:
+        raise ValueError(f"detail_planes: spacing, distance and min_area must be > 0, got {spacing}, {distance}, "
+                         f"{min_area}")
+    link = link or 2.5 * spacing
+    min_pts = max(8, int(np.ceil(min_area / spacing**2)))
+    first = int(labels.max()) + 1
+    # A quarter of the mean density, not the rescue's half: a lower roof
+    # part seen by one strip only (scan lines a metre apart) is a plane too;
+    # the RMS test still keeps scattered clutter out.
+    labels, added = _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, per_cluster=8,
+                            min_density=0.25)
+    if not added:
+        return labels
+    fit = fit_planes(xyz, labels)
+    planes = fit.planes.copy()
+    planes[:first] = np.nan
+    # only the unassigned points can grow a plane: their neighbours, not
+    # every point's (a city block has 10^5 points and a few hundred left over)
+    un = np.flatnonzero(labels < 0)
+    _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
+    nn = nn.reshape(len(un), -1) + len(un)  # into [the unassigned points' own labels, every label]
+    for _ in range(3):
+        grow = _best_candidate(xyz[un], nn, np.concatenate([labels[un], labels]), planes, distance)
+        grow = np.where(labels[un] < 0, grow, labels[un])
+        if np.array_equal(grow, labels[un]):
+            break
+        labels = labels.copy()
+        labels[un] = grow
+    # Grown, a plane may tilt past the walls' slope or fit worse than the
+    # tolerance: its points stay on none.  A new plane whose points a main
+    # plane explains within twice the tolerance is a strip of that plane the
+    # first pass missed (rough tiles, the edge of a ridge zone), not a
+    # superstructure: dropped too, the main plane's face covers it.
+    fit = fit_planes(xyz, labels)
+    bad = ~np.isfinite(fit.planes).all(axis=1) | (fit.planes[:, 2] < np.cos(np.radians(max_slope)))
+    bad |= ~(fit.sigma <= distance)
+    for j in np.flatnonzero(~bad[first:]) + first:
+        P = xyz[labels == j]
+        off = P[:, 2:3] - plane_height(fit.planes[:first], P[:, :2])
+        bad[j] = bool(np.sqrt(np.mean(off**2, axis=0)).min() <= 2 * distance) if first else False
+    bad[:first] = False
+    if bad.any():
+        labels = _compact(labels, ~bad)
+    log.debug("detail pass: %d planes of %g m² or more", int(labels.max()) + 1 - first, min_area)
+    return labels

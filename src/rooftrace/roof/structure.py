@@ -30,9 +30,9 @@ from scipy.spatial import Delaunay, QhullError
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines, step_edges
-from rooftrace.roof.planes import estimate_spacing
+from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
-from rooftrace.roof.segmentation import segment_planes
+from rooftrace.roof.segmentation import detail_planes, segment_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
@@ -63,6 +63,13 @@ class RoofOptions:
         ``max(3 sigma_n, 0.05)``, ``sigma_n`` the noise of planar neighbourhoods.
     min_area : float
         Smallest roof plane kept (m²); chimneys and small clutter are below.
+    min_detail_area : float or None
+        Smallest plane (m²) of a second pass over the points left on no
+        plane (chimney tops, small dormers, stair houses;
+        :func:`rooftrace.roof.segmentation.detail_planes`), holding at least
+        ``max(8, min_detail_area / s²)`` points; one whose tilt its points
+        do not support is made horizontal.  ``None`` or ``>= min_area``
+        turns the pass off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
@@ -113,6 +120,7 @@ class RoofOptions:
     max_local_rms: float | None = None
     distance: float | None = None
     min_area: float = 2.0
+    min_detail_area: float | None = 0.5
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0
@@ -173,7 +181,13 @@ class RoofStructure:
     plane_n : ndarray of shape (K,), int
         Points per plane.
     labels : ndarray of shape (N,), int
-        Plane per input point, ``-1`` unassigned (chimneys, walls, noise).
+        Plane per input point, ``-1`` unassigned (walls, noise, structures
+        too small for a plane).
+    plane_detail : ndarray of shape (K,), bool
+        Planes of the segmentation's second pass over the leftover points
+        (``RoofOptions.min_detail_area``: chimney tops, small dormers, stair
+        houses), numbered after the main planes.  They get faces but no
+        ridge, hip, valley or step lines.
     faces : list of shapely Polygon with Z
         Tiling of the outline, Z on the face's plane.
     face_plane : list of int
@@ -200,6 +214,7 @@ class RoofStructure:
     plane_centre: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     plane_n: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     labels: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    plane_detail: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     faces: list = field(default_factory=list)
     face_plane: list = field(default_factory=list)
     ridges: list = field(default_factory=list)
@@ -327,7 +342,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         outline2d = max(parts, key=lambda g: g.area) if parts else outline2d
     link = max(2.5 * s, 1.5 * _edge_percentile(xyz, 90))
     try:
-        labels, fit, _ = segment_planes(
+        labels, fit, tol = segment_planes(
             xyz, s, k=opt.k_neighbours, normal_angle=opt.normal_angle, max_local_rms=opt.max_local_rms,
             distance=opt.distance, min_area=opt.min_area, merge_angle=opt.merge_angle, iterations=opt.iterations,
             max_slope=opt.max_slope, link=opt.adjacency_radius or link,
@@ -335,20 +350,30 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     except GeometryError as exc:
         log.debug("building %s: %s", building_id, exc)
         return _empty(building_id, n, "no_planes", s, outline2d)
+    # The lines are made of the main planes only: superstructures (the
+    # second pass's planes) get faces, not ridges, hips or steps.
+    main, n_main = labels, len(fit.planes)
+    if opt.min_detail_area is not None and opt.min_detail_area < opt.min_area:
+        labels = detail_planes(xyz, labels, s, distance=tol, min_area=opt.min_detail_area, k=opt.k_neighbours,
+                               max_slope=opt.max_slope, link=opt.adjacency_radius or link)
+        if labels.max() + 1 > n_main:
+            fit = fit_planes(xyz, labels)
+            fit = level_untilted(xyz, labels, fit, np.arange(len(fit.planes)) >= n_main)
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
+        plane_detail=np.arange(len(fit.planes)) >= n_main,
     )
     radius = opt.adjacency_radius or link
     line_tol = opt.line_tolerance or link
-    adj = plane_adjacency(xyz, labels, fit.planes, radius, opt.min_links)
+    adj = plane_adjacency(xyz, main, fit.planes, radius, opt.min_links)
     # Geometry kernels can still fail on odd outlines (GEOS topology errors):
     # the planes stand, the building gets a status, the run goes on.
     try:
         lines = intersection_lines(
             fit.planes, adj, outline2d, line_tolerance=line_tol,
             snap=opt.snap_distance or max(1.0, 4.0 * s, 1.5 * link), ridge_max_slope=opt.ridge_max_slope,
-            min_length=opt.min_ridge_length, xyz=xyz, labels=labels,
+            min_length=opt.min_ridge_length, xyz=xyz, labels=main,
         )
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no ridge lines (%s)", building_id, exc)
@@ -375,9 +400,10 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     except (shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no step edges (%s)", building_id, exc)
         steps, spairs = [], []
-    roof.ridges += steps
-    roof.ridge_kind += ["step"] * len(steps)
-    roof.ridge_planes += spairs
+    kept = [i for i, pair in enumerate(spairs) if max(pair) < n_main]
+    roof.ridges += [steps[i] for i in kept]
+    roof.ridge_kind += ["step"] * len(kept)
+    roof.ridge_planes += [spairs[i] for i in kept]
     if not roof.faces:
         roof.status = "no_faces"
     return roof
