@@ -182,7 +182,7 @@ def test_superstructures_get_faces_and_the_lod22_roof_fits_them():
     chimney = (face < 0) & (np.abs(xyz[:, 2] - 10.2) < 0.2)
     dz, rmse = {}, {}
     for area in (None, 0.5):
-        roof = roof_structure(xyz, m.outline, RoofOptions(min_detail_area=area, hold_step_boundaries=True))
+        roof = roof_structure(xyz, m.outline, RoofOptions(min_detail_area=area))
         solids = [p.lods["2.2"] for p in build_model(m.outline, roof, xyz, 0.0).parts]
         assert all(solid_errors(s) == [] for s in solids)
         dz[area] = np.abs(xyz[chimney, 2] - roof_height_at(solids, xyz[chimney, :2]))
