@@ -217,7 +217,7 @@ def _shared_boundaries(polys, pids):
 def test_ridges_run_straight_from_node_to_node():
     """Each shared boundary by its own rule: on a hip roof every boundary is a ridge or hip (the planes
     meet along it), so each comes out as one straight segment between its nodes, before any snapping
-    to the lines (one tolerance for the whole roof left bends in three of the five)."""
+    to the lines (one tolerance for the whole roof left bends in four of the five)."""
     from types import SimpleNamespace
 
     from rooftrace.roof.faces import partition_outline
