@@ -537,11 +537,12 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
         for k, pp, qq, (ex, ey) in zip(cross.tolist(), p[cross].tolist(), q[cross].tolist(), exact.tolist()):
-            free = [c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
-                    if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))]
-            if not free:
+            # the nearest candidate that keeps both faces valid (the test builds two polygons: stop at the first)
+            free = next((c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
+                         if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))), None)
+            if free is None:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
-            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free[0])
+            crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free)
             # on the lattice the point is up to half a step off the crossing, where the two
             # heights may differ by more than the tolerance: they are made one there
             crossings.add(crossing[(pp, qq)])
