@@ -22,6 +22,7 @@ def _cfg(tmp_path, text):
     ("[surface]\nenabled = 1\n", r"c\.toml: \[surface\] enabled must be true or false"),
     ("[alpha]\nstrategy = 'sideways'\n", r"c\.toml: \[alpha\] strategy must be one of .*sideways"),
     ("[classify]\nneighbours = 2\n", r"c\.toml: \[classify\] neighbours must be >= 4, got 2$"),
+    ("[segment]\nmin_height = -3\n", r"c\.toml: \[segment\] min_height must be >= 0 m, got -3"),
     ("[mrf]\nbeta = -1\n", r"c\.toml: \[mrf\]"),
     ("seed = 1\n", r"c\.toml: top-level key 'seed' must be a \[table\]"),
     ("[ground\n", r"c\.toml: not valid TOML"),

@@ -212,6 +212,11 @@ class SegmentOptions:
             raise ValueError(f"segment.sector_max_angle must be in (0, 90] deg, got {self.sector_max_angle}")
         if self.min_points is not None and self.min_points < 1:
             raise ValueError(f"segment.min_points must be >= 1, got {self.min_points}")
+        # heights above the ground model: below 0 the ground itself would be grown into roof levels
+        if not self.min_height >= 0:
+            raise ValueError(f"segment.min_height must be >= 0 m, got {self.min_height}")
+        if self.absorb_min_height is not None and not self.absorb_min_height >= 0:
+            raise ValueError(f"segment.absorb_min_height must be >= 0 m or unset, got {self.absorb_min_height}")
 
 
 def link_pairs(xy: np.ndarray, link_distance: float) -> np.ndarray:
