@@ -188,12 +188,6 @@ def _arc_sides(V: np.ndarray, vptr: np.ndarray, grid: np.ndarray, x0: float, y1:
     return out
 
 
-def _pair_height(planes: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Height of plane ``planes[n]`` at ``xy[n]``, row by row."""
-    a, b, c, d = planes.T
-    return -(a * xy[:, 0] + b * xy[:, 1] + d) / c
-
-
 def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
     """Per arc: False where it crosses itself or meets another arc anywhere but at ends of both."""
     if len(shapely.get_parts(shapely.node(shapely.multilinestrings(arcs)))) == len(arcs):
@@ -276,7 +270,7 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
         tol = np.full(len(V), max_dz)
     else:
         tol = np.maximum(max_dz, 2 * np.hypot(plane_sigma[a], plane_sigma[b]))
-    crease = (np.abs(_pair_height(planes[a], V) - _pair_height(planes[b], V)) <= tol) & inner[at]
+    crease = (np.abs(plane_height(planes[a], V) - plane_height(planes[b], V)) <= tol) & inner[at]
     # the labelled points near each arc that can be moved, and what a move does to each
     pi, ri = shapely.STRtree(arcs).query(shapely.points(P[:, :2]))
     sel = inner[ri]
@@ -290,8 +284,8 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
     g = grid[row, col]
     sa, sb = sides[ri, 0], sides[ri, 1]
     foreign = (g != sa) & (g != sb)
-    za, zb = _pair_height(planes[sa], xy), _pair_height(planes[sb], xy)
-    own = _pair_height(planes[lab[pi]], xy)
+    za, zb = plane_height(planes[sa], xy), plane_height(planes[sb], xy)
+    own = plane_height(planes[lab[pi]], xy)
     now, other = np.where(g == sa, za, zb), np.where(g == sa, zb, za)
     # a move counts against the chord only where it misplaces a point, not where it mends one (a swap of
     # misplaced points is no gain: the points lie where they lie)

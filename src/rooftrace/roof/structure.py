@@ -358,11 +358,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
                                max_slope=opt.max_slope, link=opt.adjacency_radius or link)
         if labels.max() + 1 > n_main:
             fit = fit_planes(xyz, labels)
-            fit = level_untilted(xyz, labels, fit, np.arange(len(fit.planes)) >= n_main)
+    detail = np.arange(len(fit.planes)) >= n_main
+    if detail.any():
+        fit = level_untilted(xyz, labels, fit, detail)
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
-        plane_detail=np.arange(len(fit.planes)) >= n_main,
+        plane_detail=detail,
     )
     radius = opt.adjacency_radius or link
     line_tol = opt.line_tolerance or link
