@@ -73,6 +73,15 @@ def test_two_separate_boxes_are_not_one_shell():
     assert any("not connected" in e for e in solid_errors(Solid(a.surfaces + b.surfaces)))
 
 
+def test_two_boxes_sharing_one_corner_make_a_non_manifold_vertex():
+    a, b = _box(), _box()
+    for s in b.surfaces:  # b's lowest corner on a's highest one: the surfaces there make two fans
+        s.rings = [r + [10.0, 8.0, 6.0] for r in s.rings]
+    errors = solid_errors(Solid(a.surfaces + b.surfaces))
+    assert "1 non-manifold vertices (the surfaces around them make several fans)" in errors
+    assert not any("non-manifold" in e for e in solid_errors(a))
+
+
 def test_volume_is_translation_invariant():
     cells, volume = gable()
     solid = prism_solid(cells, 0.0)

@@ -52,10 +52,22 @@ def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
     if not polys:
         return out
     planes = np.asarray(planes)
-    pts = shapely.points(xy)
-    at, surf = shapely.STRtree(polys).query(pts, predicate="intersects")
-    z = -(planes[surf, 0] * xy[at, 0] + planes[surf, 1] * xy[at, 1] + planes[surf, 3]) / planes[surf, 2]
-    np.fmax.at(out, at, z)
+    polys = np.array(polys, dtype=object)
+    shapely.prepare(polys)
+    # a few hundred surfaces over up to 10^5 points: each surface tests the points in its box
+    # (sorted by X, a slice) rather than each point querying a tree of the surfaces
+    order = np.argsort(xy[:, 0], kind="stable")
+    xs = xy[order, 0]
+    box = shapely.bounds(polys)
+    lo = np.searchsorted(xs, box[:, 0], side="left")
+    hi = np.searchsorted(xs, box[:, 2], side="right")
+    for k in np.flatnonzero(hi > lo):
+        cand = order[lo[k]:hi[k]]
+        y = xy[cand, 1]
+        cand = cand[(y >= box[k, 1]) & (y <= box[k, 3])]
+        at = cand[shapely.intersects_xy(polys[k], xy[cand, 0], xy[cand, 1])]
+        pl = planes[k]
+        np.fmax.at(out, at, -(pl[0] * xy[at, 0] + pl[1] * xy[at, 1] + pl[3]) / pl[2])
     return out
 
 

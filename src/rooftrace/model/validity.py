@@ -104,6 +104,36 @@ def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     return float((area * p).sum()) / 3.0
 
 
+def _rows(a: np.ndarray) -> np.ndarray:
+    """Each row of a 2D array as one opaque value (equal rows, equal values; sortable)."""
+    a = np.ascontiguousarray(a)
+    return a.view(np.dtype((np.void, a.dtype.itemsize * a.shape[1]))).ravel()
+
+
+def _parallel_triangles(xyz: np.ndarray, surf: np.ndarray, n_surfaces: int) -> np.ndarray:
+    """Surfaces whose triangles are parallel however they are cut: all vertices at one height, or on two plan positions.
+
+    A horizontal surface's triangles all have normals ``(0, 0, ±1)``
+    exactly, a vertical wall's (its two sides' vertices over two plan
+    positions) all lie in one vertical plane to the rounding of the
+    coordinates: neither can tilt, and triangulating them (most of a
+    building's surfaces) tells nothing.  ``surf`` is sorted (surfaces in
+    order, as :func:`_ring_table` stacks them).
+    """
+    out = np.zeros(n_surfaces, dtype=bool)
+    if not len(surf):
+        return out
+    start = np.flatnonzero(np.r_[True, surf[1:] != surf[:-1]])
+    z = xyz[:, 2]
+    level = np.minimum.reduceat(z, start) == np.maximum.reduceat(z, start)
+    o = np.lexsort((xyz[:, 1], xyz[:, 0], surf))
+    s, x, y = surf[o], xyz[o, 0], xyz[o, 1]
+    new = np.r_[True, (s[1:] != s[:-1]) | (x[1:] != x[:-1]) | (y[1:] != y[:-1])]
+    positions = np.bincount(s[new], minlength=n_surfaces)
+    out[surf[start]] = level | (positions[surf[start]] <= 2)
+    return out
+
+
 def _bases(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per row of ``normal`` (S, 3), unit vectors u, v with (u, v, n) right-handed."""
     n = normal / np.linalg.norm(normal, axis=1, keepdims=True)
@@ -137,11 +167,18 @@ def surface_triangles(polys: np.ndarray, flat: np.ndarray, surf: np.ndarray) -> 
     if not len(tris):
         return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
     xy = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
-    # back to the vertex each corner is (the triangulation copies the vertices it is given);
-    # surfaces far apart in a third coordinate so that no corner finds another surface's vertex
-    span = np.abs(flat).max() * 4.0 + 1.0
-    _, at = cKDTree(np.column_stack([flat, surf * span])).query(
-        np.column_stack([xy.reshape(-1, 2), np.repeat(of, 3) * span]))
+    # back to the vertex each corner is: the triangulation copies the vertices it is given, so
+    # (surface, x, y) finds it bit for bit
+    table = _rows(np.column_stack([surf.astype(np.float64), flat]))
+    wanted = _rows(np.column_stack([np.repeat(of, 3).astype(np.float64), xy.reshape(-1, 2)]))
+    order = np.argsort(table, kind="stable")
+    at = order[np.minimum(np.searchsorted(table[order], wanted), len(order) - 1)]
+    if not (table[at] == wanted).all():
+        # a corner that is no vertex (GEOS moved it): the nearest vertex of its surface, surfaces
+        # far apart in a third coordinate
+        span = np.abs(flat).max() * 4.0 + 1.0
+        _, at = cKDTree(np.column_stack([flat, surf * span])).query(
+            np.column_stack([xy.reshape(-1, 2), np.repeat(of, 3) * span]))
     corners = at.reshape(-1, 3)
     e1, e2 = xy[:, 1] - xy[:, 0], xy[:, 2] - xy[:, 0]
     cw = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0] < 0
@@ -236,13 +273,16 @@ def surface_tilt(surfaces, limit: float = 20.0) -> np.ndarray:
     Returns
     -------
     ndarray of shape (S,)
-        0 for a surface that is not a valid polygon in its plane.
+        0 for a surface that is not a valid polygon in its plane, and for
+        one that is horizontal or on two plan positions (a wall): their
+        triangles are parallel (to the rounding of the coordinates).
     """
     xyz, ring, nxt, owner, sizes, start = _ring_table(surfaces)
     n = len(surfaces)
     origin, normal, flat, _, _, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n)
     norm = np.linalg.norm(normal, axis=1)
-    ok = (norm > 1e-12) & shapely.is_valid(polys)
+    ok = (norm > 1e-12) & ~_parallel_triangles(xyz, owner[ring], n)
+    ok[ok] = shapely.is_valid(polys[ok])
     tilt = np.zeros(n)
     if ok.any():
         keep = ok[owner[ring]]
@@ -288,8 +328,13 @@ def _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, n_surfaces, planar
     for k in np.flatnonzero(~valid):
         errors.append(f"surface {k}: self-intersecting in its plane ({shapely.is_valid_reason(polys[k])})")
     if valid.all():
-        corners, of = surface_triangles(polys, flat, owner[ring])
-        tilt = triangle_tilt(xyz - origin, corners, of, unit, normals_deviation)
+        tilt = np.zeros(n_surfaces)
+        tilted = ~_parallel_triangles(xyz, surf, n_surfaces)
+        if tilted.any():
+            keep = tilted[surf]
+            index = np.cumsum(tilted) - 1
+            corners, of = surface_triangles(polys[tilted], flat[keep], index[surf][keep])
+            tilt[tilted] = triangle_tilt(xyz[keep] - origin, corners, of, unit[tilted], normals_deviation)
         for k in np.flatnonzero(tilt > normals_deviation):
             errors.append(f"surface {k}: not planar (its triangles' normals {tilt[k]:.1f} degrees apart)")
     ccw = shapely.is_ccw(lr)
@@ -371,24 +416,15 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     if components(len(surfaces), np.column_stack([face, face[opposite]])).max() > 0:
         errors.append("the shell is not connected")
     # 2-manifold at vertices: around each vertex, the edges (next -> previous)
-    # of the surfaces using it chain into one cycle
+    # of the surfaces using it chain into one cycle.  Each directed edge v -> to is
+    # followed by v -> back, ``back`` the vertex before v on the ring of v -> to (closed and
+    # each edge once: v -> back exists); around v the edges make one cycle of that map
     prev = np.empty_like(vid)
     prev[nxt] = vid
-    link: dict[int, dict[int, int]] = {}
-    for v, to, back in zip(a.tolist(), b.tolist(), prev.tolist()):
-        link.setdefault(v, {})[to] = back
-    uses = np.bincount(a)
-    bad = 0
-    for v, chain in link.items():
-        first = cur = next(iter(chain))
-        steps = 0
-        while True:
-            cur = chain.get(cur)
-            steps += 1
-            if cur is None or cur == first or steps > len(chain):
-                break
-        if cur != first or steps != uses[v]:
-            bad += 1
+    follow = order[np.searchsorted(key[order], a * n + prev)]
+    cycle = components(len(a), np.column_stack([np.arange(len(a)), follow]))
+    fans = np.unique(np.column_stack([a, cycle]), axis=0)[:, 0]
+    bad = int((np.bincount(fans) > 1).sum())
     if bad:
         errors.append(f"{bad} non-manifold vertices (the surfaces around them make several fans)")
     volume = solid_volume(solid)
