@@ -47,6 +47,8 @@ has the same vertices on both sides and the parts' solids do not overlap.
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
+
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
@@ -233,8 +235,8 @@ class _Rings:
         nxt = np.arange(len(r)) + 1
         nxt[start + sizes - 1] = start
         p, q = xy[r], xy[r[nxt]]
-        segs = shapely.linestrings(np.stack([p, q], axis=1))
-        seg, cand = self._tree[1].query(segs, predicate="dwithin", distance=0.5)
+        # the vertices in each edge's box; the exact test below keeps those on it
+        seg, cand = self._tree[1].query(shapely.linestrings(np.stack([p, q], axis=1)))
         d = q[seg] - p[seg]
         w = xy[cand] - p[seg]
         L2 = np.maximum((d * d).sum(axis=1), 1e-12)
@@ -324,13 +326,11 @@ def _simple_with(rings: list[list[int]], edge: tuple[int, int], point: tuple[int
     a, b = edge
     coords = []
     for ring in rings:
-        out = []
-        for j, v in enumerate(ring):
-            out.append(xy[v])
-            w = ring[(j + 1) % len(ring)]
-            if (v, w) in ((a, b), (b, a)):
-                out.append(np.asarray(point, dtype=np.float64))
-        coords.append(out)
+        r = np.asarray(ring, dtype=np.int64)
+        w = np.roll(r, -1)
+        at = np.flatnonzero(((r == a) & (w == b)) | ((r == b) & (w == a)))
+        coords.append(np.insert(xy[r], at + 1, np.broadcast_to(np.asarray(point, dtype=np.float64), (len(at), 2)),
+                                axis=0))
     return bool(shapely.Polygon(coords[0], coords[1:]).is_valid)
 
 
@@ -552,33 +552,37 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     if snapped.min() <= g:
         raise GeometryError(f"a roof lies at or below the ground height ({snapped.min() * grid:.2f} <= "
                             f"{ground_height:.2f} m)")
+    p_list, z_list = p.tolist(), snapped.tolist()
     levels: dict[int, set] = {}
-    for v, z in zip(p.tolist(), snapped.tolist()):
+    for v, z in zip(p_list, z_list):
         levels.setdefault(v, set()).add(z)
     for r in ground_rings:
         for v in r:
             levels.setdefault(v, set()).add(g)
-    levels = {v: np.array(sorted(x), dtype=np.int64) for v, x in levels.items()}
-    xy = np.asarray(table.xy, dtype=np.int64)
+    levels = {v: sorted(x) for v, x in levels.items()}
+    xy = table.xy  # (int, int) per vertex
 
     def point(v, z):
-        return (int(xy[v, 0]), int(xy[v, 1]), int(z))
+        x, y = xy[v]
+        return (x, y, z)
 
     def between(v, z0, z1):
+        """The vertex's heights strictly between z0 and z1, from z0 to z1."""
         lv = levels[v]
-        inner = lv[(lv > min(z0, z1)) & (lv < max(z0, z1))]
-        return inner if z1 > z0 else inner[::-1]
+        if z1 > z0:
+            return lv[bisect_right(lv, z0):bisect_left(lv, z1)]
+        return lv[bisect_right(lv, z1):bisect_left(lv, z0)][::-1]
 
-    bounds = np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])]
-    flat_rings = [[point(v, z) for v, z in zip(p[a:b].tolist(), snapped[a:b].tolist())]
-                  for a, b in zip(bounds[:-1], bounds[1:])]
+    bounds = np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])].tolist()
+    flat_rings = [[point(v, z) for v, z in zip(p_list[a:b], z_list[a:b])] for a, b in zip(bounds[:-1], bounds[1:])]
     counts = np.cumsum([0] + [len(rings) for rings in face_rings])
     roofs = [flat_rings[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
     walls = []
     need = (~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q))
+    q_list, zlq_list, zrp_list, zrq_list = q.tolist(), zl_q.tolist(), zr_p.tolist(), zr_q.tolist()
     for k in np.flatnonzero(need).tolist():
-        pk, qk = int(p[k]), int(q[k])
-        zlp, zlq, zrp, zrq = int(snapped[k]), int(zl_q[k]), int(zr_p[k]), int(zr_q[k])
+        pk, qk = p_list[k], q_list[k]
+        zlp, zlq, zrp, zrq = z_list[k], zlq_list[k], zrp_list[k], zrq_list[k]
         ring = [point(pk, zrp), point(qk, zrq)]
         ring += [point(qk, z) for z in between(qk, zrq, zlq)]
         ring += [point(qk, zlq), point(pk, zlp)]
