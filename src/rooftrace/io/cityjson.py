@@ -81,15 +81,18 @@ class _Vertices:
         """Vertex indices of every ring (all rings of one feature at once)."""
         if not rings:
             return []
-        sizes = [len(r) for r in rings]
-        q = np.round((np.vstack(rings) - self.translate) / self.scale).astype(np.int64)
-        uniq, first, inv = np.unique(q, axis=0, return_index=True, return_inverse=True)
+        bounds = np.r_[0, np.cumsum([len(r) for r in rings])].tolist()
+        q = np.ascontiguousarray(np.round((np.vstack(rings) - self.translate) / self.scale).astype(np.int64))
+        # one opaque value per row: np.unique over them is much faster than with axis=0, and the
+        # numbering (order of first use) does not depend on how the values sort
+        _, first, inv = np.unique(q.view(np.dtype((np.void, 3 * q.itemsize))).ravel(), return_index=True,
+                                  return_inverse=True)
         order = np.argsort(first, kind="stable")
         rank = np.empty_like(order)
         rank[order] = np.arange(len(order))
-        ids = rank[inv.ravel()] + self.offset + len(self.rows)
-        self.rows.extend(uniq[order].tolist())
-        return [x.tolist() for x in np.split(ids, np.cumsum(sizes)[:-1])]
+        ids = (rank[inv.ravel()] + self.offset + len(self.rows)).tolist()
+        self.rows.extend(q[first[order]].tolist())
+        return [ids[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
 def _solids(items: list[tuple[str, object]], vertices: _Vertices) -> list[dict]:

@@ -15,7 +15,12 @@ LAYER_NAMES = {lod: "lod" + lod.replace(".", "") for lod in LODS}
 
 
 def _multipolygon(surfaces) -> shapely.MultiPolygon:
-    return shapely.MultiPolygon([shapely.Polygon(s.rings[0], s.rings[1:]) for s in surfaces])
+    # surfaces without holes (nearly all: walls) built in one call
+    simple = [s.rings[0] for s in surfaces if len(s.rings) == 1]
+    polys = iter(shapely.polygons(shapely.linearrings(np.vstack(simple), indices=np.repeat(
+        np.arange(len(simple)), [len(r) for r in simple]))) if simple else [])
+    return shapely.MultiPolygon([next(polys) if len(s.rings) == 1 else shapely.Polygon(s.rings[0], s.rings[1:])
+                                 for s in surfaces])
 
 
 def model_layers(models: list) -> dict[str, Layer]:
