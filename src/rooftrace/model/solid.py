@@ -605,9 +605,11 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
                                         np.asarray(table.xy, dtype=np.float64)))
     ground = [[point(v, g) for v in r[::-1]] for r in ground_rings]
 
-    def surface(rings, kind):
-        return Surface([np.asarray(r, dtype=np.float64) * grid for r in rings], kind)
-
     roofs = _split_tilted(roofs, max_tilt)
-    return Solid([surface(r, "RoofSurface") for r in roofs] + [surface(r, "WallSurface") for r in walls]
-                 + [surface(ground, "GroundSurface")])
+    surfaces = [(r, "RoofSurface") for r in roofs] + [(r, "WallSurface") for r in walls] + [(ground, "GroundSurface")]
+    # every vertex of the shell converted in one call, then cut into rings
+    rings = [r for rs, _ in surfaces for r in rs]
+    coords = np.split(np.array([v for r in rings for v in r], dtype=np.float64) * grid,
+                      np.cumsum([len(r) for r in rings])[:-1])
+    at = np.cumsum([0] + [len(rs) for rs, _ in surfaces]).tolist()
+    return Solid([Surface(coords[at[i]:at[i + 1]], kind) for i, (_, kind) in enumerate(surfaces)])

@@ -385,8 +385,9 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
     xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
-    unique, vid = np.unique(keys, axis=0, return_inverse=True)
-    vid = vid.ravel()
+    # vertex numbers serve only to tell vertices apart: any numbering of the distinct rows will do
+    _, first, vid = np.unique(_rows(keys), return_index=True, return_inverse=True)
+    unique, vid = keys[first], vid.ravel()
     if snap_tolerance > 0:
         # val3dity compares decoded floats (``d < tol``): a pair exactly one tolerance apart may
         # merge or not there, so it counts as merged here
@@ -423,7 +424,7 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     prev[nxt] = vid
     follow = order[np.searchsorted(key[order], a * n + prev)]
     cycle = components(len(a), np.column_stack([np.arange(len(a)), follow]))
-    fans = np.unique(np.column_stack([a, cycle]), axis=0)[:, 0]
+    fans = np.unique(a * len(a) + cycle) // len(a)
     bad = int((np.bincount(fans) > 1).sum())
     if bad:
         errors.append(f"{bad} non-manifold vertices (the surfaces around them make several fans)")
