@@ -57,12 +57,11 @@ class RunResult:
         ``roof_outlines``, ``ridges``, ``roof_faces`` ready to write, and
         the models' 3D layers ``lod12``, ``lod13``, ``lod22`` when they were built.
     timings : dict of str to float
-        Seconds per step.
+        Wall-clock seconds per step (the detection's steps too, in the
+        ``--json`` summary).
     models : list of BuildingModel
         LoD 1.2 / 1.3 / 2.2 solids and attributes of every outlined
         building, in building-id order (empty when disabled).
-    timings : dict of str to float
-        Seconds per step.
     building_id : ndarray of shape (N,), int32 or None
         The building of every point (0 = none) the outlines and planes were
         made from: the detection's, or with footprints the footprint's index
@@ -77,6 +76,10 @@ class RunResult:
         partitioning the outline.  Without footprints, LiDAR buildings split
         where the roof shows a boundary (:func:`rooftrace.parts.split_parts`);
         a footprint building is one part.
+    cpu_seconds : dict of str to float
+        CPU seconds of the process (all its threads) per step: ``detect``,
+        the keys of ``timings`` and ``layers`` (the output layers).  On a shared machine the wall time
+        grows with the load, this much less (benchmarks/bench_run_time.py).
     """
 
     detection: Detection
@@ -90,6 +93,7 @@ class RunResult:
     footprints: Footprints | None = None
     assignment: FootprintAssignment | None = None
     parts: list = field(default_factory=list)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)
 
     def point_labels(self) -> tuple[np.ndarray, np.ndarray]:
         """Class and building id of every point, in input order, as the layers number the buildings.
@@ -129,6 +133,23 @@ class RunResult:
             **({"orientation": self.refined.summary()["orientation"]}
                if self.refined is not None and getattr(self.refined, "orientation", None) is not None else {}),
         }
+
+
+class _Clock:
+    """Wall and process CPU seconds of the pipeline's steps, one step at a time."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+        self._t0 = self._c0 = 0.0
+
+    def start(self) -> None:
+        self._t0, self._c0 = time.perf_counter(), time.process_time()
+
+    def stop(self, step: str, *, wall: bool = True) -> None:
+        if wall:
+            self.wall[step] = time.perf_counter() - self._t0
+        self.cpu[step] = time.process_time() - self._c0
 
 
 def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
@@ -380,59 +401,64 @@ def run_pipeline(
     elif config or alpha is not None or planes is not None:
         raise TypeError("run_pipeline: give options, or config, alpha and planes, not both")
     reporter = reporter or Reporter()
-    timings: dict[str, float] = {}
+    clock = _Clock()
 
+    clock.start()
     detection = detect_buildings(cloud, options.detect, reporter=reporter, derived=derived)
+    clock.stop("detect", wall=False)  # the detection's own steps are in its timings
     building_id = detection.building_id
     assignment = None
     if footprints is not None:
-        t0 = time.perf_counter()
+        clock.start()
         with reporter.stage("footprints"):
             assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
                                            options.footprints, hag=detection.hag,
                                            density=detection.density)
         building_id = assignment.building_id
-        timings["footprints"] = time.perf_counter() - t0
+        clock.stop("footprints")
     if buildings is not None:
         building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
     members = points_by_building(building_id)
 
-    t0 = time.perf_counter()
+    clock.start()
     # the roof edge lies between the last roof point and the first that is not roof (noise aside)
     around = (building_id <= 0) & (detection.classification != 7)
     outlines = outline_buildings(cloud.xyz, building_id, options.outline, mean_spacing=detection.mean_spacing,
                                  reporter=reporter, context_xy=cloud.xyz[around, :2])
     if assignment is not None:
         outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
-    timings["outline"] = time.perf_counter() - t0
+    clock.stop("outline")
 
     structures: list = []
     if options.planes and outlines:
-        t0 = time.perf_counter()
+        clock.start()
         structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
-        timings["roof_planes"] = time.perf_counter() - t0
+        clock.stop("roof_planes")
 
-    t0 = time.perf_counter()
+    clock.start()
     parts = _building_parts(cloud, members, outlines, structures, options.parts, split=footprints is None)
-    timings["parts"] = time.perf_counter() - t0
+    clock.stop("parts")
 
     building_models = None
     if models:
-        t0 = time.perf_counter()
+        clock.start()
         building_models = _building_models(cloud, detection.hag, members, outlines, structures, options.model,
                                            reporter, parts=parts, footprints=footprints, assignment=assignment)
-        timings["models"] = time.perf_counter() - t0
+        clock.stop("models")
 
     refined = None
     if image is not None and camera is not None and outlines:
-        t0 = time.perf_counter()
+        clock.start()
         with reporter.stage("image refinement", total=None):
             refined = refine_roofs(lidar_roofs(outlines, structures), image, camera, points_xyz=cloud.xyz,
                                    options=options.refine, seed=seed)
-        timings["refine"] = time.perf_counter() - t0
+        clock.stop("refine")
+    clock.start()
     layers = building_layers(outlines, structures, refined, models=building_models, parts=parts_layer(parts, {
         p.building_id: cloud.xyz[members.get(p.building_id, np.zeros(0, np.int64)), 2] for p in parts}),
         footprints=footprints, assignment=assignment)
+    clock.stop("layers", wall=False)
 
-    return RunResult(detection, outlines, structures, refined, layers, timings, building_models or [],
-                     building_id=building_id, footprints=footprints, assignment=assignment, parts=parts)
+    return RunResult(detection, outlines, structures, refined, layers, clock.wall, building_models or [],
+                     building_id=building_id, footprints=footprints, assignment=assignment, parts=parts,
+                     cpu_seconds=clock.cpu)
