@@ -218,7 +218,7 @@ class _Rings:
 
     def ring(self, coords) -> list[int]:
         keys = np.round(np.asarray(coords)[:-1, :2] / self.grid).astype(np.int64)
-        out = [self.vertex((int(x), int(y))) for x, y in keys]
+        out = [self.vertex((x, y)) for x, y in keys.tolist()]
         return [v for k, v in enumerate(out) if v != out[k - 1]] if len(out) > 1 else out
 
     def polygon(self, poly: Polygon) -> list[list[int]]:

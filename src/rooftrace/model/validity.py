@@ -279,11 +279,14 @@ def surface_tilt(surfaces, limit: float = 20.0) -> np.ndarray:
     """
     xyz, ring, nxt, owner, sizes, start = _ring_table(surfaces)
     n = len(surfaces)
+    tilt = np.zeros(n)
+    can_tilt = ~_parallel_triangles(xyz, owner[ring], n)
+    if not can_tilt.any():
+        return tilt  # e.g. the flat roofs of LoD 1.2 and 1.3
     origin, normal, flat, _, _, polys = _in_plane(xyz, ring, nxt, owner, sizes, start, n)
     norm = np.linalg.norm(normal, axis=1)
-    ok = (norm > 1e-12) & ~_parallel_triangles(xyz, owner[ring], n)
+    ok = (norm > 1e-12) & can_tilt
     ok[ok] = shapely.is_valid(polys[ok])
-    tilt = np.zeros(n)
     if ok.any():
         keep = ok[owner[ring]]
         index = np.cumsum(ok) - 1
