@@ -11,13 +11,13 @@ or dump the sources of another commit without checking it out
 (``git archive main src | tar -x -C /tmp/main`` then ``--src /tmp/main/src``).
 
 The runs: the demo scene (simulate, run with the image, evaluate), AHN3 Delft
-(``run`` untiled and tiled, with the classified points, and ``evaluate``
-against the BGT footprints), one IGN LiDAR HD tile (``run`` with the
-orthophoto and ``detect``) and ten City3D single buildings (``outline
---single-building``).  Every layer of every GeoPackage is compared
-feature by feature (geometry as WKB, every attribute), every LAS/LAZ point
-by point (all dimensions), every JSON file key by key after dropping
-timings.  Exit code 1 when anything differs.
+(``run`` untiled with the 3D models and the classified points, tiled, with
+the BGT footprints as input, and ``evaluate`` against the BGT footprints),
+one IGN LiDAR HD tile (``run`` with the orthophoto and ``detect``) and ten
+City3D single buildings (``outline --single-building``).  Every layer of every GeoPackage is compared
+feature by feature (geometry as WKB, every attribute), every CityJSONSeq
+line by line, every LAS/LAZ point by point (all dimensions), every JSON file
+key by key after dropping timings.  Exit code 1 when anything differs.
 """
 
 from __future__ import annotations
@@ -46,7 +46,10 @@ def _runs(out: Path) -> dict[str, list[str]]:
     return {
         "demo": ["demo", "-o", str(out / "demo"), "--overwrite", "--quiet"],
         "delft": ["run", str(DELFT / "ahn3_cropped_1.laz"), "--crs", "EPSG:28992", "-o", str(out / "delft.gpkg"),
-                  "--classified", str(out / "delft.laz"), "--json", "--quiet"],
+                  "-o", str(out / "delft.city.jsonl"), "--classified", str(out / "delft.laz"), "--json", "--quiet"],
+        "delft_footprints": ["run", str(DELFT / "ahn3_cropped_1.laz"), "--crs", "EPSG:28992",
+                             "--footprints", str(DELFT / "bgt_pand.sqlite"), "-o", str(out / "delft_fp.gpkg"),
+                             "-o", str(out / "delft_fp.city.jsonl"), "--json", "--quiet"],
         "delft_tiled": ["run", str(DELFT / "ahn3_cropped_1.laz"), "--crs", "EPSG:28992",
                         "-o", str(out / "delft_tiled.gpkg"), "--tile-size", "150", "--json", "--quiet"],
         "delft_eval": ["evaluate", str(out / "delft.gpkg"), str(DELFT / "bgt_pand.geojson"),
@@ -101,6 +104,14 @@ def _compare_json(a: Path, b: Path, root_a: Path, root_b: Path) -> list[str]:
         same = a.read_text().replace(str(root_a), "<dump>") == b.read_text().replace(str(root_b), "<dump>")
         return [] if same else [f"{a.name}: text differs"]
     return [] if da == db else [f"{a.name}: JSON differs"]
+
+
+def _compare_lines(a: Path, b: Path, rel: Path) -> list[str]:
+    """A CityJSONSeq line by line (header, then one building per line)."""
+    la, lb = a.read_text().splitlines(), b.read_text().splitlines()
+    if len(la) != len(lb):
+        return [f"{rel}: {len(la)} lines vs {len(lb)}"]
+    return [f"{rel}: line {k + 1} differs" for k, (x, y) in enumerate(zip(la, lb)) if x != y][:5]
 
 
 def _compare_gpkg(a: Path, b: Path) -> list[str]:
@@ -169,6 +180,8 @@ def compare(a: Path, b: Path) -> int:
             diffs += _compare_gpkg(pa, pb)
         elif suffix in (".las", ".laz"):
             diffs += _compare_las(pa, pb)
+        elif suffix == ".jsonl":
+            diffs += _compare_lines(pa, pb, rel)
         elif suffix in (".json", ".stdout") or suffix == ".rc":
             diffs += _compare_json(pa, pb, a, b) if suffix != ".rc" else ([] if pa.read_text() == pb.read_text()
                                                                       else [f"{rel}: exit codes differ"])
