@@ -447,11 +447,13 @@ def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius, sma
         keep = [not (poly.area < small and poly.intersects(near)) for poly, _ in cells]
         if not all(keep) and any(keep):
             return [c for c, k in zip(cells, keep) if k]  # the next attempt finds what is left
+    polys = np.array([poly for poly, _ in cells], dtype=object)
     for (x, y), c, r in zip(points, faces, np.broadcast_to(radius, len(points))):
         disk = shapely.Point(x, y).buffer(r, quad_segs=2)
-        cells = [(shapely.difference(poly, disk) if i != c else shapely.union(poly, disk), plane)
-                 for i, (poly, plane) in enumerate(cells)]
-    return [(poly, plane) for poly, plane in cells if not poly.is_empty]
+        grown = shapely.union(polys[c], disk)
+        polys = shapely.difference(polys, disk)
+        polys[c] = grown
+    return [(poly, plane) for poly, (_, plane) in zip(polys, cells) if not poly.is_empty]
 
 
 def _prism(cells: list, ground_height: float, footprint, grid: float, snap: float, z_tolerance: float,
