@@ -472,17 +472,18 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     def edges(face_rings):
         """Every directed ring edge: its face, start and end vertex, the next edge of its ring and the
         opposite edge (-1: none)."""
-        f = np.concatenate([np.full(len(r), i) for i, rings in enumerate(face_rings) for r in rings])
-        p = np.concatenate([np.asarray(r, dtype=np.int64) for rings in face_rings for r in rings])
-        q = np.concatenate([np.roll(np.asarray(r, dtype=np.int64), -1) for rings in face_rings for r in rings])
+        sizes = np.array([len(r) for rings in face_rings for r in rings], dtype=np.int64)
+        f = np.repeat(np.repeat(np.arange(len(face_rings)), [len(rings) for rings in face_rings]), sizes)
+        p = np.array([v for rings in face_rings for r in rings for v in r], dtype=np.int64)
+        start = np.r_[0, np.cumsum(sizes)[:-1]]
+        nx = np.arange(len(p)) + 1  # the next edge of the same ring
+        nx[start + sizes - 1] = start
+        q = p[nx]
         m = len(table.xy)
         key = p * m + q
         order = np.argsort(key)
         at = np.clip(np.searchsorted(key[order], q * m + p), 0, len(key) - 1)
         opp = np.where(key[order][at] == q * m + p, order[at], -1)
-        nx = np.concatenate([np.roll(np.arange(len(r)), -1) for rings in face_rings for r in rings])
-        nx += np.repeat(np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])[:-1]],
-                        [len(r) for rings in face_rings for r in rings])
         return f, p, q, nx, opp
 
     def z_at(f, v):
