@@ -2,7 +2,7 @@
 
 Usage (from the repository root)::
 
-    .venv/bin/python benchmarks/bench_run_time.py [--repeat 3] [--no-record]
+    .venv/bin/python benchmarks/bench_run_time.py [--repeat 3] [--no-record] [--only lidar|footprints]
 
 Both AHN3 Delft tiles, written to a GeoPackage and a CityJSONSeq as in::
 
@@ -103,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-record", action="store_true", help="print only")
+    ap.add_argument("--only", choices=("lidar", "footprints"), help="one of the two runs (implies --no-record)")
     a = ap.parse_args(argv)
     for path in [*TILES, FOOTPRINTS]:
         if not path.exists():
@@ -114,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
             {"method": "rooftrace (start-up)", "metric": "cpu_s", "value": round(start, 3), "unit": "s"}]
     with tempfile.TemporaryDirectory(prefix="bench_run_time_") as tmp:
         for footprints, method in ((False, "rooftrace run (LiDAR only)"), (True, "rooftrace run --footprints")):
+            if a.only and a.only != ("footprints" if footprints else "lidar"):
+                continue
             best, first = None, None
             for k in range(a.repeat):
                 out = Path(tmp) / f"{int(footprints)}_{k}"
@@ -132,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                          "target": f"<= {TARGET:g}" if not footprints else None})
             rows.append({"method": method, "metric": "times_decode_floor", "value": round(total / floor, 2)})
             print(f"{method}: {total:.2f} s CPU with the start-up ({total / floor:.1f} x the decode floor)")
-    if not a.no_record:
+    if not (a.no_record or a.only):
         print(record("run_time", "delft_ahn3_both_tiles", rows))
     return 0
 
