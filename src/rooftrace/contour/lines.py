@@ -44,7 +44,7 @@ from rooftrace.errors import GeometryError
 
 __all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets",
            "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners", "boundary_step",
-           "curved_runs"]
+           "curved_runs", "chord_curve"]
 
 log = logging.getLogger(__name__)
 
@@ -694,7 +694,11 @@ def _turning_runs(segments: list) -> list[list[int]]:
             continue
         if len(cur) >= 3:
             runs.append(cur)
-        cur, total, sense = [k], 0.0, 0.0
+        if smooth[k] and j < m:
+            # a smooth break turning the other way: the segment before it starts the next run
+            cur, total, sense = [(k - 1) % m, k], float(t), float(np.sign(t))
+        else:
+            cur, total, sense = [k], 0.0, 0.0
     return runs
 
 
@@ -758,10 +762,15 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
         idx = np.concatenate([ln.idx for ln in lines])
         floor = _pooled(lines)
         best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
+        arcs = []
         for d, fit in fits:
             verts, corner_index = fit.ring(densify)
             corner_index = list(corner_index) + [len(verts)]
-            arc = np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]
+            arcs.append((d, np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]))
+        ends = (0.5 * (xy[segments[unit[0] - 1].idx[-1]] + xy[idx[0]]),
+                0.5 * (xy[idx[-1]] + xy[segments[(unit[-1] + 1) % len(segments)].idx[0]]))
+        arcs += [(d, chord_curve(points[idx], ends, d, densify)) for d in (2, 3)]
+        for d, arc in arcs:
             res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
             bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
             if bic < best[0]:
@@ -774,6 +783,46 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
     drop = {j for unit, _ in replace.values() for j in unit}
     return [replace[k][1] if k in replace else segments[k] for k in range(len(segments))
             if k in replace or k not in drop]
+
+
+def chord_curve(points: np.ndarray, ends: tuple, degree: int, densify: float) -> np.ndarray:
+    """A run's curve as a polynomial across its chord: offset (and height) as polynomials of the position along it.
+
+    The CD-spline puts its knots at the chord-length parameters of ring
+    points, so a ring that steps where scan lines end (a saw-tooth along a
+    gently curved wall) stretches the parameter at every step and the joint
+    fit drags the curve and its corners off the points.  A graph over the
+    chord has no parameter to stretch: the offset across it is fitted by
+    least squares, as a line's is.  A run turns by at most 90°, so its curve
+    is a graph over its chord.
+
+    Parameters
+    ----------
+    points : ndarray of shape (n, 3) float64
+        The run's ring points, in ring order, metres.
+    ends : tuple of two ndarray of shape (2,)
+        Where the run meets the segments before and after it; the curve
+        spans their chord.
+    degree : int
+        Polynomial degree (2 or 3).
+    densify : float
+        Step of the samples along the chord, metres.
+
+    Returns
+    -------
+    ndarray of shape (k, 3) float64
+        Samples of the curve from the first end to the last.
+    """
+    a, b = np.asarray(ends[0], dtype=np.float64), np.asarray(ends[1], dtype=np.float64)
+    length = float(np.hypot(*(b - a)))
+    t = (b - a) / max(length, 1e-12)
+    across = np.array([t[1], -t[0]])
+    rel = points[:, :2] - a
+    basis = np.vander(rel @ t, degree + 1)
+    coef, *_ = np.linalg.lstsq(basis, np.column_stack([rel @ across, points[:, 2]]), rcond=None)
+    u = np.linspace(0.0, length, max(int(np.ceil(length / densify)), 4 * degree) + 1)
+    v, z = (np.vander(u, degree + 1) @ coef).T
+    return np.column_stack([a + u[:, None] * t + v[:, None] * across, z])
 
 
 def _bends(xy: np.ndarray, line: Line) -> bool:
