@@ -522,7 +522,7 @@ def _curve_normals(v: np.ndarray) -> np.ndarray:
 def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: float, edge_factor: float,
                  directions: bool = True, context: EdgeContext | None = None, densify: float = 0.5,
                  z_tolerance: float = 0.3, refit: Callable | None = None,
-                 roof_xy: np.ndarray | None = None) -> LineOutline:
+                 roof: cKDTree | None = None) -> LineOutline:
     """Building-shaped ring from the ring points and the CD-spline fitted to them.
 
     Parameters
@@ -550,17 +550,17 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring
         indices, increasing): the spline fitted again when a simplified line
         bends beyond the noise.
-    roof_xy : ndarray of shape (M, 2) float64, optional
-        All the roof's points (the ring points among them), in the ring's
-        frame: the sampling step across the edge is measured on them
-        (:func:`boundary_step`).
+    roof : cKDTree, optional
+        K-d tree of all the roof's points (x, y; the ring points among them),
+        in the ring's frame: the sampling step across the edge is measured on
+        them (:func:`boundary_step`).  One tree serves every ring of a building.
 
     Returns
     -------
     LineOutline
     """
     xy = points[:, :2]
-    sigma0 = noise_factor * boundary_step(xy, spacing, roof_xy)
+    sigma0 = noise_factor * boundary_step(xy, spacing, roof)
     trim = 1
     segments = _curves_on(points, None, spline, sigma0, trim, densify)
     if len(segments) < 3:
@@ -596,7 +596,7 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
 
 
-def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | None = None,
+def boundary_step(ring_xy: np.ndarray, spacing: float, roof: np.ndarray | cKDTree | None = None,
                   window: float = 2.0) -> np.ndarray:
     """The sampling step across the edge at each ring point: how far its position is uncertain, metres.
 
@@ -616,9 +616,10 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
     spacing : float
         Local mean point spacing, metres: the step where no roof point lies
         behind a ring point, and the least step counted as a row behind.
-    roof_xy : ndarray of shape (M, 2) float64, optional
-        The roof's points.  Without them, the step is the mean gap between
-        ring neighbours (never below ``spacing``).
+    roof : ndarray of shape (M, 2) float64 or cKDTree, optional
+        The roof's points, or a k-d tree of them (built once per building by
+        the caller).  Without them, the step is the mean gap between ring
+        neighbours (never below ``spacing``).
     window : float
         Length of ring (in spacings) whose chord gives the edge's direction at a point.
 
@@ -631,7 +632,9 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
     xy = np.asarray(ring_xy, dtype=np.float64)
     n = len(xy)
     gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
-    if roof_xy is None or len(roof_xy) < 4 or n < 4:
+    if roof is not None and not isinstance(roof, cKDTree):
+        roof = cKDTree(np.asarray(roof, dtype=np.float64)[:, :2])
+    if roof is None or roof.n < 4 or n < 4:
         step = np.maximum(spacing, 0.5 * (gap + np.roll(gap, 1)))
     else:
         # the edge's direction at each point: the chord over about `window` spacings of ring
@@ -644,10 +647,8 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
         t = xy[hi] - xy[lo]
         t /= np.maximum(np.linalg.norm(t, axis=1), 1e-12)[:, None]
         inward = np.column_stack([-t[:, 1], t[:, 0]])  # the roof is on the left
-        roof = np.asarray(roof_xy, dtype=np.float64)[:, :2]
-        k = min(24, len(roof))
-        _, nb = cKDTree(roof).query(xy, k=k)
-        rel = roof[nb] - xy[:, None, :]
+        _, nb = roof.query(xy, k=min(24, roof.n))
+        rel = roof.data[nb] - xy[:, None, :]
         depth = np.einsum("nkj,nj->nk", rel, inward)
         side = np.abs(np.einsum("nkj,nj->nk", rel, t))
         # the next row behind: more behind the point than beside it (a scan line running nearly
