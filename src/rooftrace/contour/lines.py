@@ -695,11 +695,11 @@ def _turning_runs(segments: list) -> list[list[int]]:
             continue
         if len(cur) >= 3:
             runs.append(cur)
-        if smooth[k] and j < m:
-            # a smooth break turning the other way: the segment before it starts the next run
+        elif smooth[k] and j < m:
+            # a smooth break turning the other way: the segment before it (in no run) starts the next run
             cur, total, sense = [(k - 1) % m, k], float(t), float(np.sign(t))
-        else:
-            cur, total, sense = [k], 0.0, 0.0
+            continue
+        cur, total, sense = [k], 0.0, 0.0
     return runs
 
 
@@ -768,22 +768,43 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
             verts, corner_index = fit.ring(densify)
             corner_index = list(corner_index) + [len(verts)]
             arcs.append((d, np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]))
-        ends = (0.5 * (xy[segments[unit[0] - 1].idx[-1]] + xy[idx[0]]),
-                0.5 * (xy[idx[-1]] + xy[segments[(unit[-1] + 1) % len(segments)].idx[0]]))
-        arcs += [(d, chord_curve(points[idx], ends, d, densify)) for d in (2, 3)]
+        m = len(segments)
         for d, arc in arcs:
             res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
             bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
             if bic < best[0]:
-                best = (bic, Curve(idx, arc, d))
+                best = (bic, [Curve(idx, arc, d)])
+        # the curve over the whole run, or with its first or last line left straight: where a straight
+        # wall runs on into an arc without a corner (a stadium's side), that line holds both.  It is the
+        # wall only if longer than the arc pieces together (one arc's pieces are about equally long)
+        total = sum(ln.span for ln in lines)
+        for lo, hi in ((0, len(unit)), (1, len(unit)), (0, len(unit) - 1)):
+            kept = lines[:lo] + lines[hi:]
+            if kept and 2 * kept[0].span <= total:
+                continue
+            bent = np.concatenate([ln.idx for ln in lines[lo:hi]])
+            ends = (0.5 * (xy[segments[(unit[lo] - 1) % m].idx[-1]] + xy[bent[0]]),
+                    0.5 * (xy[bent[-1]] + xy[segments[(unit[hi - 1] + 1) % m].idx[0]]))
+            for d in (2, 3):
+                arc = chord_curve(points[bent], ends, d, densify)
+                res = shapely.distance(shapely.points(xy[bent]), shapely.LineString(arc[:, :2]))
+                bic = segment_bic(float(res @ res) + sum(ln.rss for ln in kept), len(idx),
+                                  2 * d + 1 + sum(ln.n_params + 1 for ln in kept), floor)
+                if bic < best[0]:
+                    best = (bic, lines[:lo] + [Curve(bent, arc, d)] + lines[hi:])
         if best[1] is not None:
             replace[unit[0]] = (unit, best[1])
     if not replace:
         return segments
     log.debug("lines: %d runs of short lines became curves", len(replace))
     drop = {j for unit, _ in replace.values() for j in unit}
-    return [replace[k][1] if k in replace else segments[k] for k in range(len(segments))
-            if k in replace or k not in drop]
+    out = []
+    for k in range(len(segments)):
+        if k in replace:
+            out.extend(replace[k][1])
+        elif k not in drop:
+            out.append(segments[k])
+    return out
 
 
 def chord_curve(points: np.ndarray, ends: tuple, degree: int, densify: float) -> np.ndarray:
