@@ -709,11 +709,15 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
     Arc pieces shorter than a few metres each stay within the noise of a
     line, so an arc becomes a polygon of many short walls.  Every run of
     lines turning the same way (:func:`_turning_runs`) is fitted as one
-    CD-spline segment of degree 2 or 3 (the BIC decides, as for every other
-    model here, not the F-test); it becomes a curve when that segment
-    (2·degree parameters plus its break point) explains the run's points
-    with a lower BIC than the run's lines (each with its parameters and
-    break point, at their pooled noise floor).
+    curve of degree 2 or 3, both as a CD-spline segment and as a polynomial
+    across the run's chord (:func:`chord_curve`, which a ring stepping
+    where scan lines end does not drag off the points), and the latter also
+    with the run's first or last line left straight when that line is
+    longer than the rest of the run (a wall running on into an arc without
+    a corner).  The BIC decides, as for every other model here, not the
+    F-test: a curve (2·degree parameters plus its break point) replaces
+    the run's lines (each with its parameters and break point, at their
+    pooled noise floor) when it explains their points better.
 
     Parameters
     ----------
