@@ -347,7 +347,7 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
     so both walls bend alike; a few rounds, as a rebuild may move another
     vertex.  ``parts`` are changed in place.
     """
-    tol = 0.75 * options.snap  # above the half diagonal of a lattice cell, below a step
+    tol = 0.9 * options.snap  # above the half diagonal of a lattice cell, below a step
     for lod in LODS:
         bases = {k: cut[k] for k in range(len(parts))}
         for attempt in range(rounds + 1):
