@@ -146,8 +146,11 @@ def _above_ground(cells: list, ground: float, clearance: float = MIN_EAVES_HEIGH
     the ground; a steep face (a dormer's cheek, a plane fitted to a wall)
     carried by the face partition past its points can reach it.  The part
     cut off becomes a gap of the partition, which ``prism_solid`` gives to
-    the neighbouring face.  Cells entirely that low are kept as they are
-    (the roof then is under the ground and the level fails with that reason).
+    the neighbouring face; so does a cell entirely that low (on Delft a
+    0.3 m² wedge of a 45 degree plane, 0-1 m above the ground, cost a
+    208 m² part its LoD 2.2).  Only when every cell is that low are they
+    kept as they are (the roof then is under the ground and the level
+    fails with that reason).
     """
     out = []
     for poly, plane in cells:
@@ -167,12 +170,8 @@ def _above_ground(cells: list, ground: float, clearance: float = MIN_EAVES_HEIGH
             if (lift[k] >= 0) != (lift[j] >= 0):
                 keep.append(box[k] + lift[k] / (lift[k] - lift[j]) * (box[j] - box[k]))
         high = shapely.intersection(poly, shapely.Polygon(keep)) if len(keep) >= 3 else shapely.Polygon()
-        pieces = [g for g in shapely.get_parts(high) if g.geom_type == "Polygon" and g.area > 0]
-        if pieces:
-            out.extend((g, plane) for g in pieces)
-        else:
-            out.append((poly, plane))
-    return out
+        out.extend((g, plane) for g in shapely.get_parts(high) if g.geom_type == "Polygon" and g.area > 0)
+    return out or list(cells)
 
 
 def _clip(cells: list, footprint) -> list:
