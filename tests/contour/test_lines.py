@@ -10,8 +10,8 @@ from rooftrace.contour.edge import EdgeContext, edge_shift
 from rooftrace.contour.lines import (
     Line,
     boundary_step,
-    chord_curve,
     bridge_inlets,
+    chord_curve,
     constrain_directions,
     curved_runs,
     fit_line,
