@@ -23,6 +23,8 @@ def _cfg(tmp_path, text):
     ("[alpha]\nstrategy = 'sideways'\n", r"c\.toml: \[alpha\] strategy must be one of .*sideways"),
     ("[classify]\nneighbours = 2\n", r"c\.toml: \[classify\] neighbours must be >= 4, got 2$"),
     ("[segment]\nmin_height = -3\n", r"c\.toml: \[segment\] min_height must be >= 0 m, got -3"),
+    ("[planes]\nhold_step_boundaries = true\n",
+     r"c\.toml: \[planes\] hold_step_boundaries is no longer an option; use face_boundaries = \"held\""),
     ("[mrf]\nbeta = -1\n", r"c\.toml: \[mrf\]"),
     ("seed = 1\n", r"c\.toml: top-level key 'seed' must be a \[table\]"),
     ("[ground\n", r"c\.toml: not valid TOML"),

@@ -125,6 +125,12 @@ def table_keys(cls: type) -> list[str]:
         f.default_factory is not dataclasses.MISSING and dataclasses.is_dataclass(f.default_factory))]
 
 
+#: options of earlier releases a config may still carry, and what replaced them
+RETIRED_KEYS: dict[tuple[str, str], str] = {
+    ("planes", "hold_step_boundaries"): 'face_boundaries = "held" (was true) or "each" (was false, the default)',
+}
+
+
 def check_table(cls: type, section: str, table: dict[str, Any], where: str) -> None:
     """Refuse unknown keys and values of the wrong type or range in one config table, naming the file.
 
@@ -138,6 +144,10 @@ def check_table(cls: type, section: str, table: dict[str, Any], where: str) -> N
     """
     own = table_keys(cls)
     unknown = sorted(set(table) - set(own))
+    for key in unknown:
+        if (section, key) in RETIRED_KEYS:
+            raise InputError(f"{where}: [{section}] {key} is no longer an option; use "
+                             f"{RETIRED_KEYS[section, key]}")
     if unknown:
         raise InputError(f"{where}: [{section}] has unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(own))}")
     try:
