@@ -232,7 +232,7 @@ def test_a_light_well_where_the_ground_was_seen_is_not_bridged():
 
 def test_two_roofs_joined_across_a_passage_stay_one_outline():
     # the building's points fall apart where the ground was seen: rather than lose a part, the passage is bridged
-    roof, ground, well = _roof_with_light_well()
+    roof, ground, _ = _roof_with_light_well()
     passage = shapely.box(9.45, -1.0, 10.55, 13.0)
     g = np.concatenate([roof, ground])
     cut = shapely.contains_xy(passage, g[:, 0], g[:, 1])
