@@ -259,10 +259,22 @@ def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndar
 def _holding(xy: np.ndarray, triangles: np.ndarray, candidates: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Indices of the ``candidates`` triangles (a boolean mask) that hold at least one of ``points`` (boundary included)."""
     index = np.flatnonzero(candidates)
-    cells = shapely.polygons(xy[triangles[index]])
-    tree = shapely.STRtree(cells)
-    _, hit = tree.query(shapely.points(points), predicate="intersects")
-    return index[np.unique(hit)]
+    a, b, c = (xy[triangles[index, k]] for k in range(3))
+    # a point in a triangle lies in its circumcircle: one nearest-neighbour query per triangle keeps the
+    # exact test (shapely) to the few triangles near a point
+    ab, ac = b - a, c - a
+    d = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (ac[:, 1] * (ab ** 2).sum(axis=1) - ab[:, 1] * (ac ** 2).sum(axis=1)) / d
+        uy = (ab[:, 0] * (ac ** 2).sum(axis=1) - ac[:, 0] * (ab ** 2).sum(axis=1)) / d
+    radius = np.hypot(ux, uy)
+    dist, _ = cKDTree(points).query(a + np.column_stack([ux, uy]))
+    near = np.flatnonzero(~(dist > radius * (1.0 + 1e-9)))  # NaN (a degenerate triangle) stays a candidate
+    if len(near) == 0:
+        return near
+    _, hit = shapely.STRtree(shapely.polygons(xy[triangles[index[near]]])).query(
+        shapely.points(points), predicate="intersects")
+    return index[near[np.unique(hit)]]
 
 
 def repair_boundary(directed: np.ndarray, edges: np.ndarray, lengths: np.ndarray, n: int) -> np.ndarray:
