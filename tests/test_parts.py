@@ -89,6 +89,35 @@ def test_one_house_stays_one_part():
             parts.polygons[0].symmetric_difference(outline).area < 1e-6
 
 
+def test_a_chimney_on_the_party_wall_neither_joins_nor_splits_the_houses():
+    # two flat roofs 1 m apart (a step); a chimney top halfway up on their shared wall is within the step
+    # height of both, so as a face like any other it joins the two houses into one part
+    low, high, chimney = shapely.box(0, 0, 6, 10), shapely.box(6, 0, 12, 10), shapely.box(5.5, 4.5, 6.5, 5.5)
+    faces = [low.difference(chimney), high.difference(chimney), chimney]
+    planes = np.array([[0, 0, 1.0, -6.0], [0, 0, 1.0, -7.0], [0, 0, 1.0, -6.5]])
+    xyz = np.array([[3.0, 5.0, 6.0], [9.0, 5.0, 7.0], [6.0, 5.0, 6.5]])
+    outline = shapely.box(0, 0, 12, 10)
+    assert split_parts(xyz, outline, faces, [0, 1, 2], planes).n_parts == 1
+    parts = split_parts(xyz, outline, faces, [0, 1, 2], planes, plane_detail=np.array([False, False, True]))
+    assert parts.n_parts == 2 and parts.boundaries == ["step"]
+    assert sorted(p.area for p in parts.polygons) == pytest.approx([59.5, 60.5])  # the chimney went with one
+    assert parts.part_id[:2].tolist() == [1, 2]
+
+
+def test_a_sliver_face_where_a_plane_crosses_its_neighbour_joins_nothing():
+    # house A's plane (z = 3 + x / 2) steps 1 m below house B's (z = 7) at their wall x = 6, but crosses it at
+    # x = 8, where a 0.1 m² sliver of A's plane sits inside B: as a face of plane A like any other, it joined A and B
+    a, b = np.array([-0.5, 0, 1.0, -3.0]), np.array([0, 0, 1.0, -7.0])
+    norm = np.hypot(0.5, 1.0)
+    planes = np.array([a / norm, b])
+    sliver = shapely.box(7.9, 0, 8.1, 0.5)
+    faces = [shapely.box(0, 0, 6, 10), shapely.box(6, 0, 12, 10).difference(sliver), sliver]
+    xyz = np.array([[3.0, 5.0, 4.5], [9.0, 5.0, 7.0]])
+    parts = split_parts(xyz, shapely.box(0, 0, 12, 10), faces, [0, 1, 0], planes)
+    assert parts.n_parts == 2 and parts.boundaries == ["step"]
+    assert sorted(p.area for p in parts.polygons) == pytest.approx([60.0, 60.0])  # the sliver went with B
+
+
 def test_no_faces_is_one_part_and_the_split_does_not_depend_on_point_order():
     row = Building.terrace(1, (0.0, 0.0), [6.0, 6.0], 9.0, eave_heights=[6.0, 7.5], ridge_heights=[9.0, 10.5])
     xyz, outline, truth = _sample(row)

@@ -66,7 +66,9 @@ class PartOptions:
         A part must own this much (m) of the building's outline, or it
         merges into a neighbour: a dormer stands inside the roof.
     min_edge : float, default 0.5
-        Shared face edges shorter than this (m) join nothing and split nothing.
+        Shared face edges shorter than this (m) join nothing and split
+        nothing; nor do faces smaller than its square (slivers of the face
+        partition), which go with the part they share most edge with.
     """
 
     section = "parts"
@@ -158,7 +160,8 @@ def _is_gutter(pa: np.ndarray, pb: np.ndarray, ca: np.ndarray, cb: np.ndarray, l
 
 
 def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes: np.ndarray,
-                options: PartOptions | None = None, *, building_id: int = 0) -> BuildingParts:
+                options: PartOptions | None = None, *, building_id: int = 0,
+                plane_detail: np.ndarray | None = None) -> BuildingParts:
     """Split one building into parts where its roof shows a boundary (height step or party gutter).
 
     Parameters
@@ -175,6 +178,12 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
         ``a X + b Y + c Z + d = 0``, unit normals, ``c > 0``.
     options : PartOptions, optional
     building_id : int
+    plane_detail : ndarray of shape (K,), bool, optional
+        Planes of superstructures (``RoofStructure.plane_detail``: chimney
+        tops, small dormers).  Their faces neither join nor split parts:
+        each goes with the part it shares most edge with, as a small part
+        does (a chimney on a party wall must not join two houses, nor its
+        step split one).
 
     Returns
     -------
@@ -202,8 +211,15 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
     centre = np.array([np.asarray(f.centroid.coords[0][:2]) for f in faces2d])
     links = _face_links(faces2d, face_plane, planes, options.min_edge)
 
+    # superstructures' faces and slivers of the partition (a plane's stray corner where its extension happens
+    # to cross a neighbour's: a 0.1 m² face joined two houses of a simulated row) neither join nor split
+    detail = (np.zeros(len(planes), bool) if plane_detail is None
+              else np.asarray(plane_detail, dtype=bool))[face_plane]
+    detail |= np.array([f.area < options.min_edge**2 for f in faces2d])
     joined, cuts = [], []
     for i, j, line, gap in links:
+        if detail[i] or detail[j]:
+            continue
         if gap > options.step_height:
             cuts.append((i, j, "step"))
         elif _is_gutter(planes[face_plane[i]], planes[face_plane[j]], centre[i], centre[j], line, options):
@@ -212,7 +228,7 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
             joined.append((i, j))
     # faces of one plane are one surface even where another face cuts between them
     same_plane = [(i, j) for i in range(len(faces2d)) for j in range(i + 1, len(faces2d))
-                  if face_plane[i] == face_plane[j]]
+                  if face_plane[i] == face_plane[j] and not detail[i]]
     group = components(len(faces2d), np.array(joined + same_plane, dtype=np.int64).reshape(-1, 2))
     pieces = _group_polygons(faces2d, group, outline)
     pieces = _merge_small(pieces, outline, options)

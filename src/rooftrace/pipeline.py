@@ -182,7 +182,7 @@ def _building_parts(cloud: PointCloud, members: dict[int, np.ndarray], outlines:
             continue
         try:
             parts.append(split_parts(cloud.xyz[idx], outline.polygon, st.faces, st.face_plane, st.planes, options,
-                                     building_id=bid))
+                                     building_id=bid, plane_detail=st.plane_detail))
         except (ValueError, shapely.errors.GEOSException) as exc:  # one building must not stop a city
             log.warning("building %d: no part split (%s: %s)", bid, type(exc).__name__, exc)
             parts.append(split_parts(cloud.xyz[idx], outline.polygon, [], [], np.zeros((0, 4)), building_id=bid))

@@ -106,6 +106,22 @@ def test_a_steep_face_carried_below_the_ground_is_cut_and_its_neighbour_fills_in
     assert low >= 1.0 - 1e-6
 
 
+def test_a_steep_face_entirely_near_the_ground_goes_to_its_neighbour():
+    # the steep face's cell lies where its plane is 0.2-0.8 m above the ground: no piece of it is high enough
+    gentle = np.array([0.0, 0.1, 1.0, -6.0])  # z = 6 - 0.1 y
+    steep = np.array([0.0, -2.0, 1.0, 12.0])  # z = 2 y - 12: 0.2 .. 0.8 m for y in 6.1 .. 6.4
+    cells = [(shapely.box(0, 0, 10, 6.1), gentle), (shapely.box(0, 6.1, 10, 6.4), steep)]
+    roof = RoofStructure(building_id=1, planes=np.array([gentle, steep]), faces=[c for c, _ in cells],
+                         face_plane=[0, 1], outline=shapely.box(0, 0, 10, 6.4))
+    xyz = np.array([[x, y, 5.5] for x in range(1, 10) for y in range(1, 6)], dtype=float)
+    model = build_model(roof.outline, roof, xyz, 0.0)
+    assert model.attributes["status"] == "ok", model.attributes["status_reason"]
+    solid = model.parts[0].lods["2.2"]
+    assert solid_errors(solid) == []
+    roofs = [s for s in solid.surfaces if s.kind == "RoofSurface"]
+    assert min(r[:, 2].min() for s in roofs for r in s.rings) > 5.0  # all of it on the gentle plane
+
+
 def test_no_outline_or_no_ground_is_no_model():
     assert build_model(None, None, np.zeros((0, 3)), 0.0).attributes["status"] == "no_model"
     m = build_model(shapely.box(0, 0, 1, 1), None, np.zeros((0, 3)), float("nan"))

@@ -183,3 +183,33 @@ def test_a_second_saddle_disk_is_sized_by_the_narrowest_sector_at_the_vertex():
     rings = [[0, 1, 2], [0, 2, 3], [0, 3, 4], [4, 3, 2, 1]]
     assert _narrowest_sector([0], rings, xy)[0] == pytest.approx(a)
     assert _narrowest_sector([3], rings, xy)[0] == pytest.approx(np.radians(45.0))
+
+
+def test_dropping_slivers_at_a_saddle_does_not_spend_the_last_attempt(monkeypatch):
+    """The third attempt first drops slivers (< 1 m²) at the saddle vertices, opening no disk; the saddles
+    left then still get that attempt's disks (on Delft a 1028 m² part fell back to a flat LoD 2.2 when the
+    drop took the last but one attempt)."""
+    import rooftrace.model.solid as solid_module
+
+    big, sliver = shapely.box(0, 0, 10, 10), shapely.box(10, 0, 10.5, 1)
+    cells = [(big, horizontal_plane(6.0)), (sliver, horizontal_plane(5.0))]
+    calls = []
+
+    def saddled(cells, *args):
+        calls.append(len(cells))
+        if len(calls) <= 4:  # saddles at (10, 0.5) on the first four tries, then a solid
+            raise solid_module._Saddle(np.array([[10.0, 0.5]]), [0], np.array([np.pi / 2]))
+        return "solid"
+
+    monkeypatch.setattr(solid_module, "_prism", saddled)
+    assert prism_solid(cells, 0.0) == "solid"
+    assert calls == [2, 2, 2, 1, 1]  # the sliver went at the third try; the fourth opened disks, the fifth built
+
+    def always(cells, *args):
+        calls.append(len(cells))
+        raise solid_module._Saddle(np.array([[10.0, 0.5]]), [0], np.array([np.pi / 2]))
+
+    calls.clear()
+    monkeypatch.setattr(solid_module, "_prism", always)
+    with pytest.raises(GeometryError, match="saddle"):  # saddles that never go still end in an error
+        prism_solid(cells, 0.0)

@@ -297,3 +297,20 @@ def test_an_unknown_boundary_rule_is_refused():
     with pytest.raises(ValueError, match="boundaries"):
         partition_outline(m.outline, xyz, np.zeros(len(xyz), np.int64), np.array([[0, 0, 1, -5.0]]), cell=0.15,
                           line_tolerance=1.0, boundaries="straight")
+
+
+def test_two_boundaries_simplified_onto_one_chord_are_caught():
+    """Two arcs between the same two nodes that simplify to the same chord would drop the face between them
+    from the polygonised faces (on Delft a 23 m² roof face went to the outside this way).  Together with a
+    T-junction elsewhere, noding keeps the count of pieces (one piece fewer, one more), so the overlap must
+    be found by the pieces' length too."""
+    from shapely.geometry import LineString
+
+    from rooftrace.roof.faces import _meets_only_at_ends
+
+    arcs = np.array([LineString([(0, 0), (1, 0)]), LineString([(0, 0), (1, 0)]),  # one chord, twice
+                     LineString([(5, -1), (5, 1)]), LineString([(5, 0), (6, 0)])], dtype=object)  # a T
+    assert len(shapely.get_parts(shapely.node(shapely.multilinestrings(arcs)))) == len(arcs)
+    assert _meets_only_at_ends(arcs).tolist() == [False, False, False, False]
+    apart = np.array([LineString([(0, 0), (1, 0)]), LineString([(0, 0), (0.5, 0.5), (1, 0)])], dtype=object)
+    assert _meets_only_at_ends(apart).all()

@@ -398,7 +398,8 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         raise GeometryError("no roof cells")
     if footprint is None:
         footprint = shapely.union_all([shapely.force_2d(c) for c, _ in cells])
-    for attempt in range(4):
+    attempt = 0
+    while True:
         try:
             return _prism(cells, ground_height, footprint, grid, snap, z_tolerance, max_tilt)
         except _Saddle as saddle:
@@ -410,8 +411,12 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
                 radius, small = np.clip(snap / np.sin(saddle.angles / 2), 4 * snap, 25 * snap), 0.0
             else:
                 radius, small = 2 * snap * 4 ** (attempt - 1), 1.0
-            cells = _open_saddles(cells, saddle.points, saddle.faces, radius, small=small)
-    raise AssertionError("unreachable")
+            opened = _open_saddles(cells, saddle.points, saddle.faces, radius, small=small)
+            # dropping slivers opens no disk: the saddles it leaves get this attempt's disks next time (the
+            # cells only get fewer, so this ends)
+            dropped = small > 0 and len(opened) < len(cells)
+            cells = opened
+            attempt += 0 if dropped else 1
 
 
 class _Saddle(Exception):

@@ -189,9 +189,18 @@ def _arc_sides(V: np.ndarray, vptr: np.ndarray, grid: np.ndarray, x0: float, y1:
 
 
 def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
-    """Per arc: False where it crosses itself or meets another arc anywhere but at ends of both."""
-    if len(shapely.get_parts(shapely.node(shapely.multilinestrings(arcs)))) == len(arcs):
-        return np.ones(len(arcs), dtype=bool)  # noding split nothing: no arc meets another inside
+    """Per arc: False where it crosses itself or meets another arc anywhere but at ends of both.
+
+    Two arcs between the same two nodes that simplify to the same chord
+    overlap along their whole length: they count as meeting inside (the
+    region between them would vanish from the polygonised faces).
+    """
+    noded = shapely.get_parts(shapely.node(shapely.multilinestrings(arcs)))
+    # noding splits arcs that cross (more pieces) and dissolves arcs that overlap (less length): one of each
+    # keeps the count, so both are compared
+    if len(noded) == len(arcs) and np.isclose(shapely.length(noded).sum(), shapely.length(arcs).sum(),
+                                              rtol=0, atol=1e-9 * len(arcs)):
+        return np.ones(len(arcs), dtype=bool)  # noding changed nothing: no arc meets another inside
     ok = shapely.is_simple(arcs)
     i, j = shapely.STRtree(arcs).query(arcs, predicate="intersects")
     keep = i < j
@@ -297,12 +306,20 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
         simplified = shapely.linestrings(V[kept], indices=at[kept])
         ok = _meets_only_at_ends(simplified)
         if ok.all():
-            break
+            faces, cuts, _, _ = shapely.polygonize_full(simplified)
+            faces = np.asarray(shapely.get_parts(faces), dtype=object)
+            # one face per raster region, or two regions merged into one face (and one label): an arc with the
+            # same face on both sides (a cut edge) lost the region it bounded
+            if len(faces) == len(regions) and shapely.is_empty(cuts):
+                break
+            lost = shapely.STRtree(simplified).query(shapely.get_parts(cuts), predicate="covers")[1]
+            ok[lost if len(lost) else slice(None)] = False
         raw |= ~ok
     else:
         simplified = arcs
-    faces = np.asarray(shapely.get_parts(shapely.polygonize(simplified)), dtype=object)
-    if abs(shapely.area(faces).sum() - shapely.area(regions).sum()) > 1e-6 * shapely.area(regions).sum():
+        faces = np.asarray(shapely.get_parts(shapely.polygonize(simplified)), dtype=object)
+    if (len(faces) != len(regions)
+            or abs(shapely.area(faces).sum() - shapely.area(regions).sum()) > 1e-6 * shapely.area(regions).sum()):
         log.debug("simplified face boundaries do not polygonise; raster faces kept")
         return list(regions), ids.tolist()
     label = _face_labels(faces, simplified, sides)
