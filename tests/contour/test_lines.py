@@ -11,6 +11,7 @@ from rooftrace.contour.lines import (
     Line,
     boundary_step,
     bridge_inlets,
+    chord_curve,
     constrain_directions,
     curved_runs,
     fit_line,
@@ -300,3 +301,37 @@ def test_short_lines_along_an_arc_become_curves_and_a_wobbly_wall_stays_straight
         ln.idx = ln.idx + a
     out = curved_runs(box, lines, 0.5)
     assert out == lines
+
+
+def test_a_chord_curve_runs_through_the_middle_of_a_stepped_arc():
+    # the ring along a gently curved wall where scan lines end in steps (a staircase 0.35 m high): the
+    # curve across the chord has no parameter for the steps to stretch, it passes between them
+    x = np.arange(-10.0, 10.0, 0.25)
+    arc = 1.7 * (1 - (x / 10) ** 2)
+    stairs = np.floor(arc / 0.35) * 0.35 + 0.175  # each point on the scan line just inside the arc, centred
+    points = np.column_stack([x, stairs, np.full_like(x, 6.0)])
+    curve = chord_curve(points, ((-10.0, 0.175), (10.0, 0.175)), 2, 0.5)
+    assert curve[0, :2] == pytest.approx([-10.0, 0.175], abs=0.2) and curve[-1, :2] == pytest.approx([10.0, 0.175], abs=0.2)
+    res = shapely.distance(shapely.points(points[:, :2]), shapely.LineString(curve[:, :2]))
+    assert np.sqrt(np.mean(res**2)) < 0.35 / np.sqrt(12) * 1.3  # the staircase's own scatter about its middle
+    assert np.abs(np.interp(x, curve[:, 0], curve[:, 1]) - arc).max() < 0.15  # the arc itself
+    assert np.allclose(curve[:, 2], 6.0)
+
+
+@pytest.mark.parametrize("seed", [6, 16])
+def test_simulated_round_buildings_get_a_curve(seed):
+    # the 70 m scenes' round building: the CD-spline fitted to its runs of short lines (chord-length knots
+    # dragged by the ring's steps) lost to the lines on these two seeds; the chord curve does not
+    from rooftrace.synth import SceneOptions, simulate_scene
+
+    scene = simulate_scene(SceneOptions(seed=seed, size=70.0, density=12.0, image=False))
+    xyz, cls = scene.cloud.xyz, np.asarray(scene.cloud.fields["truth_class"])
+    bid = np.asarray(scene.cloud.fields["truth_building_id"])
+    (b,) = [b.building_id for b in scene.buildings if b.kind == "round"]
+    own = (bid == b) & (cls == 6)
+    near = ~own & (cls != 7) & (np.abs(xyz[:, :2] - xyz[own, :2].mean(axis=0)).max(axis=1) < 40.0)
+    out = trace_outline(xyz[own], context_xy=xyz[near, :2])
+    assert max(out.degrees[0]) >= 2, out.degrees
+    (truth,) = [p for p, i in zip(scene.truth["roof_outlines"].geometries,
+                                  scene.truth["roof_outlines"].attributes["building_id"]) if i == b]
+    assert polis(out.polygon, truth) < 0.12

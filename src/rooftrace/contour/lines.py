@@ -44,7 +44,7 @@ from rooftrace.errors import GeometryError
 
 __all__ = ["Line", "Curve", "LineOutline", "line_outline", "fit_line", "segment_bic", "bridge_inlets",
            "dominant_wall_direction", "simplify_lines", "constrain_directions", "line_corners", "boundary_step",
-           "curved_runs"]
+           "curved_runs", "chord_curve"]
 
 log = logging.getLogger(__name__)
 
@@ -522,7 +522,7 @@ def _curve_normals(v: np.ndarray) -> np.ndarray:
 def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: float, edge_factor: float,
                  directions: bool = True, context: EdgeContext | None = None, densify: float = 0.5,
                  z_tolerance: float = 0.3, refit: Callable | None = None,
-                 roof_xy: np.ndarray | None = None) -> LineOutline:
+                 roof: cKDTree | None = None) -> LineOutline:
     """Building-shaped ring from the ring points and the CD-spline fitted to them.
 
     Parameters
@@ -550,17 +550,17 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
         ``refit(corners)`` -> CDSpline of ``points`` with these corners (ring
         indices, increasing): the spline fitted again when a simplified line
         bends beyond the noise.
-    roof_xy : ndarray of shape (M, 2) float64, optional
-        All the roof's points (the ring points among them), in the ring's
-        frame: the sampling step across the edge is measured on them
-        (:func:`boundary_step`).
+    roof : cKDTree, optional
+        K-d tree of all the roof's points (x, y; the ring points among them),
+        in the ring's frame: the sampling step across the edge is measured on
+        them (:func:`boundary_step`).  One tree serves every ring of a building.
 
     Returns
     -------
     LineOutline
     """
     xy = points[:, :2]
-    sigma0 = noise_factor * boundary_step(xy, spacing, roof_xy)
+    sigma0 = noise_factor * boundary_step(xy, spacing, roof)
     trim = 1
     segments = _curves_on(points, None, spline, sigma0, trim, densify)
     if len(segments) < 3:
@@ -596,7 +596,7 @@ def line_outline(points: np.ndarray, spline, spacing: float, *, noise_factor: fl
     return LineOutline(ring, np.asarray(corners, dtype=np.int64), degrees, rms, theta, measured)
 
 
-def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | None = None,
+def boundary_step(ring_xy: np.ndarray, spacing: float, roof: np.ndarray | cKDTree | None = None,
                   window: float = 2.0) -> np.ndarray:
     """The sampling step across the edge at each ring point: how far its position is uncertain, metres.
 
@@ -616,9 +616,10 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
     spacing : float
         Local mean point spacing, metres: the step where no roof point lies
         behind a ring point, and the least step counted as a row behind.
-    roof_xy : ndarray of shape (M, 2) float64, optional
-        The roof's points.  Without them, the step is the mean gap between
-        ring neighbours (never below ``spacing``).
+    roof : ndarray of shape (M, 2) float64 or cKDTree, optional
+        The roof's points, or a k-d tree of them (built once per building by
+        the caller).  Without them, the step is the mean gap between ring
+        neighbours (never below ``spacing``).
     window : float
         Length of ring (in spacings) whose chord gives the edge's direction at a point.
 
@@ -631,7 +632,9 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
     xy = np.asarray(ring_xy, dtype=np.float64)
     n = len(xy)
     gap = np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1)  # point i to i + 1
-    if roof_xy is None or len(roof_xy) < 4 or n < 4:
+    if roof is not None and not isinstance(roof, cKDTree):
+        roof = cKDTree(np.asarray(roof, dtype=np.float64)[:, :2])
+    if roof is None or roof.n < 4 or n < 4:
         step = np.maximum(spacing, 0.5 * (gap + np.roll(gap, 1)))
     else:
         # the edge's direction at each point: the chord over about `window` spacings of ring
@@ -644,10 +647,8 @@ def boundary_step(ring_xy: np.ndarray, spacing: float, roof_xy: np.ndarray | Non
         t = xy[hi] - xy[lo]
         t /= np.maximum(np.linalg.norm(t, axis=1), 1e-12)[:, None]
         inward = np.column_stack([-t[:, 1], t[:, 0]])  # the roof is on the left
-        roof = np.asarray(roof_xy, dtype=np.float64)[:, :2]
-        k = min(24, len(roof))
-        _, nb = cKDTree(roof).query(xy, k=k)
-        rel = roof[nb] - xy[:, None, :]
+        _, nb = roof.query(xy, k=min(24, roof.n))
+        rel = roof.data[nb] - xy[:, None, :]
         depth = np.einsum("nkj,nj->nk", rel, inward)
         side = np.abs(np.einsum("nkj,nj->nk", rel, t))
         # the next row behind: more behind the point than beside it (a scan line running nearly
@@ -694,6 +695,10 @@ def _turning_runs(segments: list) -> list[list[int]]:
             continue
         if len(cur) >= 3:
             runs.append(cur)
+        elif smooth[k] and j < m:
+            # a smooth break turning the other way: the segment before it (in no run) starts the next run
+            cur, total, sense = [(k - 1) % m, k], float(t), float(np.sign(t))
+            continue
         cur, total, sense = [k], 0.0, 0.0
     return runs
 
@@ -704,11 +709,15 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
     Arc pieces shorter than a few metres each stay within the noise of a
     line, so an arc becomes a polygon of many short walls.  Every run of
     lines turning the same way (:func:`_turning_runs`) is fitted as one
-    CD-spline segment of degree 2 or 3 (the BIC decides, as for every other
-    model here, not the F-test); it becomes a curve when that segment
-    (2·degree parameters plus its break point) explains the run's points
-    with a lower BIC than the run's lines (each with its parameters and
-    break point, at their pooled noise floor).
+    curve of degree 2 or 3, both as a CD-spline segment and as a polynomial
+    across the run's chord (:func:`chord_curve`, which a ring stepping
+    where scan lines end does not drag off the points), and the latter also
+    with the run's first or last line left straight when that line is
+    longer than the rest of the run (a wall running on into an arc without
+    a corner).  The BIC decides, as for every other model here, not the
+    F-test: a curve (2·degree parameters plus its break point) replaces
+    the run's lines (each with its parameters and break point, at their
+    pooled noise floor) when it explains their points better.
 
     Parameters
     ----------
@@ -758,22 +767,88 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
         idx = np.concatenate([ln.idx for ln in lines])
         floor = _pooled(lines)
         best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
+        arcs = []
         for d, fit in fits:
             verts, corner_index = fit.ring(densify)
             corner_index = list(corner_index) + [len(verts)]
-            arc = np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]
+            arcs.append((d, np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]))
+        m = len(segments)
+        for d, arc in arcs:
             res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
             bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
             if bic < best[0]:
-                best = (bic, Curve(idx, arc, d))
+                best = (bic, [Curve(idx, arc, d)])
+        # the curve over the whole run, or with its first or last line left straight: where a straight
+        # wall runs on into an arc without a corner (a stadium's side), that line holds both.  It is the
+        # wall only if longer than the arc pieces together (one arc's pieces are about equally long)
+        total = sum(ln.span for ln in lines)
+        for lo, hi in ((0, len(unit)), (1, len(unit)), (0, len(unit) - 1)):
+            kept = lines[:lo] + lines[hi:]
+            if kept and 2 * kept[0].span <= total:
+                continue
+            bent = np.concatenate([ln.idx for ln in lines[lo:hi]])
+            ends = (0.5 * (xy[segments[(unit[lo] - 1) % m].idx[-1]] + xy[bent[0]]),
+                    0.5 * (xy[bent[-1]] + xy[segments[(unit[hi - 1] + 1) % m].idx[0]]))
+            for d in (2, 3):
+                arc = chord_curve(points[bent], ends, d, densify)
+                res = shapely.distance(shapely.points(xy[bent]), shapely.LineString(arc[:, :2]))
+                bic = segment_bic(float(res @ res) + sum(ln.rss for ln in kept), len(idx),
+                                  2 * d + 1 + sum(ln.n_params + 1 for ln in kept), floor)
+                if bic < best[0]:
+                    best = (bic, lines[:lo] + [Curve(bent, arc, d)] + lines[hi:])
         if best[1] is not None:
             replace[unit[0]] = (unit, best[1])
     if not replace:
         return segments
     log.debug("lines: %d runs of short lines became curves", len(replace))
     drop = {j for unit, _ in replace.values() for j in unit}
-    return [replace[k][1] if k in replace else segments[k] for k in range(len(segments))
-            if k in replace or k not in drop]
+    out = []
+    for k in range(len(segments)):
+        if k in replace:
+            out.extend(replace[k][1])
+        elif k not in drop:
+            out.append(segments[k])
+    return out
+
+
+def chord_curve(points: np.ndarray, ends: tuple, degree: int, densify: float) -> np.ndarray:
+    """A run's curve as a polynomial across its chord: offset (and height) as polynomials of the position along it.
+
+    The CD-spline puts its knots at the chord-length parameters of ring
+    points, so a ring that steps where scan lines end (a saw-tooth along a
+    gently curved wall) stretches the parameter at every step and the joint
+    fit drags the curve and its corners off the points.  A graph over the
+    chord has no parameter to stretch: the offset across it is fitted by
+    least squares, as a line's is.  A run turns by at most 90°, so its curve
+    is a graph over its chord.
+
+    Parameters
+    ----------
+    points : ndarray of shape (n, 3) float64
+        The run's ring points, in ring order, metres.
+    ends : tuple of two ndarray of shape (2,)
+        Where the run meets the segments before and after it; the curve
+        spans their chord.
+    degree : int
+        Polynomial degree (2 or 3).
+    densify : float
+        Step of the samples along the chord, metres.
+
+    Returns
+    -------
+    ndarray of shape (k, 3) float64
+        Samples of the curve from the first end to the last.
+    """
+    a, b = np.asarray(ends[0], dtype=np.float64), np.asarray(ends[1], dtype=np.float64)
+    length = float(np.hypot(*(b - a)))
+    t = (b - a) / max(length, 1e-12)
+    across = np.array([t[1], -t[0]])
+    rel = points[:, :2] - a
+    basis = np.vander(rel @ t, degree + 1)
+    coef, *_ = np.linalg.lstsq(basis, np.column_stack([rel @ across, points[:, 2]]), rcond=None)
+    u = np.linspace(0.0, length, max(int(np.ceil(length / densify)), 4 * degree) + 1)
+    v, z = (np.vander(u, degree + 1) @ coef).T
+    return np.column_stack([a + u[:, None] * t + v[:, None] * across, z])
 
 
 def _bends(xy: np.ndarray, line: Line) -> bool:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import shapely
-from scipy.spatial import QhullError
+from scipy.spatial import QhullError, cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_shape
@@ -152,7 +152,7 @@ class RoofOutline:
 
 def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, outer: bool = True,
                   context: EdgeContext | None = None,
-                  roof_xy: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[int], float]:
+                  roof: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray, list[int], float]:
     if len(xyz) < 4:
         return xyz, np.arange(len(xyz)), [1] * len(xyz), 0.0
     reg = options.regularize
@@ -170,7 +170,7 @@ def _ring_outline(xyz: np.ndarray, spacing: float, options: OutlineOptions, *, o
                                  directions=reg.directions, context=context, densify=options.cdspline.densify,
                                  z_tolerance=options.corners.t_dist,
                                  refit=lambda knots: iterative_cdspline(xyz, knots, options.cdspline),
-                                 roof_xy=roof_xy)
+                                 roof=roof)
         except ValueError:
             shape = None
         if shape is not None and _simple(shape.vertices):
@@ -266,6 +266,8 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         around = None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2]
         # the building's own wall points on the boundary mark the edge (contour.edge)
         context = EdgeContext(around, walls=pts[below, :2])
+    # every ring's noise floor is measured on the building's points (lines.boundary_step): one tree for all
+    roof = cKDTree(pts[:, :2]) if options.regularize.method == "lines" else None
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
@@ -290,7 +292,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if best is None:
         raise first_error
     covered, k, trial, shape, status = best
-    outline = _outline(pts, origin, shape, status, trial, regularise=True, context=context)
+    outline = _outline(pts, origin, shape, status, trial, regularise=True, context=context, roof=roof)
     if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
         # the regularisation gave up points the alpha shape holds (a corner cut off): keep the alpha shape's rings
         outline = _outline(pts, origin, shape, "unregularised", trial, regularise=False)
@@ -347,7 +349,7 @@ def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | N
 
 
 def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str, options: OutlineOptions, *,
-             regularise: bool, context: EdgeContext | None = None) -> RoofOutline:
+             regularise: bool, context: EdgeContext | None = None, roof: cKDTree | None = None) -> RoofOutline:
     """The outline from an alpha shape's rings, regularised or as traced, its coverage measured."""
     rings, degrees, corners = [], [], []
     sigma = float("nan")
@@ -357,7 +359,7 @@ def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str
         if regularise:
             try:
                 vertices, corner_index, deg, s = _ring_outline(pts[ring], spacing, options, outer=i == 0,
-                                                               context=context, roof_xy=pts[:, :2])
+                                                               context=context, roof=roof)
             except GeometryError:
                 vertices = None
         if vertices is None or len(vertices) < 3 or abs(_area(vertices)) < 1e-6:
@@ -534,7 +536,6 @@ def connected_buildings(xy: np.ndarray, radius: float, min_points: int = 3) -> n
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
     n = len(xy)
     if n == 0:
