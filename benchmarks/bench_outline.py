@@ -136,7 +136,7 @@ def delft() -> None:
     cls = cloud.fields["classification"]
     sel = cls == 6
     xyz = cloud.xyz[sel]
-    context = cloud.xyz[~sel & ~np.isin(cls, (7, 18)), :2]  # as `rooftrace outline` passes them
+    context = cloud.xyz[~sel & ~np.isin(cls, (7, 18))]  # as `rooftrace run` passes them
     aoi = shapely.union_all([g for p in sorted(DELFT.glob("bgt_*.sqlite")) for g in read_layer(p).geometries])
     ref = shapely.union_all(read_layer(DELFT / "bgt_pand.sqlite").geometries)
     t0 = time.perf_counter()
@@ -300,7 +300,7 @@ def _simulated_buildings(seeds, density: float = 12.0, scan_pattern: str = "zigz
                 continue
             centre = xyz[own, :2].mean(axis=0)
             near = ~own & (cls != 7) & (np.abs(xyz[:, :2] - centre).max(axis=1) < 40.0)
-            out.append((xyz[own], xyz[near, :2], t, kinds[b] in CURVED_KINDS))
+            out.append((xyz[own], xyz[near], t, kinds[b] in CURVED_KINDS))
     return out
 
 

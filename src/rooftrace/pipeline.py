@@ -401,7 +401,7 @@ def run_pipeline(
     # the roof edge lies between the last roof point and the first that is not roof (noise aside)
     around = (building_id <= 0) & (detection.classification != 7)
     outlines = outline_buildings(cloud.xyz, building_id, options.outline, mean_spacing=detection.mean_spacing,
-                                 reporter=reporter, context_xy=cloud.xyz[around, :2])
+                                 reporter=reporter, context_xy=cloud.xyz[around])
     if assignment is not None:
         outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)
     timings["outline"] = time.perf_counter() - t0

@@ -9,6 +9,7 @@ from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape
 from rooftrace.contour.edge import EdgeContext, edge_shift
 from rooftrace.contour.lines import (
     Line,
+    _turning_runs,
     boundary_step,
     bridge_inlets,
     chord_curve,
@@ -335,3 +336,14 @@ def test_simulated_round_buildings_get_a_curve(seed):
     (truth,) = [p for p, i in zip(scene.truth["roof_outlines"].geometries,
                                   scene.truth["roof_outlines"].attributes["building_id"]) if i == b]
     assert polis(out.polygon, truth) < 0.12
+
+
+def test_a_run_of_lines_turning_one_way_starts_with_the_line_before_its_first_turn():
+    # a corner, a short piece turning back by 5 degrees, then two turns of 10 degrees the other way: the arc
+    # is lines 2-4 (line 2 ends the piece that turned back and starts the arc), not lines 3-4 alone
+    def line(deg):
+        a = np.radians(deg)
+        return Line(np.arange(3), np.zeros(2), np.array([np.cos(a), np.sin(a)]), 0.0)
+
+    segments = [line(d) for d in (0, 90, 85, 95, 105, 195, 270)]
+    assert _turning_runs(segments) == [[2, 3, 4]]

@@ -201,3 +201,43 @@ def test_even_sampling_bridges_at_the_first_alpha():
     g = np.mgrid[0:10:0.3, 0:6:0.3].reshape(2, -1).T
     assert alpha_shape(g).gap_fill < 0.6
     assert trace_outline(np.column_stack([g, np.full(len(g), 5.0)])).status == "ok"
+
+
+def _roof_with_light_well(seed=0):
+    """A 20 x 12 m flat roof 8 m up with a 1.1 x 6 m light well, on a jittered 0.45 m grid; the well's points are ground."""
+    rng = np.random.default_rng(seed)
+    g = np.mgrid[0:20:0.45, 0:12:0.45].reshape(2, -1).T + rng.uniform(-0.08, 0.08, (1, 2))
+    g = g + rng.normal(0, 0.05, g.shape)
+    well = shapely.box(9.45, 3.0, 10.55, 9.0)
+    in_well = shapely.contains_xy(well, g[:, 0], g[:, 1])
+    roof = np.column_stack([g[~in_well], np.full((~in_well).sum(), 8.0)])
+    ground = np.column_stack([g[in_well], np.zeros(in_well.sum())])
+    return roof, ground, well
+
+
+def test_a_light_well_where_the_ground_was_seen_is_not_bridged():
+    roof, ground, well = _roof_with_light_well()
+    centre = well.centroid
+    # without the heights around (or without the rule) the enlarged alpha (0.78 m) bridges the 1.1 m well
+    bridged = trace_outline(roof, context_xy=ground[:, :2])
+    assert bridged.polygon.contains(centre)
+    off = OutlineOptions.from_config({"alpha": {"seen_through": False}})
+    assert trace_outline(roof, off, context_xy=ground).polygon.contains(centre)
+    # the ground seen in it keeps it open, and the outline still holds the roof's points
+    out = trace_outline(roof, context_xy=ground)
+    assert out.status == "ok" and out.coverage >= 0.99
+    assert not shapely.force_2d(out.polygon).contains(centre)
+    assert shapely.force_2d(out.polygon).area < shapely.force_2d(bridged.polygon).area - 0.5 * well.area
+
+
+def test_two_roofs_joined_across_a_passage_stay_one_outline():
+    # the building's points fall apart where the ground was seen: rather than lose a part, the passage is bridged
+    roof, ground, _ = _roof_with_light_well()
+    passage = shapely.box(9.45, -1.0, 10.55, 13.0)
+    g = np.concatenate([roof, ground])
+    cut = shapely.contains_xy(passage, g[:, 0], g[:, 1])
+    roof = g[~cut]
+    ground = np.column_stack([g[cut, :2], np.zeros(cut.sum())])
+    out = trace_outline(roof, context_xy=ground)
+    assert out.coverage >= 0.99 and out.status in ("ok", "alpha_enlarged")
+    assert shapely.force_2d(out.polygon).area > 0.9 * 20 * 12 - passage.intersection(shapely.box(0, 0, 20, 12)).area

@@ -78,7 +78,7 @@ def outline(
             log.warning("%s: no class-6 (building) points; writing an empty roof_outlines layer", where)
         xyz, ids = classified_buildings(cloud.xyz, cls, cloud.fields.get("building_id"))
         # ASPRS 7 and 18 are noise: every other point is not roof, and the roof edge lies before it
-        context = cloud.xyz[(cls != BUILDING) & ~np.isin(cls, (7, 18)), :2]
+        context = cloud.xyz[(cls != BUILDING) & ~np.isin(cls, (7, 18))]
     spacing = None
     if options.alpha.strategy == "global" and options.alpha.alpha is None:
         spacing = median_building_spacing(xyz, ids)

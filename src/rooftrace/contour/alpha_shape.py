@@ -89,6 +89,13 @@ class AlphaOptions:
         at most their alpha (closed by construction; default, chosen by
         measurement in docs/design-notes.md, "Outline coverage"), ``edge``
         = the thesis' empty-circle test per edge with its gap repair.
+    seen_through : bool
+        With the triangle boundary, no triangle holding a point that is not
+        roof and lies below the roof (given by the caller, e.g. ground in a
+        passage or a light well) is part of the shape: the enlarged alpha
+        bridges gaps of up to 3 spacings, and where the laser reached the
+        ground in one the roof is not there (docs/design-notes.md, "Why the
+        Delft run lost area F").
     """
 
     section = "alpha"
@@ -100,6 +107,7 @@ class AlphaOptions:
     min_hole_area: float = 4.0
     scale: float = 1.5
     boundary: str = "triangle"
+    seen_through: bool = True
 
     def __post_init__(self) -> None:
         if self.strategy not in STRATEGIES:
@@ -191,7 +199,8 @@ def boundary_edges(xy: np.ndarray, edges: np.ndarray, alpha: np.ndarray, tree: c
     return np.concatenate([e[fwd], e[rev][:, ::-1]]).astype(np.int64)
 
 
-def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndarray, alpha: np.ndarray,
+                      seen_through: np.ndarray | None = None, sampling: np.ndarray | None = None) -> np.ndarray:
     """Directed boundary edges of the union of the triangles with circumradius <= alpha, inside on the left.
 
     Parameters
@@ -204,6 +213,15 @@ def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndar
         (``scipy.spatial.Delaunay.neighbors``).
     alpha : float or ndarray of shape (T,)
         Alpha radius per triangle, metres.
+    seen_through : ndarray of shape (M, 2) float64, optional
+        Plan coordinates (metres) of points that are not roof and lie below
+        it: a triangle wider than ``sampling`` holding one is not roof (the
+        laser reached the ground there: a passage, a light well between
+        roofs).
+    sampling : float or ndarray of shape (T,), optional
+        Circumradius (m) up to which a triangle is the sampling's own and
+        stays whatever it holds (a split return at the edge, noise); default
+        0, every triangle.
 
     Returns
     -------
@@ -224,12 +242,39 @@ def triangle_boundary(xy: np.ndarray, triangles: np.ndarray, neighbours: np.ndar
     area2 = np.abs((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0])
     with np.errstate(divide="ignore", invalid="ignore"):
         solid = la * lb * lc <= 2.0 * area2 * np.broadcast_to(alpha, (len(triangles),))  # R = abc / (4 area)
+    if seen_through is not None and len(seen_through) and solid.any():
+        with np.errstate(divide="ignore", invalid="ignore"):
+            wide = solid & ~(la * lb * lc <= 2.0 * area2 * np.broadcast_to(
+                0.0 if sampling is None else sampling, (len(triangles),)))
+        if wide.any():
+            solid[_holding(xy, triangles, wide, np.asarray(seen_through, dtype=np.float64).reshape(-1, 2))] = False
     out = []
     for k in range(3):
         across = neighbours[:, k]
         keep = solid & ~np.where(across >= 0, solid[np.maximum(across, 0)], False)
         out.append(np.column_stack([triangles[keep, (k + 1) % 3], triangles[keep, (k + 2) % 3]]))
     return np.concatenate(out).astype(np.int64)
+
+
+def _holding(xy: np.ndarray, triangles: np.ndarray, candidates: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Indices of the ``candidates`` triangles (a boolean mask) that hold at least one of ``points`` (boundary included)."""
+    index = np.flatnonzero(candidates)
+    a, b, c = (xy[triangles[index, k]] for k in range(3))
+    # a point in a triangle lies in its circumcircle: one nearest-neighbour query per triangle keeps the
+    # exact test (shapely) to the few triangles near a point
+    ab, ac = b - a, c - a
+    d = 2.0 * (ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (ac[:, 1] * (ab ** 2).sum(axis=1) - ab[:, 1] * (ac ** 2).sum(axis=1)) / d
+        uy = (ab[:, 0] * (ac ** 2).sum(axis=1) - ac[:, 0] * (ab ** 2).sum(axis=1)) / d
+    radius = np.hypot(ux, uy)
+    dist, _ = cKDTree(points).query(a + np.column_stack([ux, uy]))
+    near = np.flatnonzero(~(dist > radius * (1.0 + 1e-9)))  # NaN (a degenerate triangle) stays a candidate
+    if len(near) == 0:
+        return near
+    _, hit = shapely.STRtree(shapely.polygons(xy[triangles[index[near]]])).query(
+        shapely.points(points), predicate="intersects")
+    return index[near[np.unique(hit)]]
 
 
 def repair_boundary(directed: np.ndarray, edges: np.ndarray, lengths: np.ndarray, n: int) -> np.ndarray:
@@ -341,7 +386,7 @@ def _signed_area(xy: np.ndarray) -> float:
 
 
 def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
-                alpha_scale: float = 1.0) -> AlphaShape:
+                alpha_scale: float = 1.0, seen_through: np.ndarray | None = None) -> AlphaShape:
     """Outer ring and courtyards of one building's points.
 
     Parameters
@@ -353,6 +398,11 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
         The cloud's s_avg, used as alpha by S1 when ``options.alpha`` is None.
     alpha_scale : float, default 1
         Multiplies every alpha (used by callers to retry a shape that broke up).
+    seen_through : ndarray of shape (M, 2) float64, optional
+        Plan coordinates (metres) of points that are not roof and lie below
+        the roof around them (ground in a passage or a light well): no
+        triangle holding one is part of the shape (``boundary = "triangle"``
+        only; :func:`triangle_boundary`).
 
     Returns
     -------
@@ -391,7 +441,10 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     alpha_scale = alpha_scale * options.scale
     alpha = alpha * alpha_scale
     if options.boundary == "triangle":
-        directed = triangle_boundary(xy, triangles, neighbours, spacing[triangles].mean(axis=1) * alpha_scale)
+        # the alpha the points' own spacing gives (the thesis' x 1) bridges the sampling; only what the
+        # enlargement bridges beyond it is cut where the ground was seen
+        own = spacing[triangles].mean(axis=1)
+        directed = triangle_boundary(xy, triangles, neighbours, own * alpha_scale, seen_through, own)
     else:
         directed = boundary_edges(xy, edges, alpha, cKDTree(xy))
         directed = repair_boundary(directed, edges, lengths, len(xy))

@@ -220,12 +220,15 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     mean_spacing : float, optional
         The cloud's mean point spacing s_avg in metres (alpha of the 'global'
         strategy when ``options.alpha.alpha`` is None).
-    context_xy : ndarray of shape (C, 2) float64, optional
-        Plan coordinates (metres, same CRS) of points around the building that
-        are not its roof: ground, vegetation, other buildings.  The 'lines'
-        regularisation places the edge beyond the last roof point by half
-        the sampling step or half the gap to the first of these, whichever
-        is smaller (:func:`rooftrace.contour.edge.edge_shift`).
+    context_xy : ndarray of shape (C, 2) or (C, 3) float64, optional
+        Plan coordinates (metres, same CRS), with heights when known, of
+        points around the building that are not its roof: ground,
+        vegetation, other buildings.  The 'lines' regularisation places the
+        edge beyond the last roof point by half the sampling step or half the
+        gap to the first of these, whichever is smaller
+        (:func:`rooftrace.contour.edge.edge_shift`).  With heights, those
+        lying below the building where the enlarged alpha would bridge a gap
+        keep it open (``[alpha] seen_through``).
 
     Returns
     -------
@@ -261,33 +264,38 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     pts = pts - origin
     if len(pts) < 3:
         raise GeometryError("too_few_points")
+    around = None if context_xy is None else np.asarray(context_xy, dtype=np.float64) - origin[: np.shape(context_xy)[1]]
     context = None
-    if options.regularize.method == "lines" and (context_xy is not None or below.any()):
-        around = None if context_xy is None else np.asarray(context_xy, dtype=np.float64)[:, :2] - origin[:2]
+    if options.regularize.method == "lines" and (around is not None or below.any()):
         # the building's own wall points on the boundary mark the edge (contour.edge)
-        context = EdgeContext(around, walls=pts[below, :2])
+        context = EdgeContext(None if around is None else around[:, :2], walls=pts[below, :2])
+    seen = _seen_through(xyz - origin, around, options.surface.tolerance) if options.alpha.seen_through else None
     # every ring's noise floor is measured on the building's points (lines.boundary_step): one tree for all
     roof = cKDTree(pts[:, :2]) if options.regularize.method == "lines" else None
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
             options.alpha, strategy=strategy, scale=options.alpha.scale * enlarge))
-        try:
-            shape, status = _alpha_shape(pts, trial.alpha, mean_spacing)
-        except GeometryError as exc:
-            if str(exc) != "no_ring":
-                raise
-            first_error = first_error or exc
-            continue
-        # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
-        # of the building (a ring dropped, the shape fallen apart) is not worth regularising
-        rings = [pts[r, :2] for r in shape.rings]
-        traced = shapely.Polygon(rings[0], rings[1:])
-        traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
-        covered = outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
-        if best is None or covered > best[0]:
-            best = (covered, k, trial, shape, status)
-        if covered >= MIN_COVERAGE:
+        # a building whose parts only a passage joins is one polygon: bridge it rather than lose a part
+        for cut in (seen, None) if seen is not None else (None,):
+            try:
+                shape, status = _alpha_shape(pts, trial.alpha, mean_spacing, cut)
+            except GeometryError as exc:
+                if str(exc) != "no_ring":
+                    raise
+                first_error = first_error or exc
+                continue
+            # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
+            # of the building (a ring dropped, the shape fallen apart) is not worth regularising
+            rings = [pts[r, :2] for r in shape.rings]
+            traced = shapely.Polygon(rings[0], rings[1:])
+            traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
+            covered = outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
+            if best is None or covered > best[0]:
+                best = (covered, k, trial, shape, status)
+            if covered >= MIN_COVERAGE:
+                break
+        if best is not None and best[0] >= MIN_COVERAGE:
             break
     if best is None:
         raise first_error
@@ -316,13 +324,35 @@ def _fallbacks(strategy: str, mean_spacing: float | None, alpha: float | None) -
     return [(s, 1.0) for s in order] + [(strategy, 2.0), (strategy, 3.0)]
 
 
-def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None) -> tuple[AlphaShape, str]:
+def _seen_through(pts: np.ndarray, around: np.ndarray | None, tolerance: float) -> np.ndarray | None:
+    """Plan positions of the points around that lie below the building beside them: where the laser saw past it.
+
+    ``pts`` are the building's points as measured (walls at their own
+    height, not lifted to the roof), ``around`` the points that are not this
+    roof (with heights, else nothing is known), both in metres in one frame;
+    a point is below the building when it is more than ``tolerance`` (m)
+    under the nearest building point.
+    """
+    if around is None or around.shape[1] < 3 or len(around) == 0:
+        return None
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    inside = np.all((around[:, :2] >= lo) & (around[:, :2] <= hi), axis=1)
+    cand = around[inside]
+    if len(cand) == 0:
+        return None
+    _, nearest = cKDTree(pts[:, :2]).query(cand[:, :2])
+    return cand[cand[:, 2] < pts[nearest, 2] - tolerance, :2]
+
+
+def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None,
+                 seen_through: np.ndarray | None = None) -> tuple[AlphaShape, str]:
     """The alpha shape of the outline points, alpha enlarged until it closes, holds together and bridges the sampling."""
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
         try:
-            trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale)
+            trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale,
+                                seen_through=seen_through)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
@@ -405,11 +435,12 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     mean_spacing : float, optional
         Cloud mean spacing s_avg (metres), for the 'global' alpha strategy.
     reporter : Reporter, optional
-    context_xy : ndarray of shape (C, 2) float64, optional
-        Plan coordinates of the points that are no building's (ground,
-        vegetation; noise left out), for the edge position of the 'lines'
-        regularisation.  The other buildings' points always count as not
-        this building's roof.
+    context_xy : ndarray of shape (C, 2) or (C, 3) float64, optional
+        Plan coordinates (with heights when known) of the points that are no
+        building's (ground, vegetation; noise left out), for the edge
+        position of the 'lines' regularisation and, with heights, the gaps
+        where the ground was seen (:func:`trace_outline`).  The other
+        buildings' points always count as not this building's roof.
 
     Returns
     -------
@@ -432,7 +463,8 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     ids, starts = np.unique(building_id[order], return_index=True)
     groups = np.split(order, starts[1:]) if len(order) else []
     reporter = reporter or Reporter()
-    around = _Surroundings(xyz[sel, :2], building_id[sel], context_xy) if options.regularize.method == "lines" else None
+    wanted = options.regularize.method == "lines" or options.alpha.seen_through
+    around = _Surroundings(xyz[sel], building_id[sel], context_xy) if wanted else None
     outlines = []
     # the CD-spline fits make thousands of small BLAS calls (AᵀA, solve); a
     # multi-threaded BLAS turns each into a thread rendezvous: Delft's 34
@@ -471,15 +503,18 @@ class _Surroundings:
     #: metres around a building's bounding box (the edge looks 3 spacings out)
     margin = 3.0
 
-    def __init__(self, building_xy: np.ndarray, building_id: np.ndarray, context_xy: np.ndarray | None):
-        ctx = np.zeros((0, 2)) if context_xy is None else np.asarray(context_xy, dtype=np.float64).reshape(-1, 2)
-        xy = np.concatenate([np.asarray(building_xy, dtype=np.float64), ctx])
+    def __init__(self, building_xyz: np.ndarray, building_id: np.ndarray, context_xy: np.ndarray | None):
+        building_xyz = np.asarray(building_xyz, dtype=np.float64)
+        ctx = np.zeros((0, building_xyz.shape[1])) if context_xy is None else np.asarray(context_xy, dtype=np.float64)
+        dims = min(building_xyz.shape[1], ctx.shape[1])  # heights only when both have them
+        xy = np.concatenate([building_xyz[:, :dims], ctx[:, :dims]])
         owner = np.concatenate([np.asarray(building_id, dtype=np.int64), np.zeros(len(ctx), np.int64)])
         order = np.argsort(xy[:, 0], kind="stable")
         self.xy, self.owner = xy[order], owner[order]
 
     def near(self, xy: np.ndarray, building: int) -> np.ndarray:
-        lo, hi = xy.min(axis=0) - self.margin, xy.max(axis=0) + self.margin
+        """The points within ``margin`` of the bounding box of ``xy`` (plan, metres) not of ``building``, heights kept."""
+        lo, hi = xy[:, :2].min(axis=0) - self.margin, xy[:, :2].max(axis=0) + self.margin
         a, b = np.searchsorted(self.xy[:, 0], [lo[0], hi[0]])
         cand, own = self.xy[a:b], self.owner[a:b]
         keep = (cand[:, 1] >= lo[1]) & (cand[:, 1] <= hi[1]) & (own != building)
