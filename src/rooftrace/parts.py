@@ -228,7 +228,7 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
             joined.append((i, j))
     # faces of one plane are one surface even where another face cuts between them
     same_plane = [(i, j) for i in range(len(faces2d)) for j in range(i + 1, len(faces2d))
-                  if face_plane[i] == face_plane[j] and not detail[i]]
+                  if face_plane[i] == face_plane[j] and not (detail[i] or detail[j])]
     group = components(len(faces2d), np.array(joined + same_plane, dtype=np.int64).reshape(-1, 2))
     pieces = _group_polygons(faces2d, group, outline)
     pieces = _merge_small(pieces, outline, options)

@@ -308,8 +308,8 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
         if ok.all():
             faces, cuts, _, _ = shapely.polygonize_full(simplified)
             faces = np.asarray(shapely.get_parts(faces), dtype=object)
-            # one face per raster region, or two regions merged into one face (and one label): an arc with the
-            # same face on both sides (a cut edge) lost the region it bounded
+            # one face per raster region; fewer faces means regions merged under one label, where an arc with
+            # the same face on both sides (a cut edge) lost the region it bounded
             if len(faces) == len(regions) and shapely.is_empty(cuts):
                 break
             lost = shapely.STRtree(simplified).query(shapely.get_parts(cuts), predicate="covers")[1]
