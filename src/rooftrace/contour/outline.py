@@ -287,23 +287,25 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
                 continue
             # the alpha shape is measured before the regularisation: a strategy whose shape has lost part
             # of the building (a ring dropped, the shape fallen apart) is not worth regularising
-            rings = [pts[r, :2] for r in shape.rings]
-            traced = shapely.Polygon(rings[0], rings[1:])
-            traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
-            covered = outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
+            covered = _traced_coverage(pts, shape)
             if best is None or covered > best[0]:
-                best = (covered, k, trial, shape, status)
+                best = (covered, k, trial, shape, status, cut is not None)
             if covered >= MIN_COVERAGE:
                 break
         if best is not None and best[0] >= MIN_COVERAGE:
             break
     if best is None:
         raise first_error
-    covered, k, trial, shape, status = best
-    outline = _outline(pts, origin, shape, status, trial, regularise=True, context=context, roof=roof)
-    if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
-        # the regularisation gave up points the alpha shape holds (a corner cut off): keep the alpha shape's rings
-        outline = _outline(pts, origin, shape, "unregularised", trial, regularise=False)
+    covered, k, trial, shape, status, was_cut = best
+    outline = _regularised_or_traced(pts, origin, shape, status, trial, covered, context, roof)
+    if was_cut and outline.status == "repaired":
+        # a kept opening (a light well beside a wall, a notch) pinches the outline where the ring was
+        # repaired, and no closed solid has such a plan: the shape without the cut is traced instead
+        uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None)
+        retraced = _regularised_or_traced(pts, origin, uncut, uncut_status, trial, _traced_coverage(pts, uncut),
+                                          context, roof)
+        if retraced.coverage >= min(outline.coverage, MIN_COVERAGE):
+            outline = retraced
     if outline.coverage < MIN_COVERAGE and outline.status != "multipart":
         outline.status = "low_coverage"
     elif k > 0:
@@ -376,6 +378,24 @@ def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | N
     if shape.dropped_area > max(options.min_hole_area, 0.05 * abs(_area(pts[shape.rings[0], :2]))):
         status = "multipart"
     return shape, status
+
+
+def _traced_coverage(pts: np.ndarray, shape: AlphaShape) -> float:
+    """Share of the points the alpha shape's rings cover, before any regularisation."""
+    rings = [pts[r, :2] for r in shape.rings]
+    traced = shapely.Polygon(rings[0], rings[1:])
+    traced = traced if traced.is_valid else shapely.make_valid(traced)  # rings may touch at a point
+    return outline_coverage(traced, pts[:, :2], shape.spacing * shape.scale)
+
+
+def _regularised_or_traced(pts, origin, shape: AlphaShape, status: str, options: OutlineOptions, covered: float,
+                           context: EdgeContext | None, roof: cKDTree | None) -> RoofOutline:
+    """The regularised outline, or the alpha shape's rings when the regularisation gave up points they hold."""
+    outline = _outline(pts, origin, shape, status, options, regularise=True, context=context, roof=roof)
+    if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
+        # a corner cut off: keep the alpha shape's rings
+        outline = _outline(pts, origin, shape, "unregularised", options, regularise=False)
+    return outline
 
 
 def _outline(pts: np.ndarray, origin: np.ndarray, shape: AlphaShape, status: str, options: OutlineOptions, *,
