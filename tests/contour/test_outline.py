@@ -230,6 +230,20 @@ def test_a_light_well_where_the_ground_was_seen_is_not_bridged():
     assert shapely.force_2d(out.polygon).area < shapely.force_2d(bridged.polygon).area - 0.5 * well.area
 
 
+@pytest.mark.parametrize("gap", [0.45, 0.6])
+def test_a_well_beside_the_wall_that_would_pinch_the_outline_is_bridged(gap):
+    # half a metre from the wall the kept well's ring was repaired onto the outer one (a pinch no closed solid
+    # can stand on: a Delft shed lost every level of detail); then the shape without the cut is traced
+    rng = np.random.default_rng(2)
+    g = np.mgrid[0:20:0.45, 0:12:0.45].reshape(2, -1).T + rng.uniform(-0.08, 0.08, (1, 2))
+    g = g + rng.normal(0, 0.05, g.shape)
+    well = shapely.contains_xy(shapely.box(9.45, gap, 10.55, 6.0), g[:, 0], g[:, 1])
+    roof = np.column_stack([g[~well], np.full((~well).sum(), 8.0)])
+    out = trace_outline(roof, context_xy=np.column_stack([g[well], np.zeros(well.sum())]))
+    assert out.status == "ok" and out.coverage >= 0.99
+    assert out.polygon.is_valid and out.polygon.exterior.is_simple
+
+
 def test_two_roofs_joined_across_a_passage_stay_one_outline():
     # the building's points fall apart where the ground was seen: rather than lose a part, the passage is bridged
     roof, ground, _ = _roof_with_light_well()
