@@ -273,20 +273,26 @@ def _merge_small(pieces: list, outline, options: PartOptions) -> list:
     """Merge parts under ``min_area`` or owning under ``min_facade`` of the outline into their longest neighbour."""
     pieces = list(pieces)
     ring = outline.boundary
+    # each piece's area, facade and boundary are measured once and again only when a merge changes it
+    # (measuring every piece on every merge was most of the step: O(P²) intersections)
+    boundaries = list(shapely.boundary(np.array(pieces, dtype=object))) if pieces else []
+    area = [p.area for p in pieces]
+    facade = [b.intersection(ring).length for b in boundaries]
     while len(pieces) > 1:
-        area = np.array([p.area for p in pieces])
-        facade = np.array([p.boundary.intersection(ring).length for p in pieces])
-        small = np.flatnonzero((area < options.min_area) | (facade < options.min_facade))
+        small = np.flatnonzero((np.array(area) < options.min_area) | (np.array(facade) < options.min_facade))
         if not len(small):
             break
-        k = int(small[np.argmin(area[small])])  # the smallest first: it may make its neighbour big enough
-        shared = np.array([pieces[k].boundary.intersection(p.boundary).length if j != k else -1.0
-                           for j, p in enumerate(pieces)])
+        k = int(small[np.argmin(np.array(area)[small])])  # the smallest first: it may make its neighbour big enough
+        shared = shapely.length(shapely.intersection(boundaries[k], np.array(boundaries, dtype=object)))
+        shared[k] = -1.0
         if shared.max() <= 0:
             break  # an island part touching nothing: nothing to merge it into
         j = int(np.argmax(shared))
         pieces[j] = _largest(shapely.union_all([pieces[j], pieces[k]])) or pieces[j]
-        del pieces[k]
+        boundaries[j] = pieces[j].boundary
+        area[j], facade[j] = pieces[j].area, boundaries[j].intersection(ring).length
+        for cache in (pieces, boundaries, area, facade):
+            del cache[k]
     # stable order: by lowest (x, y) of the part's centroid, so ids do not depend on the face order
     return sorted(pieces, key=lambda p: (round(p.centroid.x, 6), round(p.centroid.y, 6)))
 
