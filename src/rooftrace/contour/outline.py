@@ -301,10 +301,13 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if was_cut and outline.status == "repaired":
         # a kept opening (a light well beside a wall, a notch) pinches the outline where the ring was
         # repaired, and no closed solid has such a plan: the shape without the cut is traced instead
-        uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None)
-        retraced = _regularised_or_traced(pts, origin, uncut, uncut_status, trial, _traced_coverage(pts, uncut),
-                                          context, roof)
-        if retraced.coverage >= min(outline.coverage, MIN_COVERAGE):
+        try:
+            uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None)
+            retraced = _regularised_or_traced(pts, origin, uncut, uncut_status, trial,
+                                              _traced_coverage(pts, uncut), context, roof)
+        except GeometryError:
+            retraced = None  # no shape without the cut: the repaired one stands
+        if retraced is not None and retraced.coverage >= min(outline.coverage, MIN_COVERAGE):
             outline = retraced
     if outline.coverage < MIN_COVERAGE and outline.status != "multipart":
         outline.status = "low_coverage"
