@@ -244,8 +244,10 @@ def _models_view(models: Sequence, n: int = 4) -> Figure | None:
                 colours.append(_SURFACE_COLOURS[s.kind])
         xyz = np.vstack(faces)
         low, high = xyz.min(axis=0), xyz.max(axis=0)
+        # the limits are set below: matplotlib's own autoscale reads the padding of its ragged face array,
+        # which is uninitialised memory, and failed the report now and then on NaN limits
         ax.add_collection3d(Poly3DCollection([f - low for f in faces], facecolors=colours, edgecolors="#333333",
-                                             linewidths=0.2))
+                                             linewidths=0.2), autolim=False)
         span = float((high - low).max())
         ax.set_xlim(0, span)
         ax.set_ylim(0, span)
