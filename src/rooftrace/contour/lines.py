@@ -758,6 +758,12 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
             fits.append((d, fit_cdspline(points, corners, np.where(is_run, d, 1))))
         except GeometryError:
             continue
+    # each fit's ring, sampled once for all its runs: (degree, closed vertices, corner vertex per unit and the end)
+    rings = []
+    for d, fit in fits:
+        verts, corner_index = fit.ring(densify)
+        rings.append((d, np.vstack([verts, verts[:1]]), list(corner_index) + [len(verts)]))
+    m = len(segments)
     replace = {}
     for u, unit in enumerate(units):
         if len(unit) < 3:
@@ -767,15 +773,9 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
         idx = np.concatenate([ln.idx for ln in lines])
         floor = _pooled(lines)
         best = (segment_bic(sum(ln.rss for ln in lines), len(idx), sum(ln.n_params + 1 for ln in lines), floor), None)
-        arcs = []
-        for d, fit in fits:
-            verts, corner_index = fit.ring(densify)
-            corner_index = list(corner_index) + [len(verts)]
-            arcs.append((d, np.vstack([verts, verts[:1]])[corner_index[k]:corner_index[k + 1] + 1]))
-        m = len(segments)
-        for d, arc in arcs:
-            res = shapely.distance(shapely.points(xy[idx]), shapely.LineString(arc[:, :2]))
-            bic = segment_bic(float(res @ res), len(idx), 2 * d + 1, floor)
+        for d, ring, corner_index in rings:
+            arc = ring[corner_index[k]:corner_index[k + 1] + 1]
+            bic = segment_bic(_rss_to_curve(xy[idx], arc), len(idx), 2 * d + 1, floor)
             if bic < best[0]:
                 best = (bic, [Curve(idx, arc, d)])
         # the curve over the whole run, or with its first or last line left straight: where a straight
@@ -791,8 +791,7 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
                     0.5 * (xy[bent[-1]] + xy[segments[(unit[hi - 1] + 1) % m].idx[0]]))
             for d in (2, 3):
                 arc = chord_curve(points[bent], ends, d, densify)
-                res = shapely.distance(shapely.points(xy[bent]), shapely.LineString(arc[:, :2]))
-                bic = segment_bic(float(res @ res) + sum(ln.rss for ln in kept), len(idx),
+                bic = segment_bic(_rss_to_curve(xy[bent], arc) + sum(ln.rss for ln in kept), len(idx),
                                   2 * d + 1 + sum(ln.n_params + 1 for ln in kept), floor)
                 if bic < best[0]:
                     best = (bic, lines[:lo] + [Curve(bent, arc, d)] + lines[hi:])
@@ -809,6 +808,12 @@ def curved_runs(points: np.ndarray, segments: list, densify: float) -> list:
         elif k not in drop:
             out.append(segments[k])
     return out
+
+
+def _rss_to_curve(xy: np.ndarray, arc: np.ndarray) -> float:
+    """Squared plan distances of points to a sampled curve, summed (m²)."""
+    res = shapely.distance(shapely.points(xy), shapely.LineString(arc[:, :2]))
+    return float(res @ res)
 
 
 def chord_curve(points: np.ndarray, ends: tuple, degree: int, densify: float) -> np.ndarray:
