@@ -60,6 +60,13 @@ def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: in
     return ok
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (M, 3) arrays: ``np.cross``'s products and differences, without its
+    per-call axis handling (the RANSAC of :func:`_rescue` calls it for every candidate plane)."""
+    return np.column_stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+                            u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]])
+
+
 def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3,
             min_density: float = 0.5):
     """Planes among the unassigned points: seeded RANSAC per 3D cluster.
@@ -91,7 +98,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             P = xyz[idx]
             tri = rng.integers(0, len(P), (trials, 3))
             v1, v2 = P[tri[:, 1]] - P[tri[:, 0]], P[tri[:, 2]] - P[tri[:, 0]]
-            n = np.cross(v1, v2)
+            n = _cross(v1, v2)
             nz = np.abs(n[:, 2])
             ok = nz > 1e-9
             if not ok.any():
@@ -104,10 +111,12 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             best = int(np.argmax(count))
             inl = np.abs(zs[:, best] - P[:, 2]) <= distance
             for _ in range(3):  # LS refinement of the consensus set
-                f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+                f, fitted = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1), inl
                 if not np.isfinite(f.planes[0]).all():
                     break
                 inl = np.abs(plane_height(f.planes[0], P[:, :2]) - P[:, 2]) <= distance
+                if np.array_equal(inl, fitted):
+                    break  # a refit of the same points gives the same plane and inliers
             if inl.sum() < floor or not np.isfinite(f.planes[0]).all() or f.planes[0, 2] < cos_max:
                 break
             # Keep the largest plan-connected part of the consensus set, and
@@ -123,7 +132,8 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
                 area = ConvexHull(P[inl, :2]).volume
             except QhullError:
                 break
-            f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+            if not np.array_equal(inl, fitted):
+                f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
             if area < min_area or inl.sum() < min_density * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
                 break
             labels[idx[inl]] = nxt
@@ -178,30 +188,39 @@ def _best_candidate_kernel(xyz, nn, labels, planes, tol, margin):  # pragma: no 
     return out
 
 
-def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
-    """Union adjacent labels (points within ``link`` m in plan) whose planes agree."""
+def _merge_coplanar(xyz, labels, fit, angle_deg, tol, plan_pairs):
+    """Union adjacent labels whose planes agree.
+
+    ``plan_pairs`` (P, 2) are the point pairs within the link distance in
+    plan, over all the points: found once per building, the labelled ones
+    are taken each round.
+    """
     K = len(fit.planes)
-    sel = np.flatnonzero(labels >= 0)
-    ij = cKDTree(xyz[sel, :2]).query_pairs(link, output_type="ndarray")
-    if len(ij) == 0:
-        return labels, False
-    a, b = labels[sel[ij[:, 0]]], labels[sel[ij[:, 1]]]
-    m = a != b
+    a, b = labels[plan_pairs[:, 0]], labels[plan_pairs[:, 1]]
+    m = (a >= 0) & (b >= 0) & (a != b)
     if not m.any():
         return labels, False
     key = np.unique(np.minimum(a[m], b[m]) * K + np.maximum(a[m], b[m]))
     pairs = np.stack([key // K, key % K], axis=1)
     cosang = np.abs(np.einsum("ij,ij->i", fit.planes[pairs[:, 0], :3], fit.planes[pairs[:, 1], :3]))
-    close = cosang >= np.cos(np.radians(angle_deg))
+    close = np.flatnonzero(cosang >= np.cos(np.radians(angle_deg)))
     ok = np.zeros(len(pairs), dtype=bool)
-    for idx in np.flatnonzero(close):
-        i, j = pairs[idx]
-        both = xyz[(labels == i) | (labels == j)]
+    if len(close):
         # Coplanar when one plane fits both regions about as well as each
         # fits its own (a narrow region's own plane extrapolates badly, so
         # testing each region against the other's plane is not enough).
-        joint = fit_planes(both, np.zeros(len(both), dtype=np.int64))
-        ok[idx] = joint.sigma[0] <= min(1.3 * max(fit.sigma[i], fit.sigma[j]), tol)
+        # All candidate pairs are fitted in one call, each pair's points in
+        # point order: the sums, and so the planes, are those of one call per pair.
+        order = np.argsort(labels, kind="stable")
+        bounds = np.searchsorted(labels[order], np.arange(K + 1))
+        members = [np.sort(np.concatenate([order[bounds[i]:bounds[i + 1]], order[bounds[j]:bounds[j + 1]]]))
+                   for i, j in pairs[close]]
+        joint = fit_planes(xyz[np.concatenate(members)],
+                           np.repeat(np.arange(len(close)), [len(x) for x in members]), len(close))
+        si, sj = fit.sigma[pairs[close, 0]], fit.sigma[pairs[close, 1]]
+        # min(1.3 max(si, sj), tol) with Python's min and max (a NaN sigma as they treat it)
+        worst = 1.3 * np.where(sj > si, sj, si)
+        ok[close] = joint.sigma <= np.where(tol < worst, tol, worst)
     if not ok.any():
         return labels, False
     comp = components(K, pairs[ok])
@@ -350,6 +369,7 @@ def segment_planes(
     # neighbourhood (2k): on scan-line patterns the k nearest points of a
     # point can all lie on its own line, which may be wholly unassigned.
     link = link or 2.5 * spacing
+    plan_pairs = cKDTree(xyz[:, :2]).query_pairs(link, output_type="ndarray")
 
     def refine(labels, rounds):
         for it in range(rounds):
@@ -367,7 +387,7 @@ def segment_planes(
             if labels.max() < 0:
                 raise GeometryError("no roof plane kept after refinement")
             fit = fit_planes(xyz, labels)
-            labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, link)
+            labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, plan_pairs)
             if not merged and it >= 1:
                 break
         return labels
