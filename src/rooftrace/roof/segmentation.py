@@ -18,6 +18,7 @@ coplanar regions and rescue small planes by RANSAC.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -27,7 +28,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, fit_planes, neighbourhood_normals, plane_height
 
-__all__ = ["segment_planes", "detail_planes"]
+__all__ = ["Neighbourhoods", "point_neighbourhoods", "segment_planes", "detail_planes"]
 
 log = logging.getLogger(__name__)
 
@@ -250,6 +251,56 @@ def _two_neighbourhoods(tree: cKDTree, xyz: np.ndarray, k: int) -> tuple[np.ndar
     return nn, wide
 
 
+@dataclass(frozen=True)
+class Neighbourhoods:
+    """The nearest neighbours of one building's points, found once for both segmentation passes.
+
+    Attributes
+    ----------
+    near : ndarray of shape (N, k), int64
+        The ``k = min(k, N)`` nearest points of every point, itself first
+        (normals and the region graph).
+    wide : ndarray of shape (N, min(2 k, N)), int64
+        The ``2 k`` nearest: the candidate planes of growing and reassignment.
+    """
+
+    near: np.ndarray
+    wide: np.ndarray
+
+    def check(self, n: int, k: int) -> None:
+        """Raise ValueError unless these are the neighbourhoods of ``n`` points with ``k`` neighbours."""
+        k = int(min(k, n))
+        if self.near.shape != (n, k) or self.wide.shape != (n, min(2 * k, n)):
+            raise ValueError(f"neighbourhoods of shape {self.near.shape} and {self.wide.shape} are not those of "
+                             f"{n} points with k={k}")
+
+
+def point_neighbourhoods(xyz: np.ndarray, k: int = 16) -> Neighbourhoods:
+    """The ``k`` and ``2 k`` nearest neighbours (3D) of every point, for :func:`segment_planes` and :func:`detail_planes`.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        One building's roof points (m).
+    k : int
+        Neighbours (capped at N).
+
+    Returns
+    -------
+    Neighbourhoods
+
+    Examples
+    --------
+    >>> xyz = np.random.default_rng(0).uniform(0, 10, (100, 3))
+    >>> nb = point_neighbourhoods(xyz, 8)
+    >>> nb.near.shape, nb.wide.shape, bool((nb.near[:, 0] == np.arange(100)).all())
+    ((100, 8), (100, 16), True)
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    near, wide = _two_neighbourhoods(cKDTree(xyz), xyz, int(min(k, len(xyz))))
+    return Neighbourhoods(near, wide)
+
+
 def segment_planes(
     xyz: np.ndarray,
     spacing: float,
@@ -263,6 +314,7 @@ def segment_planes(
     iterations: int = 4,
     max_slope: float = 75.0,
     link: float | None = None,
+    neighbourhoods: Neighbourhoods | None = None,
 ) -> tuple[np.ndarray, PlaneFit, float]:
     """Segment a building's points into roof planes.
 
@@ -298,6 +350,9 @@ def segment_planes(
     link : float, optional
         Plan distance (m) within which points of two regions make them
         neighbours for merging; default ``2.5 s``.
+    neighbourhoods : Neighbourhoods, optional
+        :func:`point_neighbourhoods` of ``xyz`` with ``k``, when the caller
+        has them (they are found here otherwise).
 
     Returns
     -------
@@ -312,8 +367,10 @@ def segment_planes(
     min_pts = max(int(np.ceil(min_area / spacing**2)), 6)
     if min_pts > N:
         raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
-    tree = cKDTree(xyz)
-    nn, nn_c = _two_neighbourhoods(tree, xyz, int(min(k, N)))
+    if neighbourhoods is None:
+        neighbourhoods = point_neighbourhoods(xyz, k)
+    neighbourhoods.check(N, k)
+    nn, nn_c = neighbourhoods.near, neighbourhoods.wide
     normals, rms, nn = neighbourhood_normals(xyz, nn)
     kk = nn.shape[1]
     med = float(np.median(rms))
@@ -416,6 +473,7 @@ def detail_planes(
     k: int = 16,
     max_slope: float = 75.0,
     link: float | None = None,
+    neighbourhoods: Neighbourhoods | None = None,
 ) -> np.ndarray:
     """A second pass of the segmentation: small planes among the points left on no plane.
 
@@ -452,6 +510,9 @@ def detail_planes(
         Steeper planes (deg) are walls and are not taken.
     link : float, optional
         3D distance (m) linking leftover points into clusters; default ``2.5 s``.
+    neighbourhoods : Neighbourhoods, optional
+        :func:`point_neighbourhoods` of ``xyz`` with ``k`` (those of
+        :func:`segment_planes`), when the caller has them.
 
     Returns
     -------
@@ -489,8 +550,13 @@ def detail_planes(
     # only the unassigned points can grow a plane: their neighbours, not
     # every point's (a city block has 10^5 points and a few hundred left over)
     un = np.flatnonzero(labels < 0)
-    _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
-    nn = nn.reshape(len(un), -1) + len(un)  # into [the unassigned points' own labels, every label]
+    if neighbourhoods is None:
+        _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
+        nn = nn.reshape(len(un), -1)
+    else:
+        neighbourhoods.check(len(xyz), k)
+        nn = neighbourhoods.wide[un]
+    nn = nn + len(un)  # into [the unassigned points' own labels, every label]
     for _ in range(3):
         grow = _best_candidate(xyz[un], nn, np.concatenate([labels[un], labels]), planes, distance)
         grow = np.where(labels[un] < 0, grow, labels[un])
