@@ -159,6 +159,20 @@ def _best_candidate(xyz, nn, labels, planes, tol, margin=0.0):
                                   np.ascontiguousarray(planes, dtype=np.float64), float(tol), float(margin))
 
 
+def _grown(xyz, nn, labels, planes, tol):
+    """``labels`` with every unassigned point on its best candidate plane (:func:`_best_candidate`).
+
+    Only the unassigned points are evaluated (a few per cent of a roof):
+    their own labels come first in the label array the kernel reads, the
+    neighbours' after them.
+    """
+    un = np.flatnonzero(labels < 0)
+    out = labels.copy()
+    if len(un):
+        out[un] = _best_candidate(xyz[un], nn[un] + len(un), np.concatenate([labels[un], labels]), planes, tol)
+    return out
+
+
 @njit(cache=True, error_model="numpy")  # x / 0 gives inf, as in numpy
 def _best_candidate_kernel(xyz, nn, labels, planes, tol, margin):  # pragma: no cover - compiled
     # the same float operations, in the same order, as the numpy form it
@@ -434,8 +448,7 @@ def segment_planes(
             # Grow into unassigned points first (ridge zones), then let every
             # point choose among its neighbours' planes.
             for _ in range(3):
-                grow = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
-                new = np.where(labels < 0, grow, labels)
+                new = _grown(xyz, nn_c, labels, fit.planes, distance)
                 if np.array_equal(new, labels):
                     break
                 labels = new
