@@ -11,8 +11,8 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull",
-           "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
+__all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "normal_links",
+           "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
 @njit(cache=True)
@@ -91,14 +91,53 @@ def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (uniq + lo).astype(values.dtype, copy=False), lookup[shifted]
 
 
+@njit(cache=True)
+def _unique_rows_of_pairs(a, b, n):  # pragma: no cover - compiled
+    """The distinct (a, b) of :func:`unique_pairs`: a counting sort on ``a``, then each (short) row sorted."""
+    start = np.zeros(n + 1, np.int64)
+    for e in range(len(a)):
+        start[a[e] + 1] += 1
+    for r in range(n):
+        start[r + 1] += start[r]
+    fill = start[:-1].copy()
+    col = np.empty(len(a), np.int64)
+    for e in range(len(a)):
+        col[fill[a[e]]] = b[e]
+        fill[a[e]] += 1
+    out = np.empty((len(a), 2), np.int64)
+    u = 0
+    for r in range(n):
+        lo, hi = start[r], start[r + 1]
+        if hi - lo > 48:
+            col[lo:hi] = np.sort(col[lo:hi])
+        else:
+            for s in range(lo + 1, hi):  # a plan neighbourhood: a few dozen at most
+                v = col[s]
+                t = s
+                while t > lo and col[t - 1] > v:
+                    col[t] = col[t - 1]
+                    t -= 1
+                col[t] = v
+        for s in range(lo, hi):
+            if s == lo or col[s] != col[s - 1]:
+                out[u, 0] = r
+                out[u, 1] = col[s]
+                u += 1
+    return out[:u].copy()
+
+
 def unique_pairs(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
-    """``np.unique(np.column_stack([a, b]), axis=0)`` of integers in [0, n), by one int64 key per pair.
+    """``np.unique(np.column_stack([a, b]), axis=0)`` of integers in [0, n).
 
     Returns the distinct (a, b) pairs as (U, 2) int64, in (a, b) order.
     """
-    key = np.asarray(a, dtype=np.int64) * n + np.asarray(b, dtype=np.int64)
+    a = np.ascontiguousarray(a, dtype=np.int64)
+    b = np.ascontiguousarray(b, dtype=np.int64)
+    if n <= 4 * len(a) + 1024:
+        # counting on a: np.sort of the 7 million int64 keys of Delft's plan pairs took 0.6-1.0 s
+        return _unique_rows_of_pairs(a, b, int(n))
     # a sort, not np.unique: its hash path took 30 s on the 5 million pairs of an AHN3 tile
-    key = np.sort(key)
+    key = np.sort(a * n + b)
     key = key[np.r_[True, key[1:] != key[:-1]]] if len(key) else key
     return np.column_stack([key // n, key % n])
 
@@ -387,6 +426,29 @@ def sort_by_bucket(values: np.ndarray, key: np.ndarray) -> np.ndarray:
                              np.ascontiguousarray(values, np.float64))
 
 
+@njit(cache=True)
+def _octant(dx, dy):  # pragma: no cover - compiled
+    """Sector (of 8, the first starting at -x) of the direction (dx, dy) from its signs, -1 near a border.
+
+    The sector of ``int((arctan2(dy, dx) + pi) / (pi / 4))`` without the
+    arctangent; where the direction lies within 1e-9 (relative) of an axis
+    or a diagonal the rounding of that formula decides, so -1 asks for it.
+    """
+    ax, ay = abs(dx), abs(dy)
+    if ax == 0.0 or ay == 0.0:
+        return -1
+    if ay <= 1e-9 * ax or ax <= 1e-9 * ay or abs(ax - ay) <= 1e-9 * (ax + ay):
+        return -1
+    steep = ay > ax
+    if dy < 0.0:
+        if dx < 0.0:
+            return 1 if steep else 0
+        return 2 if steep else 3
+    if dx > 0.0:
+        return 5 if steep else 4
+    return 6 if steep else 7
+
+
 @njit(cache=True, parallel=True)
 def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n_sectors, out):  # pragma: no cover
     """Nearest point per angular sector of each row within ``radius``; ties go to the lower index.
@@ -411,8 +473,10 @@ def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n
                     if d > r2 or d == 0.0:
                         continue
                     j = order[s]
-                    a = np.arctan2(dy, dx) + np.pi
-                    k = min(int(a / width), n_sectors - 1)
+                    k = _octant(dx, dy) if n_sectors == 8 else -1
+                    if k < 0:
+                        a = np.arctan2(dy, dx) + np.pi
+                        k = min(int(a / width), n_sectors - 1)
                     if d < best[k] or (d == best[k] and j < out[r, k]):
                         best[k] = d
                         out[r, k] = j
@@ -456,3 +520,32 @@ def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: i
     _sector_scan(xy, order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side, rows, float(radius),
                  int(n_sectors), out)
     return out
+
+
+@njit(cache=True)
+def _dot3(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
+    # numpy's einsum("ij,ij->i") adds the three products in this order
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@njit(cache=True, parallel=True)
+def normal_links(xyz, normals, pairs, link_height, min_cos):  # pragma: no cover - compiled
+    """The normal test of region growing for each pair, without numpy's (M, 3) temporaries.
+
+    ``|n_i·(p_i − p_j)| < link_height`` and ``|n_j·(p_i − p_j)| < link_height``,
+    and, when ``min_cos`` > -1, ``|n_i·n_j| >= min_cos``.  The products are
+    summed in einsum's order, so the dot products are numpy's to the bit.
+    """
+    keep = np.empty(len(pairs), np.bool_)
+    for e in numba.prange(len(pairs)):
+        i, j = pairs[e, 0], pairs[e, 1]
+        dx = xyz[i, 0] - xyz[j, 0]
+        dy = xyz[i, 1] - xyz[j, 1]
+        dz = xyz[i, 2] - xyz[j, 2]
+        ok = (abs(_dot3(normals[i, 0], normals[i, 1], normals[i, 2], dx, dy, dz)) < link_height
+              and abs(_dot3(normals[j, 0], normals[j, 1], normals[j, 2], dx, dy, dz)) < link_height)
+        if ok and min_cos > -1.0:
+            ok = abs(_dot3(normals[i, 0], normals[i, 1], normals[i, 2],
+                           normals[j, 0], normals[j, 1], normals[j, 2])) >= min_cos
+        keep[e] = ok
+    return keep
