@@ -144,3 +144,19 @@ def test_octant_is_the_arctangent_formula():
     got = np.array([_octant(x, y) for x, y in d])
     fast = got >= 0
     assert fast.mean() > 0.8 and np.array_equal(got[fast], ref[fast])
+
+
+def test_count_within_is_the_ball_count_of_each_label():
+    from rooftrace.lidar._kernels import count_within
+
+    rng = np.random.default_rng(11)
+    xy = np.concatenate([rng.uniform(0, 30, (2000, 2)), rng.integers(0, 40, (1000, 2)) * 0.25])  # ties at r
+    label = rng.integers(0, 4, len(xy))
+    flag = rng.random(len(xy)) < 0.3
+    count, flagged = count_within(xy, label, flag, 0.5)
+    for lab in range(4):
+        on = np.flatnonzero(label == lab)
+        tree = cKDTree(xy[on])
+        assert np.array_equal(count[on], tree.query_ball_point(xy[on], 0.5, return_length=True))
+        ref = [sum(flag[on[j]] for j in nb) for nb in tree.query_ball_point(xy[on], 0.5)]
+        assert np.array_equal(flagged[on], ref)

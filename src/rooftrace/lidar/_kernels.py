@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "normal_links",
+__all__ = ["GridKnn", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "normal_links",
            "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
@@ -131,8 +131,9 @@ def unique_pairs(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
 
     Returns the distinct (a, b) pairs as (U, 2) int64, in (a, b) order.
     """
-    a = np.ascontiguousarray(a, dtype=np.int64)
-    b = np.ascontiguousarray(b, dtype=np.int64)
+    # columns of a pair array stay views: copying Delft's 7 million took a third of the count
+    a = np.asarray(a, dtype=np.int64)
+    b = np.asarray(b, dtype=np.int64)
     if n <= 4 * len(a) + 1024:
         # counting on a: np.sort of the 7 million int64 keys of Delft's plan pairs took 0.6-1.0 s
         return _unique_rows_of_pairs(a, b, int(n))
@@ -245,23 +246,78 @@ def _knn_build(xyz, x0, y0, side, nx, ny):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi):  # pragma: no cover
-    """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie."""
+def _select_smallest(cd, ci, m, kk):  # pragma: no cover - compiled
+    """Reorder ``cd[:m]`` (and ``ci``) so that ``cd[:kk]`` holds its kk smallest values (quickselect)."""
+    lo, hi = 0, m - 1
+    target = kk - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        a, b, c = cd[lo], cd[mid], cd[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while cd[i] < pivot:
+                i += 1
+            while cd[j] > pivot:
+                j -= 1
+            if i <= j:
+                cd[i], cd[j] = cd[j], cd[i]
+                ci[i], ci[j] = ci[j], ci[i]
+                i += 1
+                j -= 1
+        if target <= j:
+            hi = j
+        elif target >= i:
+            lo = i
+        else:
+            break
+
+
+@njit(cache=True)
+def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi, cd, ci):  # pragma: no cover
+    """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie.
+
+    ``cd``, ``ci``: room for the points of any 3 x 3 cells.
+    """
     px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
     cx = cell[i] // ny
     cy = cell[i] - cx * ny
     margin = 1e-9 * side  # a point may sit an ulp outside its cell
     kk = k + 1
-    cnt = 0
-    worst = np.inf
-    ring = 0
+    # the cell and the ring around it hold the neighbours of nearly every
+    # point (a cell holds ~k/pi points): all their distances, the k + 1
+    # smallest selected and sorted, instead of an insertion each
+    m = 0
+    for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+        for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+            c = gx * ny + gy
+            for s in range(start[c], start[c + 1]):
+                dx = xs[s] - px
+                dy = ys[s] - py
+                dz = zs[s] - pz
+                # the same sum order as cKDTree's squared distance
+                cd[m] = dx * dx + dy * dy + dz * dz
+                ci[m] = perm[s]
+                m += 1
+    if m > kk:
+        _select_smallest(cd, ci, m, kk)
+    cnt = min(m, kk)
+    for s in range(cnt):
+        d, p = cd[s], s
+        while p > 0 and bd[p - 1] > d:
+            bd[p] = bd[p - 1]
+            bi[p] = bi[p - 1]
+            p -= 1
+        bd[p] = d
+        bi[p] = ci[s]
+    worst = bd[kk - 1] if cnt == kk else np.inf
+    ring = 2
     while True:
-        if ring > 0:
-            gap = max((ring - 1) * side - margin, 0.0)
-            if gap * gap >= worst:
-                break
-            if cx - ring < 0 and cy - ring < 0 and cx + ring >= nx and cy + ring >= ny:
-                break
+        gap = max((ring - 1) * side - margin, 0.0)
+        if gap * gap >= worst:
+            break
+        if cx - ring < 0 and cy - ring < 0 and cx + ring >= nx and cy + ring >= ny:
+            break
         for gx in range(max(cx - ring, 0), min(cx + ring, nx - 1) + 1):
             side_x = gx == cx - ring or gx == cx + ring
             for gy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
@@ -293,7 +349,6 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
                         break  # the rest of the cell is higher still
                     dx = xs[s] - px
                     dy = ys[s] - py
-                    # the same sum order as cKDTree's squared distance
                     d = dx * dx + dy * dy + dz * dz
                     if d < worst:
                         if cnt < kk:
@@ -319,11 +374,21 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
 @njit(cache=True, parallel=True)
 def _knn_query(rows, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, out, tie):  # pragma: no cover
     n = len(rows)
+    # the most points any 3 x 3 cells hold
+    block = 0
+    for cx in range(nx):
+        for cy in range(ny):
+            block_n = 0
+            for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+                block_n += start[gx * ny + min(cy + 1, ny - 1) + 1] - start[gx * ny + max(cy - 1, 0)]
+            block = max(block, block_n)
     for b in numba.prange((n + 255) // 256):
         bd = np.empty(k + 1)
         bi = np.empty(k + 1, np.int64)
+        cd = np.empty(block)
+        ci = np.empty(block, np.int64)
         for r in range(b * 256, min(n, (b + 1) * 256)):
-            tie[r] = _knn_one(rows[r], xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi)
+            tie[r] = _knn_one(rows[r], xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi, cd, ci)
             for q in range(k):
                 out[r, q] = bi[q]
 
@@ -508,6 +573,18 @@ def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: i
     out = np.full((len(rows), n_sectors), -1, np.int64)
     if len(xy) < 2 or len(rows) == 0:
         return out
+    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, float(radius))
+    _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, float(radius), int(n_sectors), out)
+    return out
+
+
+def _plan_grid(xy: np.ndarray, radius: float) -> tuple:
+    """Plan cells at least ``radius`` wide (and ~4 points a cell at most), the points in cell order.
+
+    Returns (order, xs, ys, start, nx, ny, x0, y0, side): the points of cell
+    c are ``order[start[c]:start[c + 1]]`` (ascending), ``xs``, ``ys`` their
+    coordinates in that order, so that a scan of a cell reads them in sequence.
+    """
     lo = xy.min(axis=0)
     span = xy.max(axis=0) - lo
     side = max(float(radius), float(np.sqrt(span[0] * span[1] / (4.0 * len(xy)))), 1e-6)
@@ -517,9 +594,64 @@ def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: i
     order = np.argsort(key, kind="stable")
     start = np.searchsorted(key[order], np.arange(nx * ny + 1))
     xs, ys = np.ascontiguousarray(xy[order, 0]), np.ascontiguousarray(xy[order, 1])
-    _sector_scan(xy, order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side, rows, float(radius),
-                 int(n_sectors), out)
-    return out
+    return order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side
+
+
+@njit(cache=True, parallel=True)
+def _count_within(xy, label, flag, order, xs, ys, start, nx, ny, x0, y0, side, r2, count, flagged):  # pragma: no cover
+    for i in numba.prange(len(xy)):
+        px, py = xy[i, 0], xy[i, 1]
+        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
+        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        c = 0
+        f = 0
+        for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+            for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                g = gx * ny + gy
+                for s in range(start[g], start[g + 1]):
+                    j = order[s]
+                    if label[j] != label[i]:
+                        continue
+                    dx = xs[s] - px
+                    dy = ys[s] - py
+                    # cKDTree's squared distance and its ball test (d <= r²)
+                    if dx * dx + dy * dy <= r2:
+                        c += 1
+                        f += flag[j]
+        count[i] = c
+        flagged[i] = f
+
+
+def count_within(xy: np.ndarray, label: np.ndarray, flag: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points of the same label within ``radius`` in plan of each point (itself included), and the flagged ones.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Plan coordinates (m).
+    label : ndarray of shape (N,), int
+        Label of each point.
+    flag : ndarray of shape (N,), bool
+    radius : float
+        Plan radius (m), included.
+
+    Returns
+    -------
+    count, flagged : ndarray of shape (N,), int64
+        The counts of ``cKDTree.query_ball_point(..., return_length=True)``
+        of the points of each label apart, without a tree per label.
+    """
+    xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2])
+    count = np.zeros(len(xy), np.int64)
+    flagged = np.zeros(len(xy), np.int64)
+    if len(xy) == 0:
+        return count, flagged
+    # cells a little wider than the radius: a pair at exactly the radius
+    # never lies two cells apart by the rounding of the cell index
+    grid = _plan_grid(xy, float(radius) * (1.0 + 1e-9))
+    _count_within(xy, np.ascontiguousarray(label, np.int64), np.ascontiguousarray(flag, np.int64), *grid,
+                  float(radius) ** 2, count, flagged)
+    return count, flagged
 
 
 @njit(cache=True)
