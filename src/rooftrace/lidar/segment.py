@@ -42,8 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.lidar._kernels import (dense_unique, lowest_point_per_group, normal_links, sector_nearest,
-                                      unique_pairs)
+from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group, normal_links, sector_nearest, unique_pairs
 from rooftrace.options import optional
 
 __all__ = ["SegmentOptions", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels",
