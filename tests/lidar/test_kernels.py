@@ -160,3 +160,20 @@ def test_count_within_is_the_ball_count_of_each_label():
         assert np.array_equal(count[on], tree.query_ball_point(xy[on], 0.5, return_length=True))
         ref = [sum(flag[on[j]] for j in nb) for nb in tree.query_ball_point(xy[on], 0.5)]
         assert np.array_equal(flagged[on], ref)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_nearest_within_is_the_bounded_kdtree_query(dims):
+    from rooftrace.lidar._kernels import nearest_within
+
+    rng = np.random.default_rng(12)
+    data = np.concatenate([rng.uniform(0, 20, (3000, dims)), rng.integers(0, 40, (1500, dims)) * 0.25])
+    queries = np.concatenate([rng.uniform(-1, 21, (2000, dims)), rng.integers(0, 40, (1000, dims)) * 0.25 + 0.125])
+    j, tie = nearest_within(data, queries, 0.5)
+    dist, ref = cKDTree(data).query(queries, distance_upper_bound=0.5)
+    ref = np.where(np.isfinite(dist), ref, -1)
+    assert tie.any() and (j >= 0).any() and (j < 0).any()
+    assert np.array_equal(j[~tie], ref[~tie])
+    # a tie is two points at one distance, the nearest
+    d = np.linalg.norm(data[j[tie]] - queries[tie], axis=1)
+    assert np.allclose(d, dist[tie])

@@ -11,7 +11,8 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["GridKnn", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "normal_links",
+__all__ = ["GridKnn", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group",
+           "nearest_within", "normal_links",
            "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
@@ -654,6 +655,71 @@ def count_within(xy: np.ndarray, label: np.ndarray, flag: np.ndarray, radius: fl
     _count_within(xy, np.ascontiguousarray(label, np.int64), np.ascontiguousarray(flag, np.int64), *grid,
                   float(radius) ** 2, count, flagged)
     return count, flagged
+
+
+@njit(cache=True, parallel=True)
+def _nearest_scan(queries, order, xs, ys, zs, start, nx, ny, x0, y0, side, r2, out, tie):  # pragma: no cover
+    for q in numba.prange(len(queries)):
+        px, py = queries[q, 0], queries[q, 1]
+        pz = queries[q, 2] if len(zs) else 0.0
+        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
+        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        best = r2
+        bj = -1
+        t = False
+        for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+            for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                g = gx * ny + gy
+                for s in range(start[g], start[g + 1]):
+                    dx = xs[s] - px
+                    dy = ys[s] - py
+                    # cKDTree's squared distance, and its bound (d < r²)
+                    d = dx * dx + dy * dy
+                    if len(zs):
+                        dz = zs[s] - pz
+                        d = d + dz * dz
+                    if d < best:
+                        best = d
+                        bj = order[s]
+                        t = False
+                    elif d == best and bj >= 0:
+                        t = True
+        out[q] = bj
+        tie[q] = t
+
+
+def nearest_within(data: np.ndarray, queries: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest point of ``data`` closer than ``radius`` to each query, as ``cKDTree.query(..., distance_upper_bound)``.
+
+    Parameters
+    ----------
+    data : ndarray of shape (N, D), float64
+        Points (m), D = 2 (plan) or 3.
+    queries : ndarray of shape (M, D), float64
+    radius : float
+        Distances must be shorter than this (m).
+
+    Returns
+    -------
+    nearest : ndarray of shape (M,), int64
+        Index into ``data``, -1 where none is closer than ``radius``.
+    tie : ndarray of shape (M,), bool
+        Queries with two nearest points at the same distance: which one the
+        KD-tree returns follows its traversal; ask it.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    queries = np.ascontiguousarray(queries, dtype=np.float64)
+    out = np.full(len(queries), -1, np.int64)
+    tie = np.zeros(len(queries), bool)
+    if len(data) == 0 or len(queries) == 0:
+        return out, tie
+    xy = np.ascontiguousarray(data[:, :2])
+    # cells a little wider than the radius: a point at the radius never lies
+    # two cells away by the rounding of the cell index
+    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, float(radius) * (1.0 + 1e-9))
+    zs = np.ascontiguousarray(data[order, 2]) if data.shape[1] > 2 else np.empty(0)
+    _nearest_scan(queries, order, xs, ys, zs, start, nx, ny, x0, y0, side, float(radius) ** 2, out, tie)
+    return out, tie
 
 
 @njit(cache=True)
