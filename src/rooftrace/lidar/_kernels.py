@@ -593,11 +593,25 @@ def _plan_grid(xy: np.ndarray, radius: float) -> tuple:
     side = max(float(radius), float(np.sqrt(span[0] * span[1] / (4.0 * len(xy)))), 1e-6)
     nx, ny = int(span[0] // side) + 1, int(span[1] // side) + 1
     ij = np.minimum(np.floor((xy - lo) / side).astype(np.int64), [nx - 1, ny - 1])
-    key = ij[:, 0] * ny + ij[:, 1]
-    order = np.argsort(key, kind="stable")
-    start = np.searchsorted(key[order], np.arange(nx * ny + 1))
+    order, start = _counting_order(ij[:, 0] * ny + ij[:, 1], nx * ny)
     xs, ys = np.ascontiguousarray(xy[order, 0]), np.ascontiguousarray(xy[order, 1])
     return order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side
+
+
+@njit(cache=True)
+def _counting_order(key, n_keys):  # pragma: no cover - compiled
+    """``np.argsort(key, kind="stable")`` of keys in [0, n_keys) and where each key starts in it, by counting."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for i in range(len(key)):
+        start[key[i] + 1] += 1
+    for c in range(n_keys):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return order, start
 
 
 @njit(cache=True, parallel=True)
