@@ -33,7 +33,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rooftrace.lidar._kernels import count_within, pair_pull
+from rooftrace.lidar._kernels import count_within, pair_pull, sort_by_bucket
 from rooftrace.options import optional
 
 __all__ = ["ClassifyOptions", "cluster_means", "cluster_medians", "interior_points", "kmeans_1d", "local_penetration",
@@ -275,7 +275,8 @@ def cluster_medians(labels: np.ndarray, values: np.ndarray, k: int | None = None
     k = int(labels.max(initial=-1)) + 1 if k is None else k
     ok = np.flatnonzero(labels >= 0)
     values = np.asarray(values, float)[ok]
-    order = np.lexsort((values, labels[ok]))
+    # a counting sort on the (dense) labels, then each cluster: np.lexsort((values, labels))'s order
+    order = sort_by_bucket(values, labels[ok])
     counts = np.bincount(labels[ok], minlength=k)
     start = np.concatenate([[0], np.cumsum(counts)[:-1]])
     out = np.full(k, np.nan)
