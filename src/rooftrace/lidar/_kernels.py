@@ -95,16 +95,10 @@ def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 @njit(cache=True)
 def _unique_rows_of_pairs(a, b, n):  # pragma: no cover - compiled
     """The distinct (a, b) of :func:`unique_pairs`: a counting sort on ``a``, then each (short) row sorted."""
-    start = np.zeros(n + 1, np.int64)
-    for e in range(len(a)):
-        start[a[e] + 1] += 1
-    for r in range(n):
-        start[r + 1] += start[r]
-    fill = start[:-1].copy()
+    order, start = _counting_order(a, n)
     col = np.empty(len(a), np.int64)
     for e in range(len(a)):
-        col[fill[a[e]]] = b[e]
-        fill[a[e]] += 1
+        col[e] = b[order[e]]
     out = np.empty((len(a), 2), np.int64)
     u = 0
     for r in range(n):
