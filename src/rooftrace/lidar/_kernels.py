@@ -12,8 +12,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["GridKnn", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group",
-           "nearest_within", "normal_links",
-           "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
+           "nearest_within", "normal_links", "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
 @njit(cache=True)
