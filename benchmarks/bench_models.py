@@ -24,6 +24,11 @@ Delft tiles, EPSG:28992):
   within 0.3 m of a footprint's boundary (the facades); the points on no
   plane further by kind (``wall``, ``small``, ``planar``, ``non_planar``:
   ``_no_plane_kinds``), in the strict sum of squares and the top-surface one;
+- **the issue's RMSE calibrated**: every candidate definition (points
+  inside the BGT footprints, without facade points, top surface only; pooled
+  or per building; 3D distance to the solid) for every level
+  (:func:`metric_variants`); the one whose flat LoD 1.2 score reproduces the
+  issue's "about 1.6 m" (:data:`CALIBRATED_RMSE`) carries the 0.15 m target;
 - **complementary LoD 2.2 figures**, beside the strict RMSE, never instead
   of it: the RMSE of the top surface only (class-6 points with no class-6
   point more than 0.5 m higher within 0.3 m in plan: no facade points under
@@ -66,7 +71,7 @@ from rooftrace.io.footprints import read_footprints
 from rooftrace.io.models import write_models
 from rooftrace.io.points import read_points
 from rooftrace.model import LODS, solid_errors
-from rooftrace.model.measure import roof_height_at
+from rooftrace.model.measure import roof_height_at, surface_distance
 from rooftrace.pipeline import points_by_building, run_pipeline
 from rooftrace.roof.planes import fit_planes, plane_height, point_normals
 from rooftrace.roof.structure import RoofOptions
@@ -133,6 +138,88 @@ def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprint
                   "unit": ""},
                  {"method": "rooftrace", "metric": "lod22_sse_share_facade_03m", "value": share, "unit": ""}]
     return rows
+
+
+def metric_variants(models, pts: np.ndarray, reference) -> list[dict]:
+    """The fit of the class-6 points ``pts`` to each LoD under candidate definitions of the issue's RMSE.
+
+    Calibration, not choice: the issue gives one anchor (flat LoD 1.2 roofs
+    score about 1.6 m on Delft with the BGT footprints), so each definition
+    is computed for every level and the one that reproduces the anchor says
+    what the 0.15 m LoD 2.2 target means (:data:`CALIBRATED_RMSE`).
+    ``reference`` are the provider's footprints (BGT), used only to select
+    points, in both modes.  Metric ``rmse_<selection>_<aggregation>_lodXX``;
+    the points, each under the roof of the level's building over it:
+
+    - selection ``all`` (every such point), ``in_footprint`` (inside a
+      reference footprint: no overhang or facade points beyond the
+      cadastral wall line), ``no_wall`` (no class-6 point more than 1 m
+      higher within 0.5 m in plan: no facade points) and ``top`` (none more
+      than 0.5 m higher within 0.3 m, :func:`top_surface`);
+    - aggregation ``pooled`` (one RMSE of all points), ``building_mean`` /
+      ``building_median`` (each building's RMSE, buildings with 10 points or
+      more, then the mean / median);
+    - ``mesh3d_<selection>_pooled``: the 3D distance to the nearest surface
+      (roof, wall, ground) of the building's solids instead of the vertical
+      one, as roofer/3DBAG measure a model against its points.
+
+    ``rmse_all_pooled`` is the strict figure (``rmse_class6_lodXX``).
+    """
+    inside = np.zeros(len(pts), bool)
+    ip, _ = shapely.STRtree(reference).query(shapely.points(pts[:, :2]), predicate="intersects")
+    inside[ip] = True
+    pairs = cKDTree(pts[:, :2]).query_pairs(0.5, output_type="ndarray")
+    highest = pts[:, 2].copy()
+    np.maximum.at(highest, pairs[:, 0], pts[pairs[:, 1], 2])
+    np.maximum.at(highest, pairs[:, 1], pts[pairs[:, 0], 2])
+    selections = {"all": np.ones(len(pts), bool), "in_footprint": inside, "no_wall": highest <= pts[:, 2] + 1.0,
+                  "top": top_surface(pts)}
+    order = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[order, 0]
+    rows = []
+    for lod in LODS:
+        key = lod.replace(".", "")
+        per_building = [[p.lods[lod] for p in m.parts if lod in p.lods] for m in models]
+        per_building = [s for s in per_building if s]
+        # each point goes to the building whose roof is highest over it (the pooled roof_height_at's choice)
+        h = np.full(len(pts), np.nan)
+        owner = np.full(len(pts), -1)
+        for b, solids in enumerate(per_building):
+            x0 = min(float(r[:, 0].min()) for s in solids for f in s.surfaces for r in f.rings)
+            x1 = max(float(r[:, 0].max()) for s in solids for f in s.surfaces for r in f.rings)
+            near = order[np.searchsorted(xs, x0):np.searchsorted(xs, x1, side="right")]
+            hb = roof_height_at(solids, pts[near, :2])
+            higher = np.isfinite(hb) & ~(hb <= h[near])
+            h[near[higher]] = hb[higher]
+            owner[near[higher]] = b
+        dz = pts[:, 2] - h
+        under = np.isfinite(h)
+        values = {}
+        for name, sel in selections.items():
+            sel = sel & under
+            per = np.array([np.sqrt(np.mean(dz[sel & (owner == b)] ** 2)) for b in range(len(per_building))
+                            if np.sum(sel & (owner == b)) >= 10])
+            values[f"{name}_pooled"] = np.sqrt(np.mean(dz[sel] ** 2))
+            values[f"{name}_building_mean"] = np.mean(per)
+            values[f"{name}_building_median"] = np.median(per)
+        dist = np.full(len(pts), np.nan)
+        for b, solids in enumerate(per_building):
+            sel = np.flatnonzero(owner == b)
+            if len(sel):
+                dist[sel] = surface_distance(solids, pts[sel])
+        for name in ("all", "in_footprint"):
+            values[f"mesh3d_{name}_pooled"] = np.sqrt(np.mean(dist[under & selections[name]] ** 2))
+        print(f"LoD {lod} RMSE variants: " + ", ".join(f"{k} {v:.3f}" for k, v in values.items()))
+        rows += [{"method": "rooftrace", "metric": f"rmse_{k}_lod{key}", "value": float(v), "unit": "m",
+                  "target": "<= 0.15" if lod == "2.2" and k == CALIBRATED_RMSE else None}
+                 for k, v in values.items()]
+    return rows
+
+
+#: the variant of :func:`metric_variants` whose flat LoD 1.2 score reproduces the issue's "about 1.6 m" on Delft
+#: with the BGT footprints (1.62 m; the next ones: ``no_wall_building_mean`` 1.57, ``top_building_median`` 1.55,
+#: ``all_building_mean`` 1.99, ``all_pooled`` 2.82, ``mesh3d_in_footprint_pooled`` 0.87)
+CALIBRATED_RMSE = "top_building_mean"
 
 
 def top_surface(xyz: np.ndarray, radius: float = 0.3, rise: float = 0.5) -> np.ndarray:
@@ -292,6 +379,9 @@ def main() -> None:
              {"method": "rooftrace", "metric": "rmse_class6_lod22_building_median", "value": med_building,
               "unit": "m", "target": None}]
     rows += _misfit_sources(cloud, result, provider[covered], pts[covered], footprints)
+    # what the issue's RMSE is: every candidate definition, for every level (the LoD 1.2 anchor decides)
+    reference = footprints if footprints is not None else read_footprints(DELFT / "bgt_pand.sqlite", cloud.crs)
+    rows += metric_variants(models, pts, reference.polygons)
     # where the misfit is: by plan distance to the model's outline (facades, steps near it)
     solids = [p.lods["2.2"] for m in models for p in m.parts if "2.2" in p.lods]
     outline = shapely.union_all([p.footprint for m in models for p in m.parts if "2.2" in p.lods])
