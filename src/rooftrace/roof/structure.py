@@ -76,7 +76,8 @@ class RoofOptions:
         a cluster of points left on no plane after the second pass whose
         median height is more than ``step_height`` above the roof under it
         (parapets, gable tops, chimneys of a few points) becomes a
-        horizontal plane at its mean height, with a face but no lines.
+        horizontal plane at the mean height of its top (its points within
+        ``step_height`` of its highest), with a face but no lines.  0 or
         ``None`` turns it off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
@@ -161,8 +162,8 @@ class RoofOptions:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.face_boundaries not in ("each", "held", "free"):
             raise ValueError(f"face_boundaries must be 'each', 'held' or 'free', got {self.face_boundaries!r}")
-        if self.min_block_points is not None and int(self.min_block_points) < 1:
-            raise ValueError(f"min_block_points must be at least 1 or None, got {self.min_block_points}")
+        if self.min_block_points is not None and int(self.min_block_points) < 0:
+            raise ValueError(f"min_block_points must be >= 0 or None, got {self.min_block_points}")
         for f in dataclasses.fields(self):
             if f.default is None:
                 v = getattr(self, f.name)
@@ -372,7 +373,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     detail = np.arange(len(fit.planes)) >= n_main
     if detail.any():
         fit = level_untilted(xyz, labels, fit, detail)
-    if opt.min_block_points is not None:
+    if opt.min_block_points:
         labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
                                    link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
