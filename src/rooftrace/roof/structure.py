@@ -105,7 +105,10 @@ class RoofOptions:
     step_height : float
         Smallest height jump (m) between neighbouring faces for a step edge.
     cell : float or None
-        Raster cell (m) of the face partition; default ``s / 2``.
+        Raster cell (m) of the face partition; default ``s / 4``: at a
+        height step the points of the two levels lie closer than ``s`` in
+        plan, and a cell of ``s / 2`` holding points of both put one of
+        them under the other level's face.
     face_boundaries : {'each', 'held', 'free'}
         How the face boundaries are simplified
         (:func:`rooftrace.roof.faces.partition_outline`): ``'each'`` every
@@ -398,7 +401,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         roof.status = "no_lines"
         return roof
     roof.ridges, roof.ridge_kind, roof.ridge_planes = list(lines.lines), list(lines.kinds), list(lines.pairs)
-    cell = opt.cell or s / 2
+    cell = opt.cell or s / 4
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
