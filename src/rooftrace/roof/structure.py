@@ -75,9 +75,10 @@ class RoofOptions:
         Fewest points of a flat block (:func:`rooftrace.roof.superstructures.block_planes`):
         a cluster of points left on no plane after the second pass whose
         median height is more than ``step_height`` above the roof under it
-        (parapets, gable tops, chimneys of a few points) becomes a
-        horizontal plane at the mean height of its top (its points within
-        ``step_height`` of its highest), with a face but no lines.  0 or
+        (parapets, gable tops, chimneys of a few points) becomes
+        horizontal planes, peeled from its top in layers of
+        ``step_height`` while a layer stands that high above the roof, each
+        at its points' mean height, with a face but no lines.  0 or
         ``None`` turns it off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.

@@ -5,10 +5,12 @@ leave points on no plane when they are too few, too rough or too narrow
 for a plane: chains along a parapet or a gable wall rising above the roof,
 chimneys of a few points, vents.  Under the faces of the planes around them
 such points sit metres above the roof surface.  As LoD 1.3 models a roof
-by flat blocks, each cluster of such points that stands above the roof
-becomes a horizontal plane at its points' mean height (the least-squares
-horizontal) of its top (the points within ``rise`` of its highest: the sides
-of a chimney are walls); the face partition gives it its face like any plane.
+by flat blocks, each cluster of such points is peeled from its top in
+layers ``rise`` deep, as seen from above, while a layer stands more than
+``rise`` above the roof: each such layer becomes a horizontal plane at its
+points' mean height (the least-squares horizontal), a parapet's coping on
+its wall, a gable's sloping top in steps, a chimney's top without its
+sides; the face partition gives each its face like any plane.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ __all__ = ["block_planes"]
 
 def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 4,
                  rise: float = 0.5, link: float | None = None, min_density: float = 0.25):
-    """Horizontal planes for the clusters of points on no plane that stand above the roof.
+    """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
     Parameters
     ----------
@@ -39,11 +41,10 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     min_points : int
         Fewest points of a block.
     rise : float
-        Median height (m) of a cluster's points above the plane of their
-        nearest labelled point that makes it a block; lower clusters (wall
-        points under the eaves, a rough strip of the roof itself) stay on
-        no plane.  Also the depth of the block's top: points of the cluster
-        more than this below its highest point stay on no plane.
+        Depth (m) of a layer, and the median height of a layer's points
+        above the plane of their nearest labelled point that makes it a
+        block; lower layers (wall points under the eaves, a rough strip of
+        the roof itself) stay on no plane.
     link : float, optional
         3D distance (m) linking points into clusters; default ``2.5 s``.
     min_density : float
@@ -85,21 +86,22 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     order = np.argsort(comp, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
     blocks = []
-    for members in np.split(order, starts[1:]):
-        if len(members) < min_points or not np.median(above[members]) > rise:
-            continue
-        # the block is the cluster's top, as seen from above: a chimney's or a parapet's sides below it are walls
-        z = xyz[un[members], 2]
-        members = members[z >= z.max() - rise]
-        if len(members) < min_points:
-            continue
-        try:
-            area = ConvexHull(xyz[un[members], :2]).volume
-        except QhullError:
-            area = 0.0  # a chain of points (a parapet's coping seen by one scan line)
-        if len(members) < min_density * area / spacing**2:
-            continue
-        blocks.append(un[members])
+    for cluster in np.split(order, starts[1:]):
+        # peeled from the top, a layer of ``rise`` at a time, as seen from above: a parapet on its wall, a
+        # gable's sloping top in steps; the layers under the roof's own height are walls and stay on none
+        while len(cluster) >= min_points:
+            z = xyz[un[cluster], 2]
+            top = z >= z.max() - rise
+            layer = cluster[top]
+            if len(layer) < min_points or not np.median(above[layer]) > rise:
+                break
+            cluster = cluster[~top]
+            try:
+                area = ConvexHull(xyz[un[layer], :2]).volume
+            except QhullError:
+                area = 0.0  # a chain of points (a parapet's coping seen by one scan line)
+            if len(layer) >= min_density * area / spacing**2:
+                blocks.append(un[layer])
     if not blocks:
         return labels, fit
     labels = labels.copy()
