@@ -44,8 +44,9 @@ Usage::
     .venv/bin/python benchmarks/bench_models.py
     .venv/bin/python benchmarks/bench_models.py --val3dity /opt/val3dity/bin/val3dity
     .venv/bin/python benchmarks/bench_models.py --footprints ../shared/data/3dfier_delft_ahn3_bgt/bgt_pand.sqlite
+    .venv/bin/python benchmarks/bench_models.py --ign   # IGN LiDAR HD Montpellier, LiDAR only
 
-Recorded as dataset ``delft`` (LiDAR-only buildings) or ``delft_footprints``.
+Recorded as dataset ``delft`` (LiDAR-only buildings), ``delft_footprints`` or ``ign``.
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ from rooftrace.roof.structure import RoofOptions
 from val3dity import BUILD_HINT, validate
 
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
+IGN = DATA / "ign_montpellier_lidarhd_bdortho"
 
 
 def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprints) -> list[dict]:
@@ -148,7 +150,7 @@ def metric_variants(models, pts: np.ndarray, reference) -> list[dict]:
     is computed for every level and the one that reproduces the anchor says
     what the 0.15 m LoD 2.2 target means (:data:`CALIBRATED_RMSE`).
     ``reference`` are the provider's footprints (BGT), used only to select
-    points, in both modes.  Metric ``rmse_<selection>_<aggregation>_lodXX``;
+    points, in both modes (None: no ``in_footprint`` variants).  Metric ``rmse_<selection>_<aggregation>_lodXX``;
     the points, each under the roof of the level's building over it:
 
     - selection ``all`` (every such point), ``in_footprint`` (inside a
@@ -166,14 +168,17 @@ def metric_variants(models, pts: np.ndarray, reference) -> list[dict]:
     ``rmse_all_pooled`` is the strict figure (``rmse_class6_lodXX``).
     """
     inside = np.zeros(len(pts), bool)
-    ip, _ = shapely.STRtree(reference).query(shapely.points(pts[:, :2]), predicate="intersects")
-    inside[ip] = True
+    if reference is not None:
+        ip, _ = shapely.STRtree(reference).query(shapely.points(pts[:, :2]), predicate="intersects")
+        inside[ip] = True
     pairs = cKDTree(pts[:, :2]).query_pairs(0.5, output_type="ndarray")
     highest = pts[:, 2].copy()
     np.maximum.at(highest, pairs[:, 0], pts[pairs[:, 1], 2])
     np.maximum.at(highest, pairs[:, 1], pts[pairs[:, 0], 2])
     selections = {"all": np.ones(len(pts), bool), "in_footprint": inside, "no_wall": highest <= pts[:, 2] + 1.0,
                   "top": top_surface(pts)}
+    if reference is None:
+        del selections["in_footprint"]
     order = np.argsort(pts[:, 0], kind="stable")
     xs = pts[order, 0]
     rows = []
@@ -207,7 +212,7 @@ def metric_variants(models, pts: np.ndarray, reference) -> list[dict]:
             sel = np.flatnonzero(owner == b)
             if len(sel):
                 dist[sel] = surface_distance(solids, pts[sel])
-        for name in ("all", "in_footprint"):
+        for name in ("all", "in_footprint") if reference is not None else ("all",):
             values[f"mesh3d_{name}_pooled"] = np.sqrt(np.mean(dist[under & selections[name]] ** 2))
         print(f"LoD {lod} RMSE variants: " + ", ".join(f"{k} {v:.3f}" for k, v in values.items()))
         rows += [{"method": "rooftrace", "metric": f"rmse_{k}_lod{key}", "value": float(v), "unit": "m",
@@ -286,12 +291,19 @@ def main() -> None:
     ap.add_argument("--val3dity", default=None, help="val3dity binary (default: $VAL3DITY, the PATH, build.sh's place)")
     ap.add_argument("--repeats", type=int, default=3, help="writes timed (best of)")
     ap.add_argument("--footprints", type=Path, default=None, help="footprints of the run (e.g. bgt_pand.sqlite)")
+    ap.add_argument("--ign", action="store_true",
+                    help="IGN LiDAR HD Montpellier (LiDAR only, no reference footprints) instead of Delft; "
+                         "recorded as dataset ign")
     ap.add_argument("--face-boundaries", choices=("each", "held", "free"), default=None,
                     help="[planes] face_boundaries of the run (default: the configured one); another than the "
                          "default is recorded as dataset delft[_footprints]_faces-VALUE")
     args = ap.parse_args()
-    files = [DELFT / f"ahn3_cropped_{i}.laz" for i in (1, 2)]
-    cloud = read_points(files, "EPSG:28992")
+    if args.ign and args.footprints:
+        ap.error("--ign has no footprints")
+    if args.ign:
+        cloud = read_points(sorted(IGN.glob("*.laz")))
+    else:
+        cloud = read_points([DELFT / f"ahn3_cropped_{i}.laz" for i in (1, 2)], "EPSG:28992")
     footprints = read_footprints(args.footprints, cloud.crs) if args.footprints else None
 
     config = {"planes": {"face_boundaries": args.face_boundaries}} if args.face_boundaries else None
@@ -380,8 +392,11 @@ def main() -> None:
               "unit": "m", "target": None}]
     rows += _misfit_sources(cloud, result, provider[covered], pts[covered], footprints)
     # what the issue's RMSE is: every candidate definition, for every level (the LoD 1.2 anchor decides)
-    reference = footprints if footprints is not None else read_footprints(DELFT / "bgt_pand.sqlite", cloud.crs)
-    rows += metric_variants(models, pts, reference.polygons)
+    if args.ign:
+        reference = None
+    else:
+        reference = (footprints or read_footprints(DELFT / "bgt_pand.sqlite", cloud.crs)).polygons
+    rows += metric_variants(models, pts, reference)
     # where the misfit is: by plan distance to the model's outline (facades, steps near it)
     solids = [p.lods["2.2"] for m in models for p in m.parts if "2.2" in p.lods]
     outline = shapely.union_all([p.footprint for m in models for p in m.parts if "2.2" in p.lods])
@@ -446,7 +461,7 @@ def main() -> None:
     else:
         print(BUILD_HINT + "; own check only")
     shutil.rmtree(tmp, ignore_errors=True)
-    dataset = "delft" if footprints is None else "delft_footprints"
+    dataset = "ign" if args.ign else "delft" if footprints is None else "delft_footprints"
     if args.face_boundaries and args.face_boundaries != RoofOptions().face_boundaries:
         dataset += f"_faces-{args.face_boundaries}"
     print(record("models", dataset, rows))
