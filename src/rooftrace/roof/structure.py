@@ -73,13 +73,12 @@ class RoofOptions:
         turns the pass off.
     min_block_points : int or None
         Fewest points of a flat block (:func:`rooftrace.roof.superstructures.block_planes`):
-        a cluster of points left on no plane after the second pass whose
+        each cluster of points left on no plane after the second pass is
+        peeled from its top in layers of ``step_height`` while a layer's
         median height is more than ``step_height`` above the roof under it
-        (parapets, gable tops, chimneys of a few points) becomes
-        horizontal planes, peeled from its top in layers of
-        ``step_height`` while a layer stands that high above the roof, each
-        at its points' mean height, with a face but no lines.  0 or
-        ``None`` turns it off.
+        (parapets, gable tops, chimneys of a few points); each such layer
+        becomes a horizontal plane at its points' mean height, with a face
+        but no lines.  0 or ``None`` turns it off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int

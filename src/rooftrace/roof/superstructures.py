@@ -48,7 +48,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     link : float, optional
         3D distance (m) linking points into clusters; default ``2.5 s``.
     min_density : float
-        Fewest points per ``s²`` over a cluster's plan hull: scattered
+        Fewest points per ``s²`` over a layer's plan hull: scattered
         returns (wires, birds, a tree branch) are not a block.
 
     Returns
