@@ -44,12 +44,13 @@ def span_basis(t: np.ndarray, knots: np.ndarray, degree: int) -> np.ndarray:
     """B-spline basis of ``degree`` on ``knots`` at ``t`` (right end included); (len(t), len(knots)-degree-1)."""
     # compiled: the CD-spline calls this for every span of every trial degree,
     # thousands of small arrays per building (numpy's temporaries dominated)
-    return _span_basis(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(knots, dtype=np.float64),
+    return cox_de_boor(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(knots, dtype=np.float64),
                        int(degree))
 
 
 @njit(cache=True, error_model="numpy")
-def _span_basis(t, knots, degree):  # pragma: no cover - compiled
+def cox_de_boor(t, knots, degree):  # pragma: no cover - compiled
+    """:func:`span_basis` for contiguous float64 ``t`` and ``knots``, callable from compiled fits."""
     # Cox-de Boor, row by row, with the float operations of the numpy form it
     # replaced (each ratio only where its denominator is positive, else 0;
     # left * b[c] + right * b[c + 1]), so the values are identical
