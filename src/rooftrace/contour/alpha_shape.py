@@ -33,7 +33,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.contour.spacing import building_alpha, delaunay_mesh, point_spacing
+from rooftrace.contour.spacing import PlanMesh, building_alpha
 from rooftrace.errors import GeometryError
 
 __all__ = [
@@ -386,7 +386,8 @@ def _signed_area(xy: np.ndarray) -> float:
 
 
 def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
-                alpha_scale: float = 1.0, seen_through: np.ndarray | None = None) -> AlphaShape:
+                alpha_scale: float = 1.0, seen_through: np.ndarray | None = None,
+                mesh: PlanMesh | None = None) -> AlphaShape:
     """Outer ring and courtyards of one building's points.
 
     Parameters
@@ -403,6 +404,9 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
         the roof around them (ground in a passage or a light well): no
         triangle holding one is part of the shape (``boundary = "triangle"``
         only; :func:`triangle_boundary`).
+    mesh : PlanMesh, optional
+        The Delaunay mesh of ``xy`` (and its spacings), when the caller
+        traces several shapes from the same points.
 
     Returns
     -------
@@ -425,10 +429,13 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     """
     options = options or AlphaOptions()
     xy = np.asarray(xy, dtype=np.float64)
-    edges, lengths, triangles, neighbours = delaunay_mesh(xy)
+    mesh = mesh if mesh is not None else PlanMesh(xy)
+    if len(mesh.xy) != len(xy):
+        raise ValueError(f"alpha_shape: a mesh of {len(mesh.xy)} points for {len(xy)} points")
+    edges, lengths, triangles, neighbours = mesh.edges, mesh.lengths, mesh.triangles, mesh.neighbours
     spacing = np.full(len(xy), np.nan)
     if options.strategy == "point":
-        spacing = point_spacing(xy, edges, lengths, options.radius)
+        spacing = mesh.point_spacing(options.radius)
         alpha = 0.5 * (spacing[edges[:, 0]] + spacing[edges[:, 1]])
         alpha_value = float(np.median(alpha))
     else:

@@ -28,6 +28,7 @@ from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.lines import bridge_inlets, line_outline
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.contour.repair import make_valid_outline
+from rooftrace.contour.spacing import PlanMesh
 from rooftrace.contour.surface import SurfaceOptions, outline_points
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
@@ -272,6 +273,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     seen = _seen_through(xyz - origin, around, options.surface.tolerance) if options.alpha.seen_through else None
     # every ring's noise floor is measured on the building's points (lines.boundary_step): one tree for all
     roof = cKDTree(pts[:, :2]) if options.regularize.method == "lines" else None
+    mesh = PlanMesh(pts[:, :2])  # every alpha shape below is traced from these points
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
@@ -279,7 +281,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         # a building whose parts only a passage joins is one polygon: bridge it rather than lose a part
         for cut in (seen, None) if seen is not None else (None,):
             try:
-                shape, status = _alpha_shape(pts, trial.alpha, mean_spacing, cut)
+                shape, status = _alpha_shape(pts, trial.alpha, mean_spacing, cut, mesh)
             except GeometryError as exc:
                 if str(exc) != "no_ring":
                     raise
@@ -302,7 +304,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         # a kept opening (a light well beside a wall, a notch) pinches the outline where the ring was
         # repaired, and no closed solid has such a plan: the shape without the cut is traced instead
         try:
-            uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None)
+            uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None, mesh)
             retraced = _regularised_or_traced(pts, origin, uncut, uncut_status, trial,
                                               _traced_coverage(pts, uncut), context, roof)
         except GeometryError:
@@ -350,14 +352,14 @@ def _seen_through(pts: np.ndarray, around: np.ndarray | None, tolerance: float) 
 
 
 def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None,
-                 seen_through: np.ndarray | None = None) -> tuple[AlphaShape, str]:
+                 seen_through: np.ndarray | None = None, mesh: PlanMesh | None = None) -> tuple[AlphaShape, str]:
     """The alpha shape of the outline points, alpha enlarged until it closes, holds together and bridges the sampling."""
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
         try:
             trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale,
-                                seen_through=seen_through)
+                                seen_through=seen_through, mesh=mesh)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
