@@ -268,10 +268,18 @@ def _holding(xy: np.ndarray, triangles: np.ndarray, candidates: np.ndarray, poin
         ux = (ac[:, 1] * (ab ** 2).sum(axis=1) - ab[:, 1] * (ac ** 2).sum(axis=1)) / d
         uy = (ab[:, 0] * (ac ** 2).sum(axis=1) - ac[:, 0] * (ab ** 2).sum(axis=1)) / d
     radius = np.hypot(ux, uy)
-    dist, _ = cKDTree(points).query(a + np.column_stack([ux, uy]))
+    centres = a + np.column_stack([ux, uy])
+    tree = cKDTree(points)
+    dist, _ = tree.query(centres)
     near = np.flatnonzero(~(dist > radius * (1.0 + 1e-9)))  # NaN (a degenerate triangle) stays a candidate
     if len(near) == 0:
         return near
+    finite = np.isfinite(radius[near])
+    if finite.all():
+        # only the points in those circles can be in the triangles (the ground of a whole block is
+        # many more; making each a shapely point cost more than the test)
+        inner = tree.query_ball_point(centres[near], radius[near] * (1.0 + 1e-9) + 1e-12, return_sorted=False)
+        points = points[np.unique(np.concatenate([np.asarray(i, dtype=np.int64) for i in inner]))]
     _, hit = shapely.STRtree(shapely.polygons(xy[triangles[index[near]]])).query(
         shapely.points(points), predicate="intersects")
     return index[near[np.unique(hit)]]
