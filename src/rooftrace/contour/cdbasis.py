@@ -118,13 +118,15 @@ def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) ->
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     a = np.zeros((len(t), offsets[-1] + 1))
     span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
-    # only the spans that hold parameters: a ring has dozens of segments and
-    # the overshoot test evaluates one of them at a time
-    for k in np.unique(span).tolist():
+    # only the spans that hold parameters, each one's rows found by one sort (a ring has hundreds
+    # of segments, and a mask of all rows per span cost more than the basis)
+    order = np.argsort(span, kind="stable")
+    bounds = np.searchsorted(span[order], np.arange(len(degrees) + 1))
+    for k in np.flatnonzero(np.diff(bounds)).tolist():
         d = degrees[k]
-        sel = span == k
+        rows = order[bounds[k]:bounds[k + 1]]
         knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-        a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = span_basis(t[sel], knots, d)
+        a[rows[:, None], np.arange(offsets[k], offsets[k] + d + 1)] = span_basis(t[rows], knots, d)
     if closed:
         a[:, 0] += a[:, -1]
         a = a[:, :-1]

@@ -180,28 +180,40 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
         factorisation (:func:`_normal_fit`), or, when they are singular (a
         segment with too few points for its degree), by least squares on A.
     """
-    points = np.asarray(points, dtype=np.float64)
-    corners = np.asarray(corners, dtype=np.int64)
-    degrees = np.asarray(degrees, dtype=np.int64)
-    q = len(points)
-    start = int(corners[0])
-    rolled = np.roll(points, -start, axis=0)
-    if t is None:
-        t = chord_parameters(rolled)
-    breaks = np.append(t[corners - start], 1.0)
-    if np.any(np.diff(breaks) <= 0):
-        raise GeometryError("degenerate_segment")
-    if degrees.sum() > q:
-        raise GeometryError("too_few_points")
-    ctrl, fitted, ok = _normal_fit(rolled, t, breaks, degrees)
-    if not ok:
-        a = cd_basis(t, breaks, degrees)
-        ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
-        fitted = a @ ctrl
-    res = np.linalg.norm(fitted - rolled, axis=1)
-    seg = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(corners) - 1)
-    back = (np.arange(q) - start) % q  # original order
-    return CDSpline(ctrl, breaks, degrees.tolist(), t[back], res[back], seg[back])
+    return _RingFit(points, corners, t).fit(degrees)
+
+
+class _RingFit:
+    """A ring and its knots, ready for fits of any segment degrees: the F-test refits one ring hundreds of times."""
+
+    def __init__(self, points: np.ndarray, corners: np.ndarray, t: np.ndarray | None = None):
+        points = np.asarray(points, dtype=np.float64)
+        corners = np.asarray(corners, dtype=np.int64)
+        q = len(points)
+        start = int(corners[0])
+        self.rolled = np.roll(points, -start, axis=0)
+        self.t = chord_parameters(self.rolled) if t is None else t
+        self.breaks = np.append(self.t[corners - start], 1.0)
+        if np.any(np.diff(self.breaks) <= 0):
+            raise GeometryError("degenerate_segment")
+        self.back = (np.arange(q) - start) % q  # original order
+        # shared by every fit of the ring, so read-only
+        self.t_original = self.t[self.back]
+        self.segment = np.clip(np.searchsorted(self.breaks, self.t, side="right") - 1, 0, len(corners) - 1)[self.back]
+        for shared in (self.breaks, self.t_original, self.segment):
+            shared.flags.writeable = False
+
+    def fit(self, degrees) -> CDSpline:
+        degrees = np.asarray(degrees, dtype=np.int64)
+        if degrees.sum() > len(self.rolled):
+            raise GeometryError("too_few_points")
+        ctrl, fitted, ok = _normal_fit(self.rolled, self.t, self.breaks, degrees)
+        if not ok:
+            a = cd_basis(self.t, self.breaks, degrees)
+            ctrl, *_ = np.linalg.lstsq(a, self.rolled, rcond=None)
+            fitted = a @ ctrl
+        res = np.linalg.norm(fitted - self.rolled, axis=1)
+        return CDSpline(ctrl, self.breaks, degrees.tolist(), self.t_original, res[self.back], self.segment)
 
 
 @njit(cache=True, error_model="numpy")
@@ -395,7 +407,8 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
     degrees = np.ones(len(corners), dtype=np.int64)
     if len(corners) < 2:
         degrees[:] = min(2, int(cap[0]))  # a one-segment closed curve cannot be a straight line
-    fit = fit_cdspline(points, corners, degrees, t=t)
+    ring = _RingFit(points, corners, t)
+    fit = ring.fit(degrees)
     history = [(degrees.tolist(), fit.sigma)]
     frozen = degrees >= cap
     lo, hi = stats.f.ppf([options.significance / 2, 1 - options.significance / 2], q - 1, q - 1)
@@ -407,7 +420,7 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         trial[k] += 1
         if trial.sum() > q:
             break
-        new = fit_cdspline(points, corners, trial, t=t)
+        new = ring.fit(trial)
         history.append((trial.tolist(), new.sigma))
         seg_points = _segment_points(points, corners, k)
         # the current curve's overshoot only matters when the raised one
