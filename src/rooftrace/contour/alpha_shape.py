@@ -40,6 +40,7 @@ __all__ = [
     "AlphaOptions",
     "AlphaShape",
     "alpha_shape",
+    "alpha_reach",
     "boundary_edges",
     "triangle_boundary",
     "repair_boundary",
@@ -441,18 +442,13 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     if len(mesh.xy) != len(xy):
         raise ValueError(f"alpha_shape: a mesh of {len(mesh.xy)} points for {len(xy)} points")
     edges, lengths, triangles, neighbours = mesh.edges, mesh.lengths, mesh.triangles, mesh.neighbours
-    spacing = np.full(len(xy), np.nan)
+    spacing = _spacing(options, mesh, mean_spacing)
     if options.strategy == "point":
-        spacing = mesh.point_spacing(options.radius)
         alpha = 0.5 * (spacing[edges[:, 0]] + spacing[edges[:, 1]])
         alpha_value = float(np.median(alpha))
     else:
-        if options.strategy == "global" and (options.alpha is not None or mean_spacing is not None):
-            alpha_value = float(options.alpha if options.alpha is not None else mean_spacing)
-        else:
-            alpha_value = building_alpha(lengths, options.long_edge_sigma)
+        alpha_value = float(spacing[0])
         alpha = np.full(len(edges), alpha_value)
-        spacing[:] = alpha_value
     alpha_scale = alpha_scale * options.scale
     alpha = alpha * alpha_scale
     if options.boundary == "triangle":
@@ -479,3 +475,39 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill,
                       alpha_scale)
 
+
+
+def _spacing(options: AlphaOptions, mesh: PlanMesh, mean_spacing: float | None) -> np.ndarray:
+    """The strategy's spacing per point (metres): ps_avg (S3), or the one alpha of S1 or S2 everywhere."""
+    if options.strategy == "point":
+        return mesh.point_spacing(options.radius)
+    if options.strategy == "global" and (options.alpha is not None or mean_spacing is not None):
+        alpha_value = float(options.alpha if options.alpha is not None else mean_spacing)
+    else:
+        alpha_value = building_alpha(mesh.lengths, options.long_edge_sigma)
+    return np.full(len(mesh.xy), alpha_value)
+
+
+def alpha_reach(mesh: PlanMesh, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
+                alpha_scale: float = 1.0) -> float:
+    """How far from every point the shape :func:`alpha_shape` traces with these arguments can reach, metres.
+
+    The largest alpha radius of any triangle: a triangle of the shape has a
+    circumradius at most its alpha, and every place inside a triangle lies
+    within its circumradius of one of its corners.  Points farther than this
+    from all of ``mesh``'s points are in no triangle of the shape.
+
+    Parameters
+    ----------
+    mesh : PlanMesh
+        The Delaunay mesh of the building's points.
+    options, mean_spacing, alpha_scale
+        As for :func:`alpha_shape`.
+
+    Returns
+    -------
+    float
+        Metres, rounded up (by a millionth) past the rounding of the triangle test.
+    """
+    options = options or AlphaOptions()
+    return float(np.max(_spacing(options, mesh, mean_spacing))) * alpha_scale * options.scale * (1.0 + 1e-6)
