@@ -207,12 +207,11 @@ class _RingFit:
         degrees = np.asarray(degrees, dtype=np.int64)
         if degrees.sum() > len(self.rolled):
             raise GeometryError("too_few_points")
-        ctrl, fitted, ok = _normal_fit(self.rolled, self.t, self.breaks, degrees)
+        ctrl, res, ok = _normal_fit(self.rolled, self.t, self.breaks, degrees)
         if not ok:
             a = cd_basis(self.t, self.breaks, degrees)
             ctrl, *_ = np.linalg.lstsq(a, self.rolled, rcond=None)
-            fitted = a @ ctrl
-        res = np.linalg.norm(fitted - self.rolled, axis=1)
+            res = np.linalg.norm(a @ ctrl - self.rolled, axis=1)
         return CDSpline(ctrl, self.breaks, degrees.tolist(), self.t_original, res[self.back], self.segment)
 
 
@@ -224,8 +223,8 @@ def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
     # a span's columns are contiguous, so AᵀA is banded (half-width the largest degree) but for the
     # first control point, which the last span shares (the closed ring).  That point is the border of
     # a bordered band system: B y1 + c y0 = r1, cᵀ y1 + s y0 = r0, solved with B's Cholesky factor and
-    # a scalar Schur complement.  Returns the control points, A·P (rows as t) and whether B and the
-    # Schur complement were positive definite (else the caller solves by least squares).
+    # a scalar Schur complement.  Returns the control points, the residuals |A·P - Q| (rows as t) and
+    # whether B and the Schur complement were positive definite (else the caller solves by least squares).
     q = len(t)
     m = len(degrees)
     offsets = np.zeros(m + 1, np.int64)
@@ -270,7 +269,7 @@ def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
     ctrl = np.zeros((n, 3))
     fitted = np.zeros((q, 3))
     if n < 2:
-        return ctrl, fitted, False
+        return ctrl, np.zeros(q), False
     # Cholesky factor of B = (AᵀA)[1:, 1:], in place in the band
     for i in range(1, n):
         for j in range(max(1, i - p), i + 1):
@@ -279,7 +278,7 @@ def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
                 s -= band[i, i - k] * band[j, j - k]
             if i == j:
                 if not s > 1e-13 * max(band[i, 0], 1e-300):
-                    return ctrl, fitted, False
+                    return ctrl, np.zeros(q), False
                 band[i, 0] = np.sqrt(s)
             else:
                 band[i, i - j] = s / band[j, 0]
@@ -301,7 +300,7 @@ def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
     for i in range(1, n):
         schur -= border[i] * w[i, 3]
     if not schur > 1e-13 * max(border[0], 1e-300):
-        return ctrl, fitted, False
+        return ctrl, np.zeros(q), False
     for c3 in range(3):
         s = rhs[0, c3]
         for i in range(1, n):
@@ -313,7 +312,14 @@ def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
         for a in range(width[row]):
             for c3 in range(3):
                 fitted[row, c3] += vals[row, a] * ctrl[cols[row, a], c3]
-    return ctrl, fitted, True
+    res = np.empty(q)
+    for row in range(q):
+        s = 0.0
+        for c3 in range(3):
+            diff = fitted[row, c3] - rolled[row, c3]
+            s += diff * diff
+        res[row] = np.sqrt(s)
+    return ctrl, res, True
 
 
 def _segment_points(points: np.ndarray, corners: np.ndarray, k: int) -> np.ndarray:

@@ -78,10 +78,18 @@ def delaunay_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     # swapping corners 1 and 2 swaps the edges opposite them, so the neighbours swap too
     triangles[cw] = triangles[cw][:, [0, 2, 1]]
     neighbours[cw] = neighbours[cw][:, [0, 2, 1]]
-    e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    # each edge once: from the triangle with the lower index, or the only one (hull); the edge
+    # between two corners is opposite the third, whose neighbour shares it
+    nb = tri.neighbors
+    own = np.arange(len(nb))[:, None]
+    first = (nb < 0) | (nb > own)
+    e = np.concatenate([simplices[first[:, 2]][:, [0, 1]], simplices[first[:, 0]][:, [1, 2]],
+                        simplices[first[:, 1]][:, [2, 0]]])
     e = np.sort(e, axis=1).astype(np.int64)
     n = np.int64(len(xy))
-    key = np.unique(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than unique rows
+    key = np.sort(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than sorting rows
+    if len(key) > 1 and not (key[1:] > key[:-1]).all():
+        key = np.unique(key)  # a degenerate mesh that lists an edge twice
     e = np.column_stack([key // n, key % n])
     lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
     return e, lengths, triangles, neighbours
