@@ -520,9 +520,10 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     wanted = options.regularize.method == "lines" or options.alpha.seen_through
     around = _Surroundings(xyz[sel], building_id[sel], context_xy) if wanted else None
     outlines = []
-    # the CD-spline fits make thousands of small BLAS calls (AᵀA, solve); a
-    # multi-threaded BLAS turns each into a thread rendezvous: Delft's 34
-    # buildings took 23-25 s with two BLAS threads, 10 s with one
+    # the regularisation makes thousands of small BLAS calls (curve samples,
+    # distances to lines; the CD-spline fits did too before they were
+    # compiled); a multi-threaded BLAS turns each into a thread rendezvous:
+    # Delft's 34 buildings took 23-25 s with two BLAS threads, 10 s with one
     with reporter.stage("outline", total=len(ids)), threadpool_limits(limits=1, user_api="blas"):
         for bid, idx in zip(ids, groups):
             try:
