@@ -181,12 +181,9 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     touch.
     """
     n = len(xy)
-    # the balls are scanned on a grid of cells a third of the radius wide instead of listing every
-    # pair: at AHN densities a 3 m ball holds ~400 points, and the pair list of a 60 000-point roof
-    # took 2 GB.  Cells that lie inside the ball with room for their longest edge count whole
-    # (their sums are kept), points that do so count their edges without testing them
-    per = 3
-    cell = np.floor((xy - xy.min(axis=0)) / (radius / per)).astype(np.int64)
+    # the balls are scanned on a grid of radius-sized cells instead of listing every pair: at AHN
+    # densities a 3 m ball holds ~400 points, and the pair list of a 60 000-point roof took 2 GB
+    cell = np.floor((xy - xy.min(axis=0)) / radius).astype(np.int64)
     nx, ny = int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
     if nx * ny > 8 * n + 4096:
         # a few points kilometres apart (issue 10 fuzz: a dense grid of 65 GB): rank the occupied
@@ -198,15 +195,16 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     order = np.argsort(key, kind="stable")
     cell_ptr = np.zeros(nx * ny + 1, dtype=np.int64)
     np.cumsum(np.bincount(key, minlength=nx * ny), out=cell_ptr[1:])
-    # the kernel works on the points in cell order (a cell's points are contiguous in memory)
+    # the kernel works on the points in cell order (a cell's points are
+    # contiguous in memory, not scattered over the building); it visits them
+    # in the same order as before, so every sum is the same
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
     adj_ptr, adj_idx = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
     ps = np.empty(n)
-    # each point's edges side by side (their far ends and lengths), not scattered over the edge list
-    ps[order] = _ps_avg(np.ascontiguousarray(xy[order], dtype=np.float64), float(radius), per,
-                        np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr, rank[edges[adj_idx, 1]],
-                        np.ascontiguousarray(np.asarray(lengths, dtype=np.float64)[adj_idx]))
+    ps[order] = _ps_avg(np.ascontiguousarray(xy[order], dtype=np.float64), float(radius),
+                        np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr, adj_idx, rank[edges[:, 1]],
+                        lengths)
     bad = ~np.isfinite(ps)
     if bad.any():
         touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
@@ -233,75 +231,33 @@ def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _ps_avg(xy, radius, per, cell, nx, ny, cell_ptr, adj_ptr, adj_hi, adj_len):  # pragma: no cover
-    # points in cell order (cell_ptr indexes xy directly); each edge is stored once, at its lower end
-    # point, and counts for point i when both end points are in i's ball.  A point j whose distance
-    # to i plus its longest stored edge stays inside the ball brings all its edges (their sum is
-    # kept per point), a cell whose bounding box does so brings all its points' edges; the rest is
-    # tested edge by edge.  The margin keeps rounding on the side of the exact test.
+def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
+    # points in cell order (cell_ptr indexes xy directly); each edge is stored
+    # once, at its lower end point; it counts for point i when both end
+    # points are in i's ball (the other end tested where the edge is met: one
+    # pass over the ball, in the same order as marking it first did)
     n = len(xy)
     r2 = radius * radius
-    safe = radius * (1.0 - 1e-9)
-    n_cells = nx * ny
-    own_sum = np.zeros(n)
-    own_count = np.zeros(n, np.int64)
-    own_max = np.zeros(n)
-    for j in range(n):
-        for q in range(adj_ptr[j], adj_ptr[j + 1]):
-            own_sum[j] += adj_len[q]
-            own_count[j] += 1
-            own_max[j] = max(own_max[j], adj_len[q])
-    cell_sum = np.zeros(n_cells)
-    cell_count = np.zeros(n_cells, np.int64)
-    cell_max = np.zeros(n_cells)
-    box = np.empty((n_cells, 4))  # x min, x max, y min, y max of the cell's points
-    for c in range(n_cells):
-        box[c, 0] = box[c, 2] = np.inf
-        box[c, 1] = box[c, 3] = -np.inf
-        for j in range(cell_ptr[c], cell_ptr[c + 1]):
-            cell_sum[c] += own_sum[j]
-            cell_count[c] += own_count[j]
-            cell_max[c] = max(cell_max[c], own_max[j])
-            box[c, 0] = min(box[c, 0], xy[j, 0])
-            box[c, 1] = max(box[c, 1], xy[j, 0])
-            box[c, 2] = min(box[c, 2], xy[j, 1])
-            box[c, 3] = max(box[c, 3], xy[j, 1])
     out = np.empty(n, dtype=np.float64)
     for i in range(n):
         xi, yi = xy[i, 0], xy[i, 1]
         total = 0.0
         count = 0
-        for cx in range(max(cell[i, 0] - per, 0), min(cell[i, 0] + per + 1, nx)):
-            for cy in range(max(cell[i, 1] - per, 0), min(cell[i, 1] + per + 1, ny)):
+        for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
+            for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
                 c = cx * ny + cy
-                if cell_ptr[c] == cell_ptr[c + 1]:
-                    continue
-                fx = max(abs(box[c, 0] - xi), abs(box[c, 1] - xi))
-                fy = max(abs(box[c, 2] - yi), abs(box[c, 3] - yi))
-                if np.sqrt(fx * fx + fy * fy) + cell_max[c] <= safe:
-                    total += cell_sum[c]
-                    count += cell_count[c]
-                    continue
-                gx = max(box[c, 0] - xi, xi - box[c, 1], 0.0)
-                gy = max(box[c, 2] - yi, yi - box[c, 3], 0.0)
-                if gx * gx + gy * gy > r2:
-                    continue
                 for j in range(cell_ptr[c], cell_ptr[c + 1]):
                     dx = xy[j, 0] - xi
                     dy = xy[j, 1] - yi
-                    d2 = dx * dx + dy * dy
-                    if d2 > r2:
-                        continue
-                    if np.sqrt(d2) + own_max[j] <= safe:
-                        total += own_sum[j]
-                        count += own_count[j]
+                    if dx * dx + dy * dy > r2:
                         continue
                     for q in range(adj_ptr[j], adj_ptr[j + 1]):
-                        h = adj_hi[q]
+                        e = adj_edge[q]
+                        h = edge_hi[e]
                         ex = xy[h, 0] - xi
                         ey = xy[h, 1] - yi
                         if ex * ex + ey * ey <= r2:
-                            total += adj_len[q]
+                            total += lengths[e]
                             count += 1
         out[i] = total / count if count > 0 else np.nan
     return out
