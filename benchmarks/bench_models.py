@@ -24,6 +24,11 @@ Delft tiles, EPSG:28992):
   within 0.3 m of a footprint's boundary (the facades); the points on no
   plane further by kind (``wall``, ``small``, ``planar``, ``non_planar``:
   ``_no_plane_kinds``), in the strict sum of squares and the top-surface one;
+- **the issue's RMSE calibrated**: every candidate definition (points
+  inside the BGT footprints, without facade points, top surface only; pooled
+  or per building; 3D distance to the solid) for every level
+  (:func:`metric_variants`); the one whose flat LoD 1.2 score reproduces the
+  issue's "about 1.6 m" (:data:`CALIBRATED_RMSE`) carries the 0.15 m target;
 - **complementary LoD 2.2 figures**, beside the strict RMSE, never instead
   of it: the RMSE of the top surface only (class-6 points with no class-6
   point more than 0.5 m higher within 0.3 m in plan: no facade points under
@@ -39,8 +44,9 @@ Usage::
     .venv/bin/python benchmarks/bench_models.py
     .venv/bin/python benchmarks/bench_models.py --val3dity /opt/val3dity/bin/val3dity
     .venv/bin/python benchmarks/bench_models.py --footprints ../shared/data/3dfier_delft_ahn3_bgt/bgt_pand.sqlite
+    .venv/bin/python benchmarks/bench_models.py --ign   # IGN LiDAR HD Montpellier, LiDAR only
 
-Recorded as dataset ``delft`` (LiDAR-only buildings) or ``delft_footprints``.
+Recorded as dataset ``delft`` (LiDAR-only buildings), ``delft_footprints`` or ``ign``.
 """
 
 from __future__ import annotations
@@ -66,13 +72,14 @@ from rooftrace.io.footprints import read_footprints
 from rooftrace.io.models import write_models
 from rooftrace.io.points import read_points
 from rooftrace.model import LODS, solid_errors
-from rooftrace.model.measure import roof_height_at
+from rooftrace.model.measure import roof_height_at, surface_distance
 from rooftrace.pipeline import points_by_building, run_pipeline
 from rooftrace.roof.planes import fit_planes, plane_height, point_normals
 from rooftrace.roof.structure import RoofOptions
 from val3dity import BUILD_HINT, validate
 
 DELFT = DATA / "3dfier_delft_ahn3_bgt"
+IGN = DATA / "ign_montpellier_lidarhd_bdortho"
 
 
 def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprints) -> list[dict]:
@@ -133,6 +140,91 @@ def _misfit_sources(cloud, result, index: np.ndarray, xyz: np.ndarray, footprint
                   "unit": ""},
                  {"method": "rooftrace", "metric": "lod22_sse_share_facade_03m", "value": share, "unit": ""}]
     return rows
+
+
+def metric_variants(models, pts: np.ndarray, reference) -> list[dict]:
+    """The fit of the class-6 points ``pts`` to each LoD under candidate definitions of the issue's RMSE.
+
+    Calibration, not choice: the issue gives one anchor (flat LoD 1.2 roofs
+    score about 1.6 m on Delft with the BGT footprints), so each definition
+    is computed for every level and the one that reproduces the anchor says
+    what the 0.15 m LoD 2.2 target means (:data:`CALIBRATED_RMSE`).
+    ``reference`` are the provider's footprints (BGT), used only to select
+    points, in both modes (None: no ``in_footprint`` variants).  Metric ``rmse_<selection>_<aggregation>_lodXX``;
+    the points, each under the roof of the level's building over it:
+
+    - selection ``all`` (every such point), ``in_footprint`` (inside a
+      reference footprint: no overhang or facade points beyond the
+      cadastral wall line), ``no_wall`` (no class-6 point more than 1 m
+      higher within 0.5 m in plan: no facade points) and ``top`` (none more
+      than 0.5 m higher within 0.3 m, :func:`top_surface`);
+    - aggregation ``pooled`` (one RMSE of all points), ``building_mean`` /
+      ``building_median`` (each building's RMSE, buildings with 10 points or
+      more, then the mean / median);
+    - ``mesh3d_<selection>_pooled``: the 3D distance to the nearest surface
+      (roof, wall, ground) of the building's solids instead of the vertical
+      one, as roofer/3DBAG measure a model against its points.
+
+    ``rmse_all_pooled`` is the strict figure (``rmse_class6_lodXX``).
+    """
+    inside = np.zeros(len(pts), bool)
+    if reference is not None:
+        ip, _ = shapely.STRtree(reference).query(shapely.points(pts[:, :2]), predicate="intersects")
+        inside[ip] = True
+    pairs = cKDTree(pts[:, :2]).query_pairs(0.5, output_type="ndarray")
+    highest = pts[:, 2].copy()
+    np.maximum.at(highest, pairs[:, 0], pts[pairs[:, 1], 2])
+    np.maximum.at(highest, pairs[:, 1], pts[pairs[:, 0], 2])
+    selections = {"all": np.ones(len(pts), bool), "in_footprint": inside, "no_wall": highest <= pts[:, 2] + 1.0,
+                  "top": top_surface(pts)}
+    if reference is None:
+        del selections["in_footprint"]
+    order = np.argsort(pts[:, 0], kind="stable")
+    xs = pts[order, 0]
+    rows = []
+    for lod in LODS:
+        key = lod.replace(".", "")
+        per_building = [[p.lods[lod] for p in m.parts if lod in p.lods] for m in models]
+        per_building = [s for s in per_building if s]
+        # each point goes to the building whose roof is highest over it (the pooled roof_height_at's choice)
+        h = np.full(len(pts), np.nan)
+        owner = np.full(len(pts), -1)
+        for b, solids in enumerate(per_building):
+            x0 = min(float(r[:, 0].min()) for s in solids for f in s.surfaces for r in f.rings)
+            x1 = max(float(r[:, 0].max()) for s in solids for f in s.surfaces for r in f.rings)
+            near = order[np.searchsorted(xs, x0):np.searchsorted(xs, x1, side="right")]
+            hb = roof_height_at(solids, pts[near, :2])
+            higher = np.isfinite(hb) & ~(hb <= h[near])
+            h[near[higher]] = hb[higher]
+            owner[near[higher]] = b
+        dz = pts[:, 2] - h
+        under = np.isfinite(h)
+        values = {}
+        for name, sel in selections.items():
+            sel = sel & under
+            per = np.array([np.sqrt(np.mean(dz[sel & (owner == b)] ** 2)) for b in range(len(per_building))
+                            if np.sum(sel & (owner == b)) >= 10])
+            values[f"{name}_pooled"] = np.sqrt(np.mean(dz[sel] ** 2))
+            values[f"{name}_building_mean"] = np.mean(per)
+            values[f"{name}_building_median"] = np.median(per)
+        dist = np.full(len(pts), np.nan)
+        for b, solids in enumerate(per_building):
+            sel = np.flatnonzero(owner == b)
+            if len(sel):
+                dist[sel] = surface_distance(solids, pts[sel])
+        for name in ("all", "in_footprint") if reference is not None else ("all",):
+            values[f"mesh3d_{name}_pooled"] = np.sqrt(np.mean(dist[under & selections[name]] ** 2))
+        print(f"LoD {lod} RMSE variants: " + ", ".join(f"{k} {v:.3f}" for k, v in values.items()))
+        rows += [{"method": "rooftrace", "metric": f"rmse_{k}_lod{key}", "value": float(v), "unit": "m",
+                  "target": "<= 0.15" if lod == "2.2" and k == CALIBRATED_RMSE else None}
+                 for k, v in values.items()]
+    return rows
+
+
+#: the variant of :func:`metric_variants` whose flat LoD 1.2 score reproduces the issue's "about 1.6 m" on Delft
+#: with the BGT footprints (1.62 m; the next ones: ``no_wall_building_mean`` 1.57, ``top_building_median`` 1.55,
+#: ``all_building_mean`` 1.99, ``all_pooled`` 2.82, ``mesh3d_in_footprint_pooled`` 0.87)
+CALIBRATED_RMSE = "top_building_mean"
 
 
 def top_surface(xyz: np.ndarray, radius: float = 0.3, rise: float = 0.5) -> np.ndarray:
@@ -199,12 +291,19 @@ def main() -> None:
     ap.add_argument("--val3dity", default=None, help="val3dity binary (default: $VAL3DITY, the PATH, build.sh's place)")
     ap.add_argument("--repeats", type=int, default=3, help="writes timed (best of)")
     ap.add_argument("--footprints", type=Path, default=None, help="footprints of the run (e.g. bgt_pand.sqlite)")
+    ap.add_argument("--ign", action="store_true",
+                    help="IGN LiDAR HD Montpellier (LiDAR only, no reference footprints) instead of Delft; "
+                         "recorded as dataset ign")
     ap.add_argument("--face-boundaries", choices=("each", "held", "free"), default=None,
                     help="[planes] face_boundaries of the run (default: the configured one); another than the "
                          "default is recorded as dataset delft[_footprints]_faces-VALUE")
     args = ap.parse_args()
-    files = [DELFT / f"ahn3_cropped_{i}.laz" for i in (1, 2)]
-    cloud = read_points(files, "EPSG:28992")
+    if args.ign and args.footprints:
+        ap.error("--ign has no footprints")
+    if args.ign:
+        cloud = read_points(sorted(IGN.glob("*.laz")))
+    else:
+        cloud = read_points([DELFT / f"ahn3_cropped_{i}.laz" for i in (1, 2)], "EPSG:28992")
     footprints = read_footprints(args.footprints, cloud.crs) if args.footprints else None
 
     config = {"planes": {"face_boundaries": args.face_boundaries}} if args.face_boundaries else None
@@ -292,6 +391,12 @@ def main() -> None:
              {"method": "rooftrace", "metric": "rmse_class6_lod22_building_median", "value": med_building,
               "unit": "m", "target": None}]
     rows += _misfit_sources(cloud, result, provider[covered], pts[covered], footprints)
+    # what the issue's RMSE is: every candidate definition, for every level (the LoD 1.2 anchor decides)
+    if args.ign:
+        reference = None
+    else:
+        reference = (footprints or read_footprints(DELFT / "bgt_pand.sqlite", cloud.crs)).polygons
+    rows += metric_variants(models, pts, reference)
     # where the misfit is: by plan distance to the model's outline (facades, steps near it)
     solids = [p.lods["2.2"] for m in models for p in m.parts if "2.2" in p.lods]
     outline = shapely.union_all([p.footprint for m in models for p in m.parts if "2.2" in p.lods])
@@ -356,7 +461,7 @@ def main() -> None:
     else:
         print(BUILD_HINT + "; own check only")
     shutil.rmtree(tmp, ignore_errors=True)
-    dataset = "delft" if footprints is None else "delft_footprints"
+    dataset = "ign" if args.ign else "delft" if footprints is None else "delft_footprints"
     if args.face_boundaries and args.face_boundaries != RoofOptions().face_boundaries:
         dataset += f"_faces-{args.face_boundaries}"
     print(record("models", dataset, rows))

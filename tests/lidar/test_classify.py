@@ -47,3 +47,15 @@ def test_options_are_checked():
         ClassifyOptions(neighbourhood="optimal")
     with pytest.raises(ValueError, match="neighbour_step"):
         ClassifyOptions(neighbour_step=0)
+
+
+def test_cluster_medians_are_the_lower_middle_value_of_each_cluster():
+    from rooftrace.lidar.classify import cluster_medians
+
+    rng = np.random.default_rng(13)
+    labels = rng.integers(-1, 300, 5000)
+    values = np.round(rng.random(5000), 2)  # ties
+    got = cluster_medians(labels, values, 302)
+    for k in range(302):
+        v = np.sort(values[labels == k])
+        assert (np.isnan(got[k]) if len(v) == 0 else got[k] == v[(len(v) - 1) // 2]), k

@@ -92,3 +92,88 @@ def test_sort_by_bucket_is_lexsort():
                         (rng.integers(0, 10**9, 50), rng.normal(size=50)),  # wide range: np.lexsort itself
                         (np.zeros(10, np.int64), np.array([0.0, -0.0] * 5))):
         assert np.array_equal(sort_by_bucket(values, key), np.lexsort((values, key)))
+
+
+@pytest.mark.parametrize("n", [1, 7, 300, 10**7])
+def test_unique_pairs_is_np_unique(n):
+    from rooftrace.lidar._kernels import unique_pairs
+
+    rng = np.random.default_rng(8)
+    a = rng.integers(0, n, 2000)
+    # long rows too (a crown's plan neighbourhood), and repeated pairs
+    b = np.where(rng.random(2000) < 0.3, rng.integers(0, n, 2000), a[::-1])
+    a[:200] = 0
+    ref = np.unique(np.column_stack([a, b]), axis=0)
+    got = unique_pairs(a, b, n)
+    assert got.dtype == np.int64 and np.array_equal(got, ref)
+    assert unique_pairs(a[:0], b[:0], n).shape == (0, 2)
+
+
+@pytest.mark.parametrize("angle", [None, 45.0])
+def test_normal_links_is_the_numpy_test(angle):
+    from rooftrace.lidar._kernels import normal_links
+
+    rng = np.random.default_rng(9)
+    xyz = np.column_stack([rng.uniform(0, 20, (3000, 2)), rng.normal(0, 0.3, 3000)])
+    normals = rng.normal(size=(3000, 3)) + [0, 0, 2]
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    pairs = cKDTree(xyz[:, :2]).query_pairs(1.0, output_type="ndarray").astype(np.int64)
+    d = xyz[pairs[:, 0]] - xyz[pairs[:, 1]]
+    along = np.einsum("ij,ij->i", normals[pairs[:, 0]], d)
+    # the limit is one of the distances itself: a sum in another order flips it
+    limit = float(np.abs(along)[len(along) // 2])
+    ref = (np.abs(along) < limit) & (np.abs(np.einsum("ij,ij->i", normals[pairs[:, 1]], d)) < limit)
+    min_cos = -2.0
+    if angle is not None:
+        min_cos = np.cos(np.radians(angle))
+        ref &= np.abs(np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]])) >= min_cos
+    got = normal_links(xyz, normals, pairs, limit, min_cos)
+    assert 0 < ref.sum() < len(ref) and np.array_equal(got, ref)
+
+
+def test_octant_is_the_arctangent_formula():
+    from rooftrace.lidar._kernels import _octant
+
+    rng = np.random.default_rng(10)
+    d = np.concatenate([rng.normal(size=(20000, 2)),
+                        rng.choice([-1.0, 1.0], (2000, 2)) * rng.random((2000, 1)),  # diagonals
+                        rng.normal(size=(2000, 2)) * [[1.0, 1e-12]],  # axes
+                        rng.integers(-2, 3, (500, 2)).astype(float)])
+    d = d[np.any(d != 0, axis=1)]
+    ref = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi / 8)).astype(int), 7)
+    got = np.array([_octant(x, y) for x, y in d])
+    fast = got >= 0
+    assert fast.mean() > 0.8 and np.array_equal(got[fast], ref[fast])
+
+
+def test_count_within_is_the_ball_count_of_each_label():
+    from rooftrace.lidar._kernels import count_within
+
+    rng = np.random.default_rng(11)
+    xy = np.concatenate([rng.uniform(0, 30, (2000, 2)), rng.integers(0, 40, (1000, 2)) * 0.25])  # ties at r
+    label = rng.integers(0, 4, len(xy))
+    flag = rng.random(len(xy)) < 0.3
+    count, flagged = count_within(xy, label, flag, 0.5)
+    for lab in range(4):
+        on = np.flatnonzero(label == lab)
+        tree = cKDTree(xy[on])
+        assert np.array_equal(count[on], tree.query_ball_point(xy[on], 0.5, return_length=True))
+        ref = [sum(flag[on[j]] for j in nb) for nb in tree.query_ball_point(xy[on], 0.5)]
+        assert np.array_equal(flagged[on], ref)
+
+
+@pytest.mark.parametrize("dims", [2, 3])
+def test_nearest_within_is_the_bounded_kdtree_query(dims):
+    from rooftrace.lidar._kernels import nearest_within
+
+    rng = np.random.default_rng(12)
+    data = np.concatenate([rng.uniform(0, 20, (3000, dims)), rng.integers(0, 40, (1500, dims)) * 0.25])
+    queries = np.concatenate([rng.uniform(-1, 21, (2000, dims)), rng.integers(0, 40, (1000, dims)) * 0.25 + 0.125])
+    j, tie = nearest_within(data, queries, 0.5)
+    dist, ref = cKDTree(data).query(queries, distance_upper_bound=0.5)
+    ref = np.where(np.isfinite(dist), ref, -1)
+    assert tie.any() and (j >= 0).any() and (j < 0).any()
+    assert np.array_equal(j[~tie], ref[~tie])
+    # a tie is two points at one distance, the nearest
+    d = np.linalg.norm(data[j[tie]] - queries[tie], axis=1)
+    assert np.allclose(d, dist[tie])

@@ -31,7 +31,8 @@ def test_delft_hip_roof(delft_hip_roof):
     # in the south corner may come as a fifth, flat plane.
     pitched = roof.slope_deg > 20
     assert pitched.sum() == 4 and np.all((roof.slope_deg[pitched] > 40) & (roof.slope_deg[pitched] < 50))
-    assert np.all(roof.plane_sigma < 0.15)
+    # (the main planes: a flat block on the roof, a chimney's top, spans up to 0.5 m)
+    assert np.all(roof.plane_sigma[~roof.plane_detail] < 0.15)
     # The ridge is horizontal and above every eave.
     (ridge,) = [g for g, k in zip(roof.ridges, roof.ridge_kind) if k == "ridge"]
     z = np.asarray(ridge.coords)[:, 2]

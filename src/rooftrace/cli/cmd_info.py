@@ -9,13 +9,13 @@ import typer
 
 from rooftrace.cli import options as opt
 from rooftrace.cli.app import app, emit_json
-from rooftrace.io.las import LAS_SUFFIXES
-from rooftrace.io.points import read_points, summarise_las
 
 
 @app.command()
 def info(inputs: opt.Inputs, crs: opt.Crs = None, json_: opt.Json = False) -> None:
     """Summarise point clouds: points, bounds, CRS, planimetric density, classes, and how `run` would go."""
+    from rooftrace.io.las import LAS_SUFFIXES
+    from rooftrace.io.points import read_points, summarise_las
     from rooftrace.tiling.memory import available_bytes, fits_in_memory, untiled_bytes
 
     if inputs and all(Path(p).suffix.lower() in LAS_SUFFIXES for p in inputs):

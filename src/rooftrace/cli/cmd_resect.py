@@ -18,12 +18,7 @@ import typer
 
 from rooftrace.cli import options as opt
 from rooftrace.cli.app import app, emit_json, setup_logging
-from rooftrace.config import load_config
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.image.resection import ResectionOptions, space_resection
-from rooftrace.io.atomic import check_output
-from rooftrace.io.camera import read_camera, write_camera
-from rooftrace.options import make_options
 
 __all__ = ["resect", "read_gcps"]
 
@@ -84,6 +79,13 @@ def resect(
     quiet: opt.Quiet = False,
 ) -> None:
     """Solve the exterior orientation (and its covariance) of a frame image from GCPs."""
+    # the library is imported when a command runs, not for --help or another command
+    from rooftrace.config import load_config
+    from rooftrace.image.resection import ResectionOptions, space_resection
+    from rooftrace.io.atomic import check_output
+    from rooftrace.io.camera import read_camera, write_camera
+    from rooftrace.options import make_options
+
     setup_logging(quiet)
     check_output(output, overwrite)
     options = make_options(ResectionOptions, load_config(config), sigma_px=sigma_px)

@@ -10,9 +10,7 @@ import typer
 
 from rooftrace.cli import options as opt
 from rooftrace.cli.app import STATE, app, emit_json, reporter_for, setup_logging
-from rooftrace.config import load_config
 from rooftrace.errors import InputError, OutputExistsError
-from rooftrace.options import make_options
 
 Density = Annotated[float | None, typer.Option("--density", help="Mean ALS pulse density (pts/m²). [default: 12]")]
 Size = Annotated[float | None, typer.Option("--size", help="Side of the square scene (m). [default: 160]")]
@@ -50,6 +48,8 @@ def simulate(
     truth_class and truth_building_id.  Options also come from the
     [simulate] table of --config.
     """
+    from rooftrace.config import load_config
+    from rooftrace.options import make_options
     from rooftrace.synth import SceneOptions, simulate_scene, write_scene
     from rooftrace.synth.simulate import SCENE_FILES
 

@@ -13,14 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyogrio
 import pyproj
 import shapely
 
 from rooftrace.errors import InputError, OptionError
 from rooftrace.footprints import Footprints
 from rooftrace.io.checks import horizontal_crs
-from rooftrace.io.vector import list_layers
+from rooftrace.io.vector import list_layers, load_pyogrio
 
 __all__ = ["read_footprints", "FOOTPRINT_ID_FIELDS"]
 
@@ -71,7 +70,7 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *,
     path = Path(path)
     names = list_layers(path)
     try:
-        layers = pyogrio.list_layers(str(path))
+        layers = load_pyogrio().list_layers(str(path))
     except Exception:  # list_layers above has already said why
         layers = []
     polygonal = [str(name) for name, kind in layers if kind and "polygon" in str(kind).lower()]
@@ -84,7 +83,7 @@ def read_footprints(path: str | os.PathLike, crs: pyproj.CRS | None = None, *,
     if len(candidates) > 1:
         log.warning("%s: reading footprints from layer %r (also there: %s)", path, layer, ", ".join(candidates[1:]))
     try:
-        meta, fids, wkb, values = pyogrio.raw.read(str(path), layer=layer, return_fids=True)
+        meta, fids, wkb, values = load_pyogrio().raw.read(str(path), layer=layer, return_fids=True)
     except Exception as exc:
         reason = " ".join(str(exc).split())[:200]
         raise InputError(f"{path}: cannot read layer {layer!r} ({reason})") from None

@@ -14,20 +14,20 @@ Shapefiles are still read.
 from __future__ import annotations
 
 import os
+import types
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pyogrio
 import pyproj
 import shapely
 
 from rooftrace.errors import InputError
 from rooftrace.io.atomic import atomic_path
 
-__all__ = ["Layer", "write_layers", "read_layer", "list_layers", "vector_driver"]
+__all__ = ["Layer", "write_layers", "read_layer", "list_layers", "load_pyogrio", "vector_driver"]
 
 _DRIVERS = {".gpkg": "GPKG", ".geojson": "GeoJSON", ".json": "GeoJSON", ".fgb": "FlatGeobuf"}
 #: GeoPackage 1.3: GDAL >= 3.7 writes 1.4 by default, which GDAL 3.6 (Debian 12, QGIS LTR builds of
@@ -130,12 +130,20 @@ def write_layers(
             geoms = np.asarray(shapely.to_wkb(np.asarray(layer.geometries, dtype=object), output_dimension=3)) if n else np.empty(0, object)
             fields = list(layer.attributes)
             data = [_column(layer.attributes[k]) for k in fields]
-            pyogrio.raw.write(
+            load_pyogrio().raw.write(
                 str(tmp), geoms, data, fields, layer=name, driver=driver,
                 geometry_type=_ogr_type(layer.geometry_type), crs=wkt,
                 append=False, dataset_options=_DATASET_OPTIONS.get(driver),
             )
     return path
+
+
+def load_pyogrio() -> types.ModuleType:
+    """pyogrio, imported when a vector file is read or written: it imports geopandas and pandas (0.3 s CPU)."""
+    import pyogrio
+    import pyogrio.raw
+
+    return pyogrio
 
 
 def vector_driver(path: str | os.PathLike) -> str:
@@ -176,7 +184,7 @@ def list_layers(path: str | os.PathLike) -> list[str]:
     if not path.exists():
         raise InputError(f"{path}: no such file")
     try:
-        return [str(r[0]) for r in pyogrio.list_layers(str(path))]
+        return [str(r[0]) for r in load_pyogrio().list_layers(str(path))]
     except Exception as exc:
         reason = " ".join(str(exc).split(";")[0].split())[:200]
         raise InputError(f"{path}: not a readable vector file ({reason}); give a GeoPackage, GeoJSON, "
@@ -195,7 +203,7 @@ def read_layer(path: str | os.PathLike, layer: str | None = None, *, missing_ok:
             return None
         raise InputError(f"{path}: no layer {layer!r} (layers: {', '.join(names) or 'none'})")
     try:
-        meta, _, wkb, values = pyogrio.raw.read(str(path), layer=layer)
+        meta, _, wkb, values = load_pyogrio().raw.read(str(path), layer=layer)
     except Exception as exc:
         raise InputError(f"{path}: cannot read layer {layer!r} ({exc})") from None
     geoms = list(shapely.from_wkb(wkb)) if wkb is not None else []

@@ -11,8 +11,8 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["GridKnn", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group", "pair_pull",
-           "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
+__all__ = ["GridKnn", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group",
+           "nearest_within", "normal_links", "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
 @njit(cache=True)
@@ -91,14 +91,48 @@ def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (uniq + lo).astype(values.dtype, copy=False), lookup[shifted]
 
 
+@njit(cache=True)
+def _unique_rows_of_pairs(a, b, n):  # pragma: no cover - compiled
+    """The distinct (a, b) of :func:`unique_pairs`: a counting sort on ``a``, then each (short) row sorted."""
+    order, start = _counting_order(a, n)
+    col = np.empty(len(a), np.int64)
+    for e in range(len(a)):
+        col[e] = b[order[e]]
+    out = np.empty((len(a), 2), np.int64)
+    u = 0
+    for r in range(n):
+        lo, hi = start[r], start[r + 1]
+        if hi - lo > 48:
+            col[lo:hi] = np.sort(col[lo:hi])
+        else:
+            for s in range(lo + 1, hi):  # a plan neighbourhood: a few dozen at most
+                v = col[s]
+                t = s
+                while t > lo and col[t - 1] > v:
+                    col[t] = col[t - 1]
+                    t -= 1
+                col[t] = v
+        for s in range(lo, hi):
+            if s == lo or col[s] != col[s - 1]:
+                out[u, 0] = r
+                out[u, 1] = col[s]
+                u += 1
+    return out[:u].copy()
+
+
 def unique_pairs(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
-    """``np.unique(np.column_stack([a, b]), axis=0)`` of integers in [0, n), by one int64 key per pair.
+    """``np.unique(np.column_stack([a, b]), axis=0)`` of integers in [0, n).
 
     Returns the distinct (a, b) pairs as (U, 2) int64, in (a, b) order.
     """
-    key = np.asarray(a, dtype=np.int64) * n + np.asarray(b, dtype=np.int64)
+    # columns of a pair array stay views: copying Delft's 7 million took a third of the count
+    a = np.asarray(a, dtype=np.int64)
+    b = np.asarray(b, dtype=np.int64)
+    if n <= 4 * len(a) + 1024:
+        # counting on a: np.sort of the 7 million int64 keys of Delft's plan pairs took 0.6-1.0 s
+        return _unique_rows_of_pairs(a, b, int(n))
     # a sort, not np.unique: its hash path took 30 s on the 5 million pairs of an AHN3 tile
-    key = np.sort(key)
+    key = np.sort(a * n + b)
     key = key[np.r_[True, key[1:] != key[:-1]]] if len(key) else key
     return np.column_stack([key // n, key % n])
 
@@ -206,23 +240,78 @@ def _knn_build(xyz, x0, y0, side, nx, ny):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi):  # pragma: no cover
-    """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie."""
+def _select_smallest(cd, ci, m, kk):  # pragma: no cover - compiled
+    """Reorder ``cd[:m]`` (and ``ci``) so that ``cd[:kk]`` holds its kk smallest values (quickselect)."""
+    lo, hi = 0, m - 1
+    target = kk - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        a, b, c = cd[lo], cd[mid], cd[hi]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = lo, hi
+        while i <= j:
+            while cd[i] < pivot:
+                i += 1
+            while cd[j] > pivot:
+                j -= 1
+            if i <= j:
+                cd[i], cd[j] = cd[j], cd[i]
+                ci[i], ci[j] = ci[j], ci[i]
+                i += 1
+                j -= 1
+        if target <= j:
+            hi = j
+        elif target >= i:
+            lo = i
+        else:
+            break
+
+
+@njit(cache=True)
+def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi, cd, ci):  # pragma: no cover
+    """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie.
+
+    ``cd``, ``ci``: room for the points of any 3 x 3 cells.
+    """
     px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
     cx = cell[i] // ny
     cy = cell[i] - cx * ny
     margin = 1e-9 * side  # a point may sit an ulp outside its cell
     kk = k + 1
-    cnt = 0
-    worst = np.inf
-    ring = 0
+    # the cell and the ring around it hold the neighbours of nearly every
+    # point (a cell holds ~k/pi points): all their distances, the k + 1
+    # smallest selected and sorted, instead of an insertion each
+    m = 0
+    for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+        for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+            c = gx * ny + gy
+            for s in range(start[c], start[c + 1]):
+                dx = xs[s] - px
+                dy = ys[s] - py
+                dz = zs[s] - pz
+                # the same sum order as cKDTree's squared distance
+                cd[m] = dx * dx + dy * dy + dz * dz
+                ci[m] = perm[s]
+                m += 1
+    if m > kk:
+        _select_smallest(cd, ci, m, kk)
+    cnt = min(m, kk)
+    for s in range(cnt):
+        d, p = cd[s], s
+        while p > 0 and bd[p - 1] > d:
+            bd[p] = bd[p - 1]
+            bi[p] = bi[p - 1]
+            p -= 1
+        bd[p] = d
+        bi[p] = ci[s]
+    worst = bd[kk - 1] if cnt == kk else np.inf
+    ring = 2
     while True:
-        if ring > 0:
-            gap = max((ring - 1) * side - margin, 0.0)
-            if gap * gap >= worst:
-                break
-            if cx - ring < 0 and cy - ring < 0 and cx + ring >= nx and cy + ring >= ny:
-                break
+        gap = max((ring - 1) * side - margin, 0.0)
+        if gap * gap >= worst:
+            break
+        if cx - ring < 0 and cy - ring < 0 and cx + ring >= nx and cy + ring >= ny:
+            break
         for gx in range(max(cx - ring, 0), min(cx + ring, nx - 1) + 1):
             side_x = gx == cx - ring or gx == cx + ring
             for gy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
@@ -254,7 +343,6 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
                         break  # the rest of the cell is higher still
                     dx = xs[s] - px
                     dy = ys[s] - py
-                    # the same sum order as cKDTree's squared distance
                     d = dx * dx + dy * dy + dz * dz
                     if d < worst:
                         if cnt < kk:
@@ -280,11 +368,21 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
 @njit(cache=True, parallel=True)
 def _knn_query(rows, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, out, tie):  # pragma: no cover
     n = len(rows)
+    # the most points any 3 x 3 cells hold
+    block = 0
+    for cx in range(nx):
+        for cy in range(ny):
+            block_n = 0
+            for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+                block_n += start[gx * ny + min(cy + 1, ny - 1) + 1] - start[gx * ny + max(cy - 1, 0)]
+            block = max(block, block_n)
     for b in numba.prange((n + 255) // 256):
         bd = np.empty(k + 1)
         bi = np.empty(k + 1, np.int64)
+        cd = np.empty(block)
+        ci = np.empty(block, np.int64)
         for r in range(b * 256, min(n, (b + 1) * 256)):
-            tie[r] = _knn_one(rows[r], xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi)
+            tie[r] = _knn_one(rows[r], xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi, cd, ci)
             for q in range(k):
                 out[r, q] = bi[q]
 
@@ -303,7 +401,7 @@ class GridKnn:
     -----
     :meth:`query` returns the neighbours of ``cKDTree(xyz).query(xyz[rows],
     k)`` in the same order, except in the rows it flags as ties.  The cell
-    side, about the distance of the k-th neighbour from the density of the
+    side, about 1.4 times the distance of the k-th neighbour from the density of the
     occupied 2 m cells, changes the speed only.
     """
 
@@ -317,7 +415,9 @@ class GridKnn:
         span = self.xyz[:, :2].max(axis=0) - lo
         ij = np.floor((self.xyz[:, :2] - lo) / 2.0).astype(np.int64)
         occupied = int(dense_cells(ij).max()) + 1
-        side = float(np.sqrt(self.k * occupied * 4.0 / (np.pi * n)))
+        # cells about 1.4 times the k-th neighbour's distance: the 3 x 3 cells around a point
+        # hold ~2.9 k points (at twice that distance, ~11 k: Delft's search 20 % slower)
+        side = float(np.sqrt(self.k * occupied * 2.0 / (np.pi * n)))
         # at most ~4 cells a point: a sparse, wide cloud gets coarser cells
         side = max(side, float(np.sqrt(span[0] * span[1] / (4.0 * n))), 1e-6)
         self.side = side
@@ -387,6 +487,29 @@ def sort_by_bucket(values: np.ndarray, key: np.ndarray) -> np.ndarray:
                              np.ascontiguousarray(values, np.float64))
 
 
+@njit(cache=True)
+def _octant(dx, dy):  # pragma: no cover - compiled
+    """Sector (of 8, the first starting at -x) of the direction (dx, dy) from its signs, -1 near a border.
+
+    The sector of ``int((arctan2(dy, dx) + pi) / (pi / 4))`` without the
+    arctangent; where the direction lies within 1e-9 (relative) of an axis
+    or a diagonal the rounding of that formula decides, so -1 asks for it.
+    """
+    ax, ay = abs(dx), abs(dy)
+    if ax == 0.0 or ay == 0.0:
+        return -1
+    if ay <= 1e-9 * ax or ax <= 1e-9 * ay or abs(ax - ay) <= 1e-9 * (ax + ay):
+        return -1
+    steep = ay > ax
+    if dy < 0.0:
+        if dx < 0.0:
+            return 1 if steep else 0
+        return 2 if steep else 3
+    if dx > 0.0:
+        return 5 if steep else 4
+    return 6 if steep else 7
+
+
 @njit(cache=True, parallel=True)
 def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n_sectors, out):  # pragma: no cover
     """Nearest point per angular sector of each row within ``radius``; ties go to the lower index.
@@ -411,8 +534,10 @@ def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n
                     if d > r2 or d == 0.0:
                         continue
                     j = order[s]
-                    a = np.arctan2(dy, dx) + np.pi
-                    k = min(int(a / width), n_sectors - 1)
+                    k = _octant(dx, dy) if n_sectors == 8 else -1
+                    if k < 0:
+                        a = np.arctan2(dy, dx) + np.pi
+                        k = min(int(a / width), n_sectors - 1)
                     if d < best[k] or (d == best[k] and j < out[r, k]):
                         best[k] = d
                         out[r, k] = j
@@ -444,15 +569,190 @@ def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: i
     out = np.full((len(rows), n_sectors), -1, np.int64)
     if len(xy) < 2 or len(rows) == 0:
         return out
+    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, float(radius))
+    _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, float(radius), int(n_sectors), out)
+    return out
+
+
+def _plan_grid(xy: np.ndarray, radius: float) -> tuple:
+    """Plan cells at least ``radius`` wide (and ~4 points a cell at most), the points in cell order.
+
+    Returns (order, xs, ys, start, nx, ny, x0, y0, side): the points of cell
+    c are ``order[start[c]:start[c + 1]]`` (ascending), ``xs``, ``ys`` their
+    coordinates in that order, so that a scan of a cell reads them in sequence.
+    """
     lo = xy.min(axis=0)
     span = xy.max(axis=0) - lo
     side = max(float(radius), float(np.sqrt(span[0] * span[1] / (4.0 * len(xy)))), 1e-6)
     nx, ny = int(span[0] // side) + 1, int(span[1] // side) + 1
     ij = np.minimum(np.floor((xy - lo) / side).astype(np.int64), [nx - 1, ny - 1])
-    key = ij[:, 0] * ny + ij[:, 1]
-    order = np.argsort(key, kind="stable")
-    start = np.searchsorted(key[order], np.arange(nx * ny + 1))
+    order, start = _counting_order(ij[:, 0] * ny + ij[:, 1], nx * ny)
     xs, ys = np.ascontiguousarray(xy[order, 0]), np.ascontiguousarray(xy[order, 1])
-    _sector_scan(xy, order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side, rows, float(radius),
-                 int(n_sectors), out)
-    return out
+    return order, xs, ys, start, nx, ny, float(lo[0]), float(lo[1]), side
+
+
+@njit(cache=True)
+def _counting_order(key, n_keys):  # pragma: no cover - compiled
+    """``np.argsort(key, kind="stable")`` of keys in [0, n_keys) and where each key starts in it, by counting."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for i in range(len(key)):
+        start[key[i] + 1] += 1
+    for c in range(n_keys):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(len(key), np.int64)
+    for i in range(len(key)):
+        order[fill[key[i]]] = i
+        fill[key[i]] += 1
+    return order, start
+
+
+@njit(cache=True, parallel=True)
+def _count_within(xy, label, flag, order, xs, ys, start, nx, ny, x0, y0, side, r2, count, flagged):  # pragma: no cover
+    for i in numba.prange(len(xy)):
+        px, py = xy[i, 0], xy[i, 1]
+        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
+        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        c = 0
+        f = 0
+        for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+            for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                g = gx * ny + gy
+                for s in range(start[g], start[g + 1]):
+                    j = order[s]
+                    if label[j] != label[i]:
+                        continue
+                    dx = xs[s] - px
+                    dy = ys[s] - py
+                    # cKDTree's squared distance and its ball test (d <= r²)
+                    if dx * dx + dy * dy <= r2:
+                        c += 1
+                        f += flag[j]
+        count[i] = c
+        flagged[i] = f
+
+
+def count_within(xy: np.ndarray, label: np.ndarray, flag: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points of the same label within ``radius`` in plan of each point (itself included), and the flagged ones.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2), float64
+        Plan coordinates (m).
+    label : ndarray of shape (N,), int
+        Label of each point.
+    flag : ndarray of shape (N,), bool
+    radius : float
+        Plan radius (m), included.
+
+    Returns
+    -------
+    count, flagged : ndarray of shape (N,), int64
+        The counts of ``cKDTree.query_ball_point(..., return_length=True)``
+        of the points of each label apart, without a tree per label.
+    """
+    xy = np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2])
+    count = np.zeros(len(xy), np.int64)
+    flagged = np.zeros(len(xy), np.int64)
+    if len(xy) == 0:
+        return count, flagged
+    # cells a little wider than the radius: a pair at exactly the radius
+    # never lies two cells apart by the rounding of the cell index
+    grid = _plan_grid(xy, float(radius) * (1.0 + 1e-9))
+    _count_within(xy, np.ascontiguousarray(label, np.int64), np.ascontiguousarray(flag, np.int64), *grid,
+                  float(radius) ** 2, count, flagged)
+    return count, flagged
+
+
+@njit(cache=True, parallel=True)
+def _nearest_scan(queries, order, xs, ys, zs, start, nx, ny, x0, y0, side, r2, out, tie):  # pragma: no cover
+    for q in numba.prange(len(queries)):
+        px, py = queries[q, 0], queries[q, 1]
+        pz = queries[q, 2] if len(zs) else 0.0
+        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
+        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        best = r2
+        bj = -1
+        t = False
+        for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
+            for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
+                g = gx * ny + gy
+                for s in range(start[g], start[g + 1]):
+                    dx = xs[s] - px
+                    dy = ys[s] - py
+                    # cKDTree's squared distance, and its bound (d < r²)
+                    d = dx * dx + dy * dy
+                    if len(zs):
+                        dz = zs[s] - pz
+                        d = d + dz * dz
+                    if d < best:
+                        best = d
+                        bj = order[s]
+                        t = False
+                    elif d == best and bj >= 0:
+                        t = True
+        out[q] = bj
+        tie[q] = t
+
+
+def nearest_within(data: np.ndarray, queries: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest point of ``data`` closer than ``radius`` to each query, as ``cKDTree.query(..., distance_upper_bound)``.
+
+    Parameters
+    ----------
+    data : ndarray of shape (N, D), float64
+        Points (m), D = 2 (plan) or 3.
+    queries : ndarray of shape (M, D), float64
+    radius : float
+        Distances must be shorter than this (m).
+
+    Returns
+    -------
+    nearest : ndarray of shape (M,), int64
+        Index into ``data``, -1 where none is closer than ``radius``.
+    tie : ndarray of shape (M,), bool
+        Queries with two nearest points at the same distance: which one the
+        KD-tree returns follows its traversal; ask it.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    queries = np.ascontiguousarray(queries, dtype=np.float64)
+    out = np.full(len(queries), -1, np.int64)
+    tie = np.zeros(len(queries), bool)
+    if len(data) == 0 or len(queries) == 0:
+        return out, tie
+    xy = np.ascontiguousarray(data[:, :2])
+    # cells a little wider than the radius: a point at the radius never lies
+    # two cells away by the rounding of the cell index
+    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, float(radius) * (1.0 + 1e-9))
+    zs = np.ascontiguousarray(data[order, 2]) if data.shape[1] > 2 else np.empty(0)
+    _nearest_scan(queries, order, xs, ys, zs, start, nx, ny, x0, y0, side, float(radius) ** 2, out, tie)
+    return out, tie
+
+
+@njit(cache=True)
+def _dot3(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
+    # numpy's einsum("ij,ij->i") adds the three products in this order
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@njit(cache=True, parallel=True)
+def normal_links(xyz, normals, pairs, link_height, min_cos):  # pragma: no cover - compiled
+    """The normal test of region growing for each pair, without numpy's (M, 3) temporaries.
+
+    ``|n_i·(p_i − p_j)| < link_height`` and ``|n_j·(p_i − p_j)| < link_height``,
+    and, when ``min_cos`` > -1, ``|n_i·n_j| >= min_cos``.  The products are
+    summed in einsum's order, so the dot products are numpy's to the bit.
+    """
+    keep = np.empty(len(pairs), np.bool_)
+    for e in numba.prange(len(pairs)):
+        i, j = pairs[e, 0], pairs[e, 1]
+        dx = xyz[i, 0] - xyz[j, 0]
+        dy = xyz[i, 1] - xyz[j, 1]
+        dz = xyz[i, 2] - xyz[j, 2]
+        ok = (abs(_dot3(normals[i, 0], normals[i, 1], normals[i, 2], dx, dy, dz)) < link_height
+              and abs(_dot3(normals[j, 0], normals[j, 1], normals[j, 2], dx, dy, dz)) < link_height)
+        if ok and min_cos > -1.0:
+            ok = abs(_dot3(normals[i, 0], normals[i, 1], normals[i, 2],
+                           normals[j, 0], normals[j, 1], normals[j, 2])) >= min_cos
+        keep[e] = ok
+    return keep

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
+from rooftrace.lidar._kernels import nearest_within
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, local_penetration, penetration
 from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching
 
@@ -45,12 +46,24 @@ def _absorb(pts: np.ndarray, group: np.ndarray, eligible: np.ndarray, radius: fl
         todo = np.flatnonzero((group < 0) & eligible)
         if len(inb) == 0 or len(todo) == 0:
             break
-        dist, j = cKDTree(pts[inb]).query(pts[todo], distance_upper_bound=radius, workers=-1)
-        hit = np.isfinite(dist)
+        j = _nearest(pts[inb], pts[todo], radius)
+        hit = j >= 0
         if not hit.any():
             break
         group[todo[hit]] = group[inb[j[hit]]]
     return group
+
+
+def _nearest(data: np.ndarray, queries: np.ndarray, radius: float) -> np.ndarray:
+    """``cKDTree(data).query(queries, distance_upper_bound=radius)``'s neighbour (-1 none), on a grid.
+
+    The tree decides only the queries with two nearest points at one distance.
+    """
+    j, tie = nearest_within(data, queries, radius)
+    if tie.any():
+        _, jt = cKDTree(data).query(queries[tie], distance_upper_bound=radius, workers=-1)
+        j[tie] = np.where(jt < len(data), jt, -1)
+    return j
 
 
 def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float, eligible: np.ndarray) -> np.ndarray:
@@ -60,8 +73,8 @@ def _absorb_below(pts: np.ndarray, group: np.ndarray, radius: float, eligible: n
     todo = np.flatnonzero((group < 0) & eligible)
     if len(inb) == 0 or len(todo) == 0:
         return group
-    dist, j = cKDTree(pts[inb, :2]).query(pts[todo, :2], distance_upper_bound=radius, workers=-1)
-    hit = np.isfinite(dist)
+    j = _nearest(pts[inb, :2], pts[todo, :2], radius)
+    hit = j >= 0
     hit[hit] &= pts[todo[hit], 2] <= pts[inb[j[hit]], 2]
     group[todo[hit]] = group[inb[j[hit]]]
     return group

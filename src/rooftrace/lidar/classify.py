@@ -32,9 +32,8 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from rooftrace.lidar._kernels import pair_pull
+from rooftrace.lidar._kernels import count_within, pair_pull, sort_by_bucket
 from rooftrace.options import optional
 
 __all__ = ["ClassifyOptions", "cluster_means", "cluster_medians", "interior_points", "kmeans_1d", "local_penetration",
@@ -276,7 +275,8 @@ def cluster_medians(labels: np.ndarray, values: np.ndarray, k: int | None = None
     k = int(labels.max(initial=-1)) + 1 if k is None else k
     ok = np.flatnonzero(labels >= 0)
     values = np.asarray(values, float)[ok]
-    order = np.lexsort((values, labels[ok]))
+    # a counting sort on the (dense) labels, then each cluster: np.lexsort((values, labels))'s order
+    order = sort_by_bucket(values, labels[ok])
     counts = np.bincount(labels[ok], minlength=k)
     start = np.concatenate([[0], np.cumsum(counts)[:-1]])
     out = np.full(k, np.nan)
@@ -368,14 +368,10 @@ def local_penetration(xy: np.ndarray, labels: np.ndarray, returns: np.ndarray, r
     inb = np.flatnonzero(labels >= 0)
     if len(inb) == 0:
         return out
-    # each cluster on its own plane, 3·radius apart: a ball query then sees
-    # only its own cluster, and counting (not listing) neighbours keeps
-    # memory linear (~70 neighbours a point at 15 pts/m² and 1.2 m)
-    stacked = np.column_stack([np.asarray(xy, dtype=np.float64)[inb], labels[inb] * 3.0 * radius])
+    # counting (not listing) neighbours keeps memory linear (~70 neighbours
+    # a point at 15 pts/m² and 1.2 m)
     through = np.asarray(returns, dtype=np.float64)[inb] > 0
-    count = cKDTree(stacked).query_ball_point(stacked, radius, return_length=True, workers=-1)
-    n_through = (cKDTree(stacked[through]).query_ball_point(stacked, radius, return_length=True, workers=-1)
-                 if through.any() else np.zeros(len(inb)))
+    count, n_through = count_within(np.asarray(xy, dtype=np.float64)[inb], labels[inb], through, radius)
     out[inb] = n_through / count
     return out
 

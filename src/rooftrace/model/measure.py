@@ -9,7 +9,7 @@ import shapely
 
 from rooftrace.model.validity import surface_normal
 
-__all__ = ["roof_height_at", "vertical_rmse"]
+__all__ = ["roof_height_at", "surface_distance", "vertical_rmse"]
 
 
 def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
@@ -80,3 +80,67 @@ def vertical_rmse(solids: Iterable, xyz: np.ndarray) -> float:
     d = xyz[:, 2] - roof_height_at(list(solids), xyz[:, :2])
     d = d[np.isfinite(d)]
     return float(np.sqrt(np.mean(d * d))) if len(d) else float("nan")
+
+
+def surface_distance(solids: Iterable, xyz: np.ndarray) -> np.ndarray:
+    """Distance (m) in 3D from each point to the nearest surface (roof, wall or ground) of ``solids``.
+
+    The measure of 3D city model software (roofer, the 3DBAG) for the fit of
+    points to a mesh: a facade point scores its distance to the wall, not
+    its height below the roof.
+
+    Parameters
+    ----------
+    solids : iterable of Solid
+        E.g. the LoD 2.2 solids of one building's parts.
+    xyz : ndarray of shape (N, 3)
+        Points (m).
+
+    Returns
+    -------
+    ndarray of shape (N,), float64
+        Inf where there is no surface.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> from rooftrace.model.solid import prism_solid, horizontal_plane
+    >>> box = prism_solid([(shapely.box(0, 0, 4, 4), horizontal_plane(5.0))], 0.0)
+    >>> surface_distance([box], np.array([[2.0, 2.0, 5.5], [2.0, 2.0, 2.0], [6.0, 2.0, 5.0]])).tolist()
+    [0.5, 2.0, 2.0]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    best = np.full(len(xyz), np.inf)
+    surfaces = [s for solid in solids for s in solid.surfaces]
+    if not surfaces or not len(xyz):
+        return best
+    origin = xyz.mean(axis=0)  # local coordinates keep map coordinates' precision in the projections
+    p = xyz - origin
+    frames = []
+    for s in surfaces:
+        rings = [np.asarray(r, dtype=np.float64) - origin for r in s.rings]
+        n = surface_normal(rings)
+        norm = np.linalg.norm(n)
+        if norm == 0:
+            continue  # a degenerate surface has no plane and no area
+        n = n / norm
+        u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        c = rings[0][0]
+        flat = shapely.Polygon((rings[0] - c) @ np.c_[u, v], [(r - c) @ np.c_[u, v] for r in rings[1:]])
+        allv = np.vstack(rings)
+        frames.append((allv.min(axis=0), allv.max(axis=0), c, n, np.c_[u, v], flat))
+    # the roofs first: their distances bound the rest, so most walls and grounds need no exact test
+    frames.sort(key=lambda f: -abs(f[3][2]))
+    for lo, hi, c, n, uv, flat in frames:
+        # distance to the surface's box is a lower bound of the distance to the surface
+        gap = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        cand = np.flatnonzero(gap < best)
+        if not len(cand):
+            continue
+        q = p[cand] - c
+        w = q @ n
+        inplane = shapely.distance(flat, shapely.points(q @ uv))
+        np.fmin.at(best, cand, np.hypot(w, inplane))
+    return best

@@ -33,6 +33,7 @@ from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, segment_planes
+from rooftrace.roof.superstructures import block_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
@@ -70,6 +71,14 @@ class RoofOptions:
         ``max(8, min_detail_area / s²)`` points; one whose tilt its points
         do not support is made horizontal.  ``None`` or ``>= min_area``
         turns the pass off.
+    min_block_points : int or None
+        Fewest points of a flat block (:func:`rooftrace.roof.superstructures.block_planes`):
+        each cluster of points left on no plane after the second pass is
+        peeled from its top in layers of ``step_height`` while a layer's
+        median height is more than ``step_height`` above the roof under it
+        (parapets, gable tops, chimneys of a few points); each such layer
+        becomes a horizontal plane at its points' mean height, with a face
+        but no lines.  0 or ``None`` turns it off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
@@ -96,7 +105,11 @@ class RoofOptions:
     step_height : float
         Smallest height jump (m) between neighbouring faces for a step edge.
     cell : float or None
-        Raster cell (m) of the face partition; default ``s / 2``.
+        Raster cell (m) of the face partition; default ``s / 2``.  At a
+        height step a cell of ``s / 2`` may hold points of both levels and
+        put one under the other level's face; ``s / 4`` fits better but
+        its finer party walls let val3dity find overlapping building parts
+        (docs/design-notes.md, the issue's RMSE).
     face_boundaries : {'each', 'held', 'free'}
         How the face boundaries are simplified
         (:func:`rooftrace.roof.faces.partition_outline`): ``'each'`` every
@@ -121,6 +134,7 @@ class RoofOptions:
     distance: float | None = None
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
+    min_block_points: int | None = 4
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0
@@ -152,6 +166,8 @@ class RoofOptions:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.face_boundaries not in ("each", "held", "free"):
             raise ValueError(f"face_boundaries must be 'each', 'held' or 'free', got {self.face_boundaries!r}")
+        if self.min_block_points is not None and int(self.min_block_points) < 0:
+            raise ValueError(f"min_block_points must be >= 0 or None, got {self.min_block_points}")
         for f in dataclasses.fields(self):
             if f.default is None:
                 v = getattr(self, f.name)
@@ -361,6 +377,10 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     detail = np.arange(len(fit.planes)) >= n_main
     if detail.any():
         fit = level_untilted(xyz, labels, fit, detail)
+    if opt.min_block_points:
+        labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
+                                   link=opt.adjacency_radius or link)
+        detail = np.arange(len(fit.planes)) >= n_main
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,

@@ -1,0 +1,124 @@
+"""Flat blocks for what stands on a roof but fits no plane: parapets, chimneys, gable tops, roof clutter.
+
+The segmentation and its second pass (:func:`rooftrace.roof.segmentation.detail_planes`)
+leave points on no plane when they are too few, too rough or too narrow
+for a plane: chains along a parapet or a gable wall rising above the roof,
+chimneys of a few points, vents.  Under the faces of the planes around them
+such points sit metres above the roof surface.  As LoD 1.3 models a roof
+by flat blocks, each cluster of such points is peeled from its top in
+layers ``rise`` deep, as seen from above, while a layer stands more than
+``rise`` above the roof: each such layer becomes a horizontal plane at its
+points' mean height (the least-squares horizontal), a parapet's coping on
+its wall, a gable's sloping top in steps, a chimney's top without its
+sides; the face partition gives each its face like any plane.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from rooftrace.graph import components
+from rooftrace.roof.planes import PlaneFit, plane_height
+
+__all__ = ["block_planes"]
+
+
+def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 4,
+                 rise: float = 0.5, link: float | None = None, min_density: float = 0.25):
+    """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        One building's roof points (m).
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` for none.
+    fit : PlaneFit
+        The planes of ``labels``.
+    spacing : float
+        Mean point spacing ``s`` (m).
+    min_points : int
+        Fewest points of a block.
+    rise : float
+        Depth (m) of a layer, and the median height of a layer's points
+        above the plane of their nearest labelled point that makes it a
+        block; lower layers (wall points under the eaves, a rough strip of
+        the roof itself) stay on no plane.
+    link : float, optional
+        3D distance (m) linking points into clusters; default ``2.5 s``.
+    min_density : float
+        Fewest points per ``s²`` over a layer's plan hull: scattered
+        returns (wires, birds, a tree branch) are not a block.
+
+    Returns
+    -------
+    labels : ndarray of shape (N,), int64
+        With the blocks numbered after the planes of ``fit``.
+    fit : PlaneFit
+        ``fit`` with the blocks appended (``p = q = 0``, ``r`` the mean
+        height, ``sigma`` with ``n - 1`` degrees of freedom and only
+        ``var(r) = sigma² / n``).
+
+    Examples
+    --------
+    >>> from rooftrace.roof.planes import fit_planes
+    >>> g = np.stack(np.meshgrid(np.arange(0, 6, 0.3), np.arange(0, 6, 0.3)), -1).reshape(-1, 2)
+    >>> roof = np.column_stack([g, np.full(len(g), 5.0)])
+    >>> chimney = np.array([[3.0, 3.0, 6.2], [3.3, 3.0, 6.25], [3.0, 3.3, 6.2], [3.3, 3.3, 6.15]])
+    >>> xyz = np.vstack([roof[np.hypot(*(g - 3.15).T) > 0.4], chimney])
+    >>> lab = np.r_[np.zeros(len(xyz) - 4, np.int64), -np.ones(4, np.int64)]
+    >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3)
+    >>> lab2[-4:].tolist(), fit2.planes[1].round(2).tolist()
+    ([1, 1, 1, 1], [0.0, 0.0, 1.0, -6.2])
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels, dtype=np.int64)
+    un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
+    K = len(fit.planes)
+    if len(un) < min_points or not len(on):
+        return labels, fit
+    link = link or 2.5 * spacing
+    comp = components(len(un), cKDTree(xyz[un]).query_pairs(link, output_type="ndarray"))
+    # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it
+    _, nearest = cKDTree(xyz[on, :2]).query(xyz[un, :2])
+    above = xyz[un, 2] - plane_height(fit.planes[labels[on[nearest]]], xyz[un, :2])
+    order = np.argsort(comp, kind="stable")
+    starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
+    blocks = []
+    for cluster in np.split(order, starts[1:]):
+        # peeled from the top, a layer of ``rise`` at a time, as seen from above: a parapet on its wall, a
+        # gable's sloping top in steps; the layers under the roof's own height are walls and stay on none
+        while len(cluster) >= min_points:
+            z = xyz[un[cluster], 2]
+            top = z >= z.max() - rise
+            layer = cluster[top]
+            if len(layer) < min_points or not np.median(above[layer]) > rise:
+                break
+            cluster = cluster[~top]
+            try:
+                area = ConvexHull(xyz[un[layer], :2]).volume
+            except QhullError:
+                area = 0.0  # a chain of points (a parapet's coping seen by one scan line)
+            if len(layer) >= min_density * area / spacing**2:
+                blocks.append(un[layer])
+    if not blocks:
+        return labels, fit
+    labels = labels.copy()
+    n = np.array([len(b) for b in blocks])
+    mean = np.array([xyz[b, 2].mean() for b in blocks])
+    sigma = np.array([np.sqrt(np.sum((xyz[b, 2] - m) ** 2) / max(len(b) - 1, 1)) for b, m in zip(blocks, mean)])
+    for j, b in enumerate(blocks):
+        labels[b] = K + j
+    cov = np.zeros((len(blocks), 3, 3))
+    cov[:, 2, 2] = sigma**2 / n
+    zeros = np.zeros(len(blocks))
+    out = PlaneFit(
+        np.vstack([fit.planes, np.column_stack([zeros, zeros, np.ones(len(blocks)), -mean])]),
+        np.vstack([fit.pqr, np.column_stack([zeros, zeros, mean])]),
+        np.vstack([fit.centre, np.array([xyz[b, :2].mean(axis=0) for b in blocks])]),
+        np.concatenate([fit.cov, cov]),
+        np.concatenate([fit.sigma, sigma]),
+        np.concatenate([fit.n, n]).astype(fit.n.dtype),
+    )
+    return labels, out
