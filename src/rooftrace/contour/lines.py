@@ -238,14 +238,6 @@ def _fit_segment(xy, idx, sigma0, trim):  # pragma: no cover - compiled
     return cx, cy, dx, dy, rss, hi - lo, noise2
 
 
-def _rss_to(xy: np.ndarray, lines: list[Line]) -> float:
-    """Squared distances of points to the nearest of ``lines``, summed."""
-    if len(xy) == 0:
-        return 0.0
-    dist = np.min([np.abs((xy - ln.point) @ ln.normal) for ln in lines], axis=0)
-    return float(dist @ dist)
-
-
 def _angle(a: Line, b: Line) -> float:
     """Angle between two lines' directions of travel, degrees in [0, 180]."""
     return float(np.degrees(np.arccos(np.clip(np.dot(a.direction, b.direction), -1.0, 1.0))))
