@@ -212,7 +212,6 @@ def stage_cpu() -> None:
     caches, imports), since the machine is shared.
     """
     from _results import record
-
     from rooftrace.io.points import read_points
     from rooftrace.lidar.detect import detect_buildings
 
