@@ -424,8 +424,14 @@ def _traced_coverage(pts: np.ndarray, shape: AlphaShape) -> float:
 
 def _regularised_or_traced(pts, origin, shape: AlphaShape, status: str, options: OutlineOptions, covered: float,
                            context: EdgeContext | None, roof: cKDTree | None) -> RoofOutline:
-    """The regularised outline, or the alpha shape's rings when the regularisation gave up points they hold."""
-    outline = _outline(pts, origin, shape, status, options, regularise=True, context=context, roof=roof)
+    """The regularised outline, or the alpha shape's rings when the regularisation gave up points they hold
+    or left nothing polygonal to repair."""
+    try:
+        outline = _outline(pts, origin, shape, status, options, regularise=True, context=context, roof=roof)
+    except GeometryError:
+        # the regularised rings cross so that no polygon is left (a hole regularised over its shell):
+        # the traced rings are still the building's outline
+        return _outline(pts, origin, shape, "unregularised", options, regularise=False)
     if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
         # a corner cut off: keep the alpha shape's rings
         outline = _outline(pts, origin, shape, "unregularised", options, regularise=False)
