@@ -7,6 +7,7 @@
     .venv/bin/python benchmarks/bench_outline.py delft       # AHN3 class 6 of both tiles vs BGT pand
     .venv/bin/python benchmarks/bench_outline.py synthetic   # curved shapes with exact truth
     .venv/bin/python benchmarks/bench_outline.py speed       # 1,000-point building, outline time
+    .venv/bin/python benchmarks/bench_outline.py stage-cpu [--repeat 3]  # the run's outline step on Delft, CPU
 
 Prints one line per method: mean PoLiS (m) and mean area F-score (per
 building for City3D; one overlay of all polygons for Delft) and run time;
@@ -201,6 +202,37 @@ def speed() -> None:
               f"(max {max(times) * 1000:.1f}), CPU median {np.median(cpu) * 1000:.1f} ms")
 
 
+def stage_cpu() -> None:
+    """CPU seconds of the outline step of ``rooftrace run`` on both Delft tiles (LiDAR only), best of ``--repeat``.
+
+    The step as the pipeline calls it (:func:`outline_buildings` with the
+    detection's building ids, spacing and the points around the buildings),
+    timed alone: the whole run's steps are ``bench_run_time.py``'s.  Process
+    CPU (all threads), the best of the repeats after a warm-up run (numba's
+    caches, imports), since the machine is shared.
+    """
+    from _results import record
+    from rooftrace.io.points import read_points
+    from rooftrace.lidar.detect import detect_buildings
+
+    repeat = int(sys.argv[sys.argv.index("--repeat") + 1]) if "--repeat" in sys.argv else 3
+    cloud = read_points(sorted(DELFT.glob("ahn3_cropped_*.laz")), "EPSG:28992")
+    det = detect_buildings(cloud)
+    around = (det.building_id <= 0) & (det.classification != 7)  # as pipeline.run_pipeline passes them
+
+    def once() -> float:
+        c0 = time.process_time()
+        outline_buildings(cloud.xyz, det.building_id, OutlineOptions(), mean_spacing=det.mean_spacing,
+                          context_xy=cloud.xyz[around])
+        return time.process_time() - c0
+
+    once()
+    best = min(once() for _ in range(repeat))
+    print(f"outline step, Delft both tiles, {det.building_id.max()} buildings: {best:.2f} s CPU (best of {repeat})")
+    record("outline", "delft_stage_cpu", [dict(method="outline_buildings (LiDAR only, default)", metric="cpu_s",
+                                               value=round(best, 2), unit="s", target="<= 4.0")])
+
+
 def _shape_rows(name: str, polys, truths, seconds: float | None = None, curved=None) -> list[dict]:
     """Mean PoLiS, F, corner measures (and time) of one method's outlines as result rows; prints one line."""
     from rooftrace.evaluate.metrics import corner_metrics
@@ -366,4 +398,4 @@ def simulator_check() -> None:
 if __name__ == "__main__":
     what = sys.argv[1] if len(sys.argv) > 1 else "city3d"
     {"city3d": city3d, "shapes": shapes, "simulator": simulator, "delft": delft, "synthetic": synthetic,
-     "speed": speed, "simulator-check": simulator_check}[what]()
+     "speed": speed, "simulator-check": simulator_check, "stage-cpu": stage_cpu}[what]()

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
 import shapely
+from scipy.spatial import cKDTree
 
-from rooftrace.contour.alpha_shape import AlphaOptions, alpha_shape, boundary_edges, trace_rings
-from rooftrace.contour.spacing import building_alpha, delaunay_edges, point_spacing
+from rooftrace.contour.alpha_shape import AlphaOptions, alpha_reach, alpha_shape, boundary_edges, trace_rings
+from rooftrace.contour.spacing import PlanMesh, building_alpha, delaunay_edges, point_spacing
 from rooftrace.errors import GeometryError
 from tests.contour.shapes import COURTYARD, L_SHAPE, RECT, sample
 
@@ -131,3 +132,34 @@ def test_trace_rings_keeps_a_ring_whose_walk_starts_on_a_doubled_stretch():
     assert len(rings) == 1
     assert sorted(rings[0].tolist()) == [0, 1, 2, 3, 4]
     assert abs(_signed_area(xy[rings[0]])) >= 100.0
+
+
+def test_a_shared_mesh_traces_the_same_shapes_as_a_fresh_one(rng):
+    xy = rng.uniform(0, 20, (600, 2))
+    xy = xy[~((xy[:, 0] > 8) & (xy[:, 0] < 12) & (xy[:, 1] > 8) & (xy[:, 1] < 12))]  # a courtyard
+    mesh = PlanMesh(xy)
+    for strategy in ("point", "building"):
+        for scale in (1.0, 1.5):
+            fresh = alpha_shape(xy, AlphaOptions(strategy=strategy, min_hole_area=1.0), alpha_scale=scale)
+            shared = alpha_shape(xy, AlphaOptions(strategy=strategy, min_hole_area=1.0), alpha_scale=scale, mesh=mesh)
+            assert [r.tolist() for r in shared.rings] == [r.tolist() for r in fresh.rings]
+            np.testing.assert_array_equal(shared.spacing, fresh.spacing)
+    assert len(mesh._spacing) == 1  # ps_avg computed once for the two point-strategy shapes
+    with pytest.raises(ValueError):
+        alpha_shape(xy[:-1], mesh=mesh)
+
+
+@pytest.mark.parametrize("strategy", ["point", "building", "global"])
+def test_nothing_of_the_shape_lies_beyond_its_reach(rng, strategy):
+    # sparse points and a large alpha: big triangles, whose middles lie far from every point
+    xy = rng.uniform(0, 20, (60, 2))
+    mesh = PlanMesh(xy)
+    options = AlphaOptions(strategy=strategy, scale=1.0)
+    shape = alpha_shape(xy, options, mean_spacing=2.5, alpha_scale=1.5, mesh=mesh)
+    polygon = _polygon(xy, shape)
+    reach = alpha_reach(mesh, options, mean_spacing=2.5, alpha_scale=1.5)
+    grid = np.mgrid[0:20:0.05, 0:20:0.05].reshape(2, -1).T
+    inside = grid[shapely.contains_xy(polygon, grid[:, 0], grid[:, 1])]
+    farthest = cKDTree(xy).query(inside)[0].max()
+    assert 0.25 * reach < farthest <= reach  # the bound holds, and is not far off
+    assert alpha_reach(mesh, options, mean_spacing=2.5, alpha_scale=3.0) == pytest.approx(2 * reach)

@@ -138,3 +138,37 @@ def test_span_basis_equals_the_vectorised_recursion():
         got, want = span_basis(t, knots, degree), recursion(t, knots, degree)
         assert got.shape == want.shape == (52, degree + 1)
         assert np.array_equal(got.view(np.int64), want.view(np.int64))
+
+
+@pytest.mark.parametrize("n_corners, max_degree", [(1, 3), (2, 2), (7, 3), (60, 5)])
+def test_banded_normal_equations_give_the_least_squares_fit(n_corners, max_degree):
+    # the compiled fit solves AᵀA by a bordered banded Cholesky; the reference is lstsq on the dense A
+    rng = np.random.default_rng(n_corners)
+    q = 40 * n_corners + 60
+    phi = np.sort(rng.uniform(0, 2 * np.pi, q))
+    radius = 20 + np.sin(5 * phi) + rng.normal(0, 0.05, q)
+    points = np.column_stack([radius * np.cos(phi), radius * np.sin(phi), rng.normal(5, 0.1, q)])
+    corners = np.sort(rng.choice(q, n_corners, replace=False))
+    degrees = rng.integers(1, max_degree + 1, n_corners)
+    if n_corners == 1:
+        degrees[:] = max_degree  # a one-segment closed curve cannot be straight
+    fit = fit_cdspline(points, corners, degrees)
+    rolled = np.roll(points, -corners[0], axis=0)
+    a = cd_basis(chord_parameters(rolled), fit.breaks, degrees)
+    want, *_ = np.linalg.lstsq(a, rolled, rcond=None)
+    np.testing.assert_allclose(fit.control_points, want, atol=1e-8)
+    res = np.linalg.norm(a @ want - rolled, axis=1)
+    np.testing.assert_allclose(fit.residuals, np.roll(res, corners[0]), atol=1e-8)
+    if n_corners == 60:
+        assert sum(degrees) > 80  # the size that took scipy.sparse before
+
+
+def test_segment_without_points_for_its_degree_falls_back_to_least_squares():
+    # a cubic span holding only its corner point: AᵀA is singular, the minimum-norm fit is kept
+    square = np.array([[0, 0], [4, 0], [8, 0], [10, 0], [10, 5], [10, 10], [5, 10], [0, 10], [0, 5]], float)
+    points = np.column_stack([square, np.zeros(len(square))])
+    fit = fit_cdspline(points, [0, 2, 3, 7], [1, 3, 1, 1])
+    a = cd_basis(chord_parameters(points), fit.breaks, [1, 3, 1, 1])
+    assert np.linalg.matrix_rank(a) < a.shape[1]
+    want, *_ = np.linalg.lstsq(a, points, rcond=None)
+    np.testing.assert_allclose(fit.control_points, want, atol=1e-9)

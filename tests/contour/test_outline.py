@@ -255,3 +255,29 @@ def test_two_roofs_joined_across_a_passage_stay_one_outline():
     out = trace_outline(roof, context_xy=ground)
     assert out.coverage >= 0.99 and out.status in ("ok", "alpha_enlarged")
     assert shapely.force_2d(out.polygon).area > 0.9 * 20 * 12 - passage.intersection(shapely.box(0, 0, 20, 12)).area
+
+
+def test_regularisation_that_repairs_to_nothing_keeps_the_traced_rings(monkeypatch):
+    # regularised rings whose repair leaves nothing polygonal (seen on Delft thinned to 3 pts/m² when the
+    # spacings moved by 5e-15 m): the building still gets the alpha shape's rings, not 'degenerate_outline'
+    # and no outline at all
+    import rooftrace.contour.outline as outline_module
+
+    regularise = outline_module._ring_outline
+    shell = {}
+
+    def hole_over_shell(xyz, spacing, options, *, outer=True, **kw):
+        result = regularise(xyz, spacing, options, outer=outer, **kw)
+        if outer:
+            shell["ring"] = result
+            return result
+        return shell["ring"]
+
+    monkeypatch.setattr(outline_module, "_ring_outline", hole_over_shell)
+    monkeypatch.setattr(outline_module, "make_valid_outline", lambda polygon, rings, corners: (None, []))
+    xyz = sample(COURTYARD, 10, seed=1)
+    out = trace_outline(xyz)
+    assert out.status == "unregularised"
+    assert out.polygon.is_valid and len(out.polygon.interiors) == 1
+    assert out.coverage >= 0.99
+    assert area_scores(out.polygon, COURTYARD)["f_score"] > 0.95

@@ -33,13 +33,14 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.contour.spacing import building_alpha, delaunay_mesh, point_spacing
+from rooftrace.contour.spacing import PlanMesh, building_alpha
 from rooftrace.errors import GeometryError
 
 __all__ = [
     "AlphaOptions",
     "AlphaShape",
     "alpha_shape",
+    "alpha_reach",
     "boundary_edges",
     "triangle_boundary",
     "repair_boundary",
@@ -268,10 +269,18 @@ def _holding(xy: np.ndarray, triangles: np.ndarray, candidates: np.ndarray, poin
         ux = (ac[:, 1] * (ab ** 2).sum(axis=1) - ab[:, 1] * (ac ** 2).sum(axis=1)) / d
         uy = (ab[:, 0] * (ac ** 2).sum(axis=1) - ac[:, 0] * (ab ** 2).sum(axis=1)) / d
     radius = np.hypot(ux, uy)
-    dist, _ = cKDTree(points).query(a + np.column_stack([ux, uy]))
+    centres = a + np.column_stack([ux, uy])
+    tree = cKDTree(points)
+    dist, _ = tree.query(centres)
     near = np.flatnonzero(~(dist > radius * (1.0 + 1e-9)))  # NaN (a degenerate triangle) stays a candidate
     if len(near) == 0:
         return near
+    finite = np.isfinite(radius[near])
+    if finite.all():
+        # only the points in those circles can be in the triangles (the ground of a whole block is
+        # many more; making each a shapely point cost more than the test)
+        inner = tree.query_ball_point(centres[near], radius[near] * (1.0 + 1e-9) + 1e-12, return_sorted=False)
+        points = points[np.unique(np.concatenate([np.asarray(i, dtype=np.int64) for i in inner]))]
     _, hit = shapely.STRtree(shapely.polygons(xy[triangles[index[near]]])).query(
         shapely.points(points), predicate="intersects")
     return index[near[np.unique(hit)]]
@@ -386,7 +395,8 @@ def _signed_area(xy: np.ndarray) -> float:
 
 
 def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
-                alpha_scale: float = 1.0, seen_through: np.ndarray | None = None) -> AlphaShape:
+                alpha_scale: float = 1.0, seen_through: np.ndarray | None = None,
+                mesh: PlanMesh | None = None) -> AlphaShape:
     """Outer ring and courtyards of one building's points.
 
     Parameters
@@ -403,6 +413,9 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
         the roof around them (ground in a passage or a light well): no
         triangle holding one is part of the shape (``boundary = "triangle"``
         only; :func:`triangle_boundary`).
+    mesh : PlanMesh, optional
+        The Delaunay mesh of ``xy`` (and its spacings), when the caller
+        traces several shapes from the same points.
 
     Returns
     -------
@@ -425,19 +438,17 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     """
     options = options or AlphaOptions()
     xy = np.asarray(xy, dtype=np.float64)
-    edges, lengths, triangles, neighbours = delaunay_mesh(xy)
-    spacing = np.full(len(xy), np.nan)
+    mesh = mesh if mesh is not None else PlanMesh(xy)
+    if len(mesh.xy) != len(xy):
+        raise ValueError(f"alpha_shape: a mesh of {len(mesh.xy)} points for {len(xy)} points")
+    edges, lengths, triangles, neighbours = mesh.edges, mesh.lengths, mesh.triangles, mesh.neighbours
+    spacing = _spacing(options, mesh, mean_spacing)
     if options.strategy == "point":
-        spacing = point_spacing(xy, edges, lengths, options.radius)
         alpha = 0.5 * (spacing[edges[:, 0]] + spacing[edges[:, 1]])
         alpha_value = float(np.median(alpha))
     else:
-        if options.strategy == "global" and (options.alpha is not None or mean_spacing is not None):
-            alpha_value = float(options.alpha if options.alpha is not None else mean_spacing)
-        else:
-            alpha_value = building_alpha(lengths, options.long_edge_sigma)
+        alpha_value = float(spacing[0])
         alpha = np.full(len(edges), alpha_value)
-        spacing[:] = alpha_value
     alpha_scale = alpha_scale * options.scale
     alpha = alpha * alpha_scale
     if options.boundary == "triangle":
@@ -464,3 +475,39 @@ def alpha_shape(xy: np.ndarray, options: AlphaOptions | None = None, *, mean_spa
     return AlphaShape([main, *holes], alpha_value * alpha_scale, options.strategy, spacing, dropped, gap_fill,
                       alpha_scale)
 
+
+
+def _spacing(options: AlphaOptions, mesh: PlanMesh, mean_spacing: float | None) -> np.ndarray:
+    """The strategy's spacing per point (metres): ps_avg (S3), or the one alpha of S1 or S2 everywhere."""
+    if options.strategy == "point":
+        return mesh.point_spacing(options.radius)
+    if options.strategy == "global" and (options.alpha is not None or mean_spacing is not None):
+        alpha_value = float(options.alpha if options.alpha is not None else mean_spacing)
+    else:
+        alpha_value = building_alpha(mesh.lengths, options.long_edge_sigma)
+    return np.full(len(mesh.xy), alpha_value)
+
+
+def alpha_reach(mesh: PlanMesh, options: AlphaOptions | None = None, *, mean_spacing: float | None = None,
+                alpha_scale: float = 1.0) -> float:
+    """How far from every point the shape :func:`alpha_shape` traces with these arguments can reach, metres.
+
+    The largest alpha radius of any triangle: a triangle of the shape has a
+    circumradius at most its alpha, and every place inside a triangle lies
+    within its circumradius of one of its corners.  Points farther than this
+    from all of ``mesh``'s points are in no triangle of the shape.
+
+    Parameters
+    ----------
+    mesh : PlanMesh
+        The Delaunay mesh of the building's points.
+    options, mean_spacing, alpha_scale
+        As for :func:`alpha_shape`.
+
+    Returns
+    -------
+    float
+        Metres, rounded up (by a millionth) past the rounding of the triangle test.
+    """
+    options = options or AlphaOptions()
+    return float(np.max(_spacing(options, mesh, mean_spacing))) * alpha_scale * options.scale * (1.0 + 1e-6)

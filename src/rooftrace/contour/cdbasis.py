@@ -44,12 +44,13 @@ def span_basis(t: np.ndarray, knots: np.ndarray, degree: int) -> np.ndarray:
     """B-spline basis of ``degree`` on ``knots`` at ``t`` (right end included); (len(t), len(knots)-degree-1)."""
     # compiled: the CD-spline calls this for every span of every trial degree,
     # thousands of small arrays per building (numpy's temporaries dominated)
-    return _span_basis(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(knots, dtype=np.float64),
+    return cox_de_boor(np.ascontiguousarray(t, dtype=np.float64), np.ascontiguousarray(knots, dtype=np.float64),
                        int(degree))
 
 
 @njit(cache=True, error_model="numpy")
-def _span_basis(t, knots, degree):  # pragma: no cover - compiled
+def cox_de_boor(t, knots, degree):  # pragma: no cover - compiled
+    """:func:`span_basis` for contiguous float64 ``t`` and ``knots``, callable from compiled fits."""
     # Cox-de Boor, row by row, with the float operations of the numpy form it
     # replaced (each ratio only where its denominator is positive, else 0;
     # left * b[c] + right * b[c + 1]), so the values are identical
@@ -117,13 +118,15 @@ def cd_basis(t: np.ndarray, breaks: np.ndarray, degrees, closed: bool = True) ->
     offsets = np.concatenate([[0], np.cumsum(degrees)])
     a = np.zeros((len(t), offsets[-1] + 1))
     span = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(degrees) - 1)
-    # only the spans that hold parameters: a ring has dozens of segments and
-    # the overshoot test evaluates one of them at a time
-    for k in np.unique(span).tolist():
+    # only the spans that hold parameters, each one's rows found by one sort (a ring has hundreds
+    # of segments, and a mask of all rows per span cost more than the basis)
+    order = np.argsort(span, kind="stable")
+    bounds = np.searchsorted(span[order], np.arange(len(degrees) + 1))
+    for k in np.flatnonzero(np.diff(bounds)).tolist():
         d = degrees[k]
-        sel = span == k
+        rows = order[bounds[k]:bounds[k + 1]]
         knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-        a[np.ix_(sel, np.arange(offsets[k], offsets[k] + d + 1))] = span_basis(t[sel], knots, d)
+        a[rows[:, None], np.arange(offsets[k], offsets[k] + d + 1)] = span_basis(t[rows], knots, d)
     if closed:
         a[:, 0] += a[:, -1]
         a = a[:, :-1]

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import functools
 import logging
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import sparse, stats
-from scipy.sparse import linalg as sparse_linalg
+from numba import njit
+from scipy import stats
 
-from rooftrace.contour.cdbasis import cd_basis, chord_parameters, span_basis
+from rooftrace.contour.cdbasis import cd_basis, chord_parameters, cox_de_boor
 from rooftrace.errors import GeometryError
 
 __all__ = ["CDSplineOptions", "CDSpline", "chord_parameters", "cd_basis", "fit_cdspline", "iterative_cdspline"]
@@ -158,82 +157,7 @@ class CDSpline:
         return self.evaluate(np.asarray(params)), np.asarray(corner_index, dtype=np.int64)
 
 
-_DENSE_UP_TO = 80  # control points; beyond, sparse normal equations are faster
-
-
-def _design(t: np.ndarray, breaks: np.ndarray, degrees, cache: dict | None):
-    """cd_basis for sorted ``t`` (closed), dense or (many control points) sparse; span blocks cached."""
-    offsets = np.concatenate([[0], np.cumsum(degrees)])
-    n_ctrl = int(offsets[-1])
-    bounds = np.append(np.searchsorted(t, breaks[:-1], side="left"), len(t))
-    vals = _span_values(t, breaks, degrees, bounds, cache)
-    rows, cols = _design_index(bounds, offsets)
-    if n_ctrl <= _DENSE_UP_TO:
-        # bincount adds in input order from 0.0, as np.add.at did (the columns of a
-        # one-segment ring wrap onto column 0 and are summed), and is much faster
-        flat = np.bincount(rows * n_ctrl + cols, vals, minlength=len(t) * n_ctrl)
-        return flat.reshape(len(t), n_ctrl)
-    return sparse.csr_matrix((vals, (rows, cols)), shape=(len(t), n_ctrl))
-
-
-def _span_values(t: np.ndarray, breaks: np.ndarray, degrees, bounds: np.ndarray, cache: dict | None) -> np.ndarray:
-    """The span-basis values of all spans, span by span (row-major within a span).
-
-    ``cache`` keeps each span's block under ``(k, d, breaks[k], breaks[k+1])``
-    and, under ``"last"``, the previous call's values: the F-test loop raises
-    one segment at a time, so only the spans whose degree changed are looked
-    up again and the rest is copied in slices (a loop over every span of every
-    trial took a tenth of the outline stage on Delft).
-    """
-    def block(k: int, d: int) -> np.ndarray:
-        key = (k, d, breaks[k], breaks[k + 1])
-        out = cache.get(key) if cache is not None else None
-        if out is None:
-            knots = np.concatenate([np.full(d + 1, breaks[k]), np.full(d + 1, breaks[k + 1])])
-            out = span_basis(t[bounds[k]:bounds[k + 1]], knots, d).ravel()
-            if cache is not None:
-                cache[key] = out
-        return out
-
-    deg = np.asarray(degrees, dtype=np.int64)
-    last = cache.get("last") if cache is not None else None
-    if last is not None and len(last[0]) == len(deg) and np.array_equal(last[1], breaks) \
-            and np.array_equal(last[2], bounds):
-        last_deg, _, _, last_vals, last_start = last
-        pieces, pos = [], 0
-        for k in np.flatnonzero(last_deg != deg).tolist():
-            pieces += [last_vals[pos:last_start[k]], block(k, int(deg[k]))]
-            pos = last_start[k + 1]
-        pieces.append(last_vals[pos:])
-        vals = np.concatenate(pieces)
-    else:
-        vals = np.concatenate([block(k, int(d)) for k, d in enumerate(deg)])
-    if cache is not None:
-        start = np.concatenate([[0], np.cumsum(np.diff(bounds) * (deg + 1))])
-        cache["last"] = (deg, breaks.copy(), bounds, vals, start)
-    return vals
-
-
-def _design_index(bounds: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Row and column of every span-basis value, span by span, row-major within a span.
-
-    Row ``r`` of span k (``bounds[k] <= r < bounds[k+1]``) holds columns
-    ``offsets[k] .. offsets[k+1]`` modulo the control-point count (the last
-    control point is the first).  Built without a loop over the spans: a
-    building ring has dozens of them and the design is rebuilt for every
-    trial degree.
-    """
-    n_ctrl = int(offsets[-1])
-    counts = np.diff(bounds)
-    width = np.repeat(np.diff(offsets) + 1, counts)  # values per row
-    rows = np.repeat(np.arange(bounds[0], bounds[-1]), width)
-    first = np.repeat(np.repeat(offsets[:-1], counts), width)
-    within = np.arange(len(rows)) - np.repeat(np.cumsum(width) - width, width)
-    return rows, (first + within) % n_ctrl
-
-
-def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None,
-                 _cache: dict | None = None) -> CDSpline:
+def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndarray | None = None) -> CDSpline:
     """Least-squares closed CD-spline through a ring's points (eq. 5.7).
 
     Parameters
@@ -252,46 +176,150 @@ def fit_cdspline(points: np.ndarray, corners: np.ndarray, degrees, *, t: np.ndar
     -------
     CDSpline
         x, y and z are fitted together with one design matrix; the normal
-        equations P = (AᵀA)⁻¹AᵀQ are solved as a sparse (banded) system.
+        equations P = (AᵀA)⁻¹AᵀQ are solved by a banded Cholesky
+        factorisation (:func:`_normal_fit`), or, when they are singular (a
+        segment with too few points for its degree), by least squares on A.
     """
-    points = np.asarray(points, dtype=np.float64)
-    corners = np.asarray(corners, dtype=np.int64)
-    degrees = [int(d) for d in degrees]
-    q = len(points)
-    start = int(corners[0])
-    rolled = np.roll(points, -start, axis=0)
-    if t is None:
-        t = chord_parameters(rolled)
-    breaks = np.append(t[corners - start], 1.0)
-    if np.any(np.diff(breaks) <= 0):
-        raise GeometryError("degenerate_segment")
-    a = _design(t, breaks, degrees, _cache)
-    if a.shape[1] > q:
-        raise GeometryError("too_few_points")
-    if not sparse.issparse(a):
-        try:
-            ctrl = np.linalg.solve(a.T @ a, a.T @ rolled)
-        except np.linalg.LinAlgError:
-            ctrl, *_ = np.linalg.lstsq(a, rolled, rcond=None)
-        return _finish(a, ctrl, rolled, breaks, degrees, t, corners, start)
-    # AᵀA is banded (cyclic): a sparse solve keeps big terraced blocks linear in size
-    ata = (a.T @ a).tocsc()
-    atq = a.T @ rolled
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", sparse_linalg.MatrixRankWarning)
-        try:
-            ctrl = sparse_linalg.spsolve(ata, atq)
-        except (sparse_linalg.MatrixRankWarning, RuntimeError):
-            ctrl, *_ = np.linalg.lstsq(a.toarray(), rolled, rcond=None)
-    return _finish(a, np.asarray(ctrl).reshape(-1, 3), rolled, breaks, degrees, t, corners, start)
+    return _RingFit(points, corners, t).fit(degrees)
 
 
-def _finish(a, ctrl, rolled, breaks, degrees, t, corners, start) -> CDSpline:
-    q = len(rolled)
-    res = np.linalg.norm(a @ ctrl - rolled, axis=1)
-    seg = np.clip(np.searchsorted(breaks, t, side="right") - 1, 0, len(corners) - 1)
-    back = (np.arange(q) - start) % q  # original order
-    return CDSpline(ctrl, breaks, degrees, t[back], res[back], seg[back])
+class _RingFit:
+    """A ring and its knots, ready for fits of any segment degrees: the F-test refits one ring hundreds of times."""
+
+    def __init__(self, points: np.ndarray, corners: np.ndarray, t: np.ndarray | None = None):
+        points = np.asarray(points, dtype=np.float64)
+        corners = np.asarray(corners, dtype=np.int64)
+        q = len(points)
+        start = int(corners[0])
+        self.rolled = np.roll(points, -start, axis=0)
+        self.t = chord_parameters(self.rolled) if t is None else t
+        self.breaks = np.append(self.t[corners - start], 1.0)
+        if np.any(np.diff(self.breaks) <= 0):
+            raise GeometryError("degenerate_segment")
+        self.back = (np.arange(q) - start) % q  # original order
+        # shared by every fit of the ring, so read-only
+        self.t_original = self.t[self.back]
+        self.segment = np.clip(np.searchsorted(self.breaks, self.t, side="right") - 1, 0, len(corners) - 1)[self.back]
+        for shared in (self.breaks, self.t_original, self.segment):
+            shared.flags.writeable = False
+
+    def fit(self, degrees) -> CDSpline:
+        degrees = np.asarray(degrees, dtype=np.int64)
+        if degrees.sum() > len(self.rolled):
+            raise GeometryError("too_few_points")
+        ctrl, res, ok = _normal_fit(self.rolled, self.t, self.breaks, degrees)
+        if not ok:
+            a = cd_basis(self.t, self.breaks, degrees)
+            ctrl, *_ = np.linalg.lstsq(a, self.rolled, rcond=None)
+            res = np.linalg.norm(a @ ctrl - self.rolled, axis=1)
+        return CDSpline(ctrl, self.breaks, degrees.tolist(), self.t_original, res[self.back], self.segment)
+
+
+@njit(cache=True, error_model="numpy")
+def _normal_fit(rolled, t, breaks, degrees):  # pragma: no cover - compiled
+    # Each trial degree of the F-test loop is a new least-squares fit of the whole ring (thousands per
+    # building): building A and AᵀA as matrices (dense, or scipy.sparse beyond 80 control points) was
+    # most of the outline stage's time.  Here AᵀA is accumulated span by span straight into its band:
+    # a span's columns are contiguous, so AᵀA is banded (half-width the largest degree) but for the
+    # first control point, which the last span shares (the closed ring).  That point is the border of
+    # a bordered band system: B y1 + c y0 = r1, cᵀ y1 + s y0 = r0, solved with B's Cholesky factor and
+    # a scalar Schur complement.  Returns the control points, the residuals |A·P - Q| (rows as t) and
+    # whether B and the Schur complement were positive definite (else the caller solves by least squares).
+    q = len(t)
+    m = len(degrees)
+    offsets = np.zeros(m + 1, np.int64)
+    for k in range(m):
+        offsets[k + 1] = offsets[k] + degrees[k]
+    n = offsets[m]
+    p = 1
+    for k in range(m):
+        p = max(p, degrees[k])
+    bounds = np.empty(m + 1, np.int64)
+    bounds[:m] = np.searchsorted(t, breaks[:m])
+    bounds[m] = q
+    band = np.zeros((n, p + 1))  # band[i, j] = (AᵀA)[i, i - j] for i - j >= 1
+    border = np.zeros(n)  # (AᵀA)[i, 0]
+    rhs = np.zeros((n, 3))
+    vals = np.zeros((q, p + 1))
+    cols = np.zeros((q, p + 1), np.int64)
+    width = np.zeros(q, np.int64)
+    for k in range(m):
+        d = degrees[k]
+        lo, hi = bounds[k], bounds[k + 1]
+        knots = np.empty(2 * d + 2)
+        knots[:d + 1] = breaks[k]
+        knots[d + 1:] = breaks[k + 1]
+        basis = cox_de_boor(t[lo:hi], knots, d)
+        for r in range(hi - lo):
+            row = lo + r
+            width[row] = d + 1
+            for a in range(d + 1):
+                vals[row, a] = basis[r, a]
+                cols[row, a] = (offsets[k] + a) % n
+            for a in range(d + 1):
+                va, i = vals[row, a], cols[row, a]
+                for c3 in range(3):
+                    rhs[i, c3] += va * rolled[row, c3]
+                for b in range(d + 1):
+                    j = cols[row, b]
+                    if j == 0:
+                        border[i] += va * vals[row, b]
+                    elif 0 < j <= i:
+                        band[i, i - j] += va * vals[row, b]
+    ctrl = np.zeros((n, 3))
+    fitted = np.zeros((q, 3))
+    if n < 2:
+        return ctrl, np.zeros(q), False
+    # Cholesky factor of B = (AᵀA)[1:, 1:], in place in the band
+    for i in range(1, n):
+        for j in range(max(1, i - p), i + 1):
+            s = band[i, i - j]
+            for k in range(max(1, i - p), j):
+                s -= band[i, i - k] * band[j, j - k]
+            if i == j:
+                if not s > 1e-13 * max(band[i, 0], 1e-300):
+                    return ctrl, np.zeros(q), False
+                band[i, 0] = np.sqrt(s)
+            else:
+                band[i, i - j] = s / band[j, 0]
+    # B⁻¹ [r1, c]: forward then backward substitution, four right-hand sides at once
+    w = np.zeros((n, 4))
+    for i in range(1, n):
+        for c4 in range(4):
+            s = rhs[i, c4] if c4 < 3 else border[i]
+            for k in range(max(1, i - p), i):
+                s -= band[i, i - k] * w[k, c4]
+            w[i, c4] = s / band[i, 0]
+    for i in range(n - 1, 0, -1):
+        for c4 in range(4):
+            s = w[i, c4]
+            for k in range(i + 1, min(n, i + p + 1)):
+                s -= band[k, k - i] * w[k, c4]
+            w[i, c4] = s / band[i, 0]
+    schur = border[0]
+    for i in range(1, n):
+        schur -= border[i] * w[i, 3]
+    if not schur > 1e-13 * max(border[0], 1e-300):
+        return ctrl, np.zeros(q), False
+    for c3 in range(3):
+        s = rhs[0, c3]
+        for i in range(1, n):
+            s -= border[i] * w[i, c3]
+        ctrl[0, c3] = s / schur
+        for i in range(1, n):
+            ctrl[i, c3] = w[i, c3] - w[i, 3] * ctrl[0, c3]
+    for row in range(q):
+        for a in range(width[row]):
+            for c3 in range(3):
+                fitted[row, c3] += vals[row, a] * ctrl[cols[row, a], c3]
+    res = np.empty(q)
+    for row in range(q):
+        s = 0.0
+        for c3 in range(3):
+            diff = fitted[row, c3] - rolled[row, c3]
+            s += diff * diff
+        res[row] = np.sqrt(s)
+    return ctrl, res, True
 
 
 def _segment_points(points: np.ndarray, corners: np.ndarray, k: int) -> np.ndarray:
@@ -305,13 +333,45 @@ def _overshoot(fit: CDSpline, k: int, seg_points: np.ndarray) -> float:
     """Largest distance from samples of segment k's curve to the polyline of its points (metres)."""
     if len(seg_points) < 2:
         return 0.0
-    u = np.linspace(fit.breaks[k], fit.breaks[k + 1], 4 * fit.degrees[k] + 6)[1:-1]
-    curve = fit.evaluate(u)[:, None, :]
-    a, b = seg_points[None, :-1], seg_points[None, 1:]
-    ab = b - a
-    s = np.clip(np.sum((curve - a) * ab, axis=2) / np.maximum(np.sum(ab * ab, axis=2), 1e-12), 0.0, 1.0)
-    d = np.linalg.norm(curve - (a + s[..., None] * ab), axis=2)
-    return float(d.min(axis=1).max())
+    d = fit.degrees[k]
+    offset = sum(fit.degrees[:k])
+    ctrl = fit.control_points[np.arange(offset, offset + d + 1) % len(fit.control_points)]
+    return _polyline_overshoot(np.ascontiguousarray(ctrl), float(fit.breaks[k]), float(fit.breaks[k + 1]), d,
+                               np.ascontiguousarray(seg_points, dtype=np.float64))
+
+
+@njit(cache=True, error_model="numpy")
+def _polyline_overshoot(ctrl, lo, hi, degree, poly):  # pragma: no cover - compiled
+    # thousands of raises per building are each checked: the numpy form's temporaries (a curve-sample ×
+    # polyline-edge grid per raise) cost a tenth of the outline stage
+    count = 4 * degree + 6
+    u = np.linspace(lo, hi, count)[1:-1]
+    knots = np.empty(2 * degree + 2)
+    knots[:degree + 1] = lo
+    knots[degree + 1:] = hi
+    basis = cox_de_boor(u, knots, degree)
+    worst = 0.0
+    for r in range(len(u)):
+        c = np.zeros(3)
+        for a in range(degree + 1):
+            for j in range(3):
+                c[j] += basis[r, a] * ctrl[a, j]
+        best = np.inf
+        for e in range(len(poly) - 1):
+            ab2 = 0.0
+            t = 0.0
+            for j in range(3):
+                ab = poly[e + 1, j] - poly[e, j]
+                ab2 += ab * ab
+                t += (c[j] - poly[e, j]) * ab
+            t = min(max(t / max(ab2, 1e-12), 0.0), 1.0)
+            d2 = 0.0
+            for j in range(3):
+                x = c[j] - (poly[e, j] + t * (poly[e + 1, j] - poly[e, j]))
+                d2 += x * x
+            best = min(best, d2)
+        worst = max(worst, best)
+    return np.sqrt(worst)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -353,8 +413,8 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
     degrees = np.ones(len(corners), dtype=np.int64)
     if len(corners) < 2:
         degrees[:] = min(2, int(cap[0]))  # a one-segment closed curve cannot be a straight line
-    cache: dict = {}
-    fit = fit_cdspline(points, corners, degrees, t=t, _cache=cache)
+    ring = _RingFit(points, corners, t)
+    fit = ring.fit(degrees)
     history = [(degrees.tolist(), fit.sigma)]
     frozen = degrees >= cap
     lo, hi = stats.f.ppf([options.significance / 2, 1 - options.significance / 2], q - 1, q - 1)
@@ -366,7 +426,7 @@ def iterative_cdspline(points: np.ndarray, corners: np.ndarray, options: CDSplin
         trial[k] += 1
         if trial.sum() > q:
             break
-        new = fit_cdspline(points, corners, trial, t=t, _cache=cache)
+        new = ring.fit(trial)
         history.append((trial.tolist(), new.sigma))
         seg_points = _segment_points(points, corners, k)
         # the current curve's overshoot only matters when the raised one

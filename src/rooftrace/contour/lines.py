@@ -161,8 +161,7 @@ def segment_bic(rss: float, n: int, n_params: float, sigma0: float) -> float:
     The floor σ0² is the residual variance the sampling alone gives a perfect
     model: below it a better fit is noise, and buys no parameter.
     """
-    n = max(int(n), 1)
-    return n * np.log(max(rss / n, sigma0 * sigma0)) + n_params * np.log(max(n, 2))
+    return float(_bic(float(rss), int(n), float(n_params), float(sigma0)))
 
 
 def bridge_inlets(xy: np.ndarray, width: float) -> np.ndarray:
@@ -239,44 +238,92 @@ def _fit_segment(xy, idx, sigma0, trim):  # pragma: no cover - compiled
     return cx, cy, dx, dy, rss, hi - lo, noise2
 
 
-def _rss_to(xy: np.ndarray, lines: list[Line]) -> float:
-    """Squared distances of points to the nearest of ``lines``, summed."""
-    if len(xy) == 0:
-        return 0.0
-    dist = np.min([np.abs((xy - ln.point) @ ln.normal) for ln in lines], axis=0)
-    return float(dist @ dist)
-
-
 def _angle(a: Line, b: Line) -> float:
     """Angle between two lines' directions of travel, degrees in [0, 180]."""
     return float(np.degrees(np.arccos(np.clip(np.dot(a.direction, b.direction), -1.0, 1.0))))
 
 
-def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float, list]:
-    """The better of merging lines ``a, run.., b`` into one and dropping the run between them: (BIC gain, new lines)."""
-    a, *run, b = touched
-    k = len(run)
-    n = sum(len(t.idx) for t in touched)
-    run_idx = np.concatenate([r.idx for r in run]) if run else np.zeros(0, np.int64)
-    floor = _pooled(touched)
-    before = segment_bic(sum(t.rss for t in touched), n, sum(t.n_params + 1 for t in touched), floor)
-    # one wall: a line through a, the run and b (or through a and b, the run counted against it)
-    merged = _fit(xy, np.concatenate([a.idx, run_idx, b.idx]), sigma0, trim)
-    if k:
-        core = _fit(xy, np.concatenate([a.idx, b.idx]), sigma0, trim)
-        core = Line(merged.idx, core.point, core.direction, _rss_to(xy[merged.idx], [core]), span=merged.span,
-                    noise2=merged.noise2)
-        merged = min(merged, core, key=lambda ln: ln.rss)
-    moves = [(segment_bic(merged.rss, n, 3, floor), [merged])]
-    if k and _angle(a, b) >= _PARALLEL_DEG:
-        # two walls that meet: their corner replaces the run
-        rss = a.rss + b.rss + _rss_to(xy[run_idx], [a, b])
-        near_a = np.abs((xy[run_idx] - a.point) @ a.normal) <= np.abs((xy[run_idx] - b.point) @ b.normal)
-        moves.append((segment_bic(rss, n, a.n_params + b.n_params + 2, floor),
-                      [_fit(xy, np.concatenate([a.idx, run_idx[near_a]]), sigma0, trim),
-                       _fit(xy, np.concatenate([run_idx[~near_a], b.idx]), sigma0, trim)]))
-    after, new = min(moves, key=lambda mv: mv[0])
-    return before - after, new
+def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float, list | None]:
+    """The better of merging lines ``a, run.., b`` into one and dropping the run between them: (BIC gain, new lines).
+
+    The new lines are made only when the move gains (``None`` otherwise): most
+    moves scored are never made.
+    """
+    idx = np.concatenate([t.idx for t in touched])
+    bounds = np.zeros(len(touched) + 1, np.int64)
+    np.cumsum([len(t.idx) for t in touched], out=bounds[1:])
+    a, b = touched[0], touched[-1]
+    gain, kind, near_a, p1, d1, rss1 = _score_move(
+        xy, sigma0, trim, idx, bounds, np.array([t.rss for t in touched]),
+        np.array([t.n_params for t in touched], np.int64), np.array([t.noise2 for t in touched]),
+        a.point, a.direction, b.point, b.direction)
+    if not gain > 0:
+        return gain, None
+    if kind == 0:  # one wall through all of them
+        return gain, [_fit(xy, idx, sigma0, trim)]
+    if kind == 1:  # one wall through a and b, the run's points counted against it
+        merged = _fit(xy, idx, sigma0, trim)
+        return gain, [Line(merged.idx, p1, d1, rss1, span=merged.span, noise2=merged.noise2)]
+    run_idx = idx[bounds[1]:bounds[-2]]  # two walls meeting at a corner: the run's points go to the nearer
+    return gain, [_fit(xy, np.concatenate([a.idx, run_idx[near_a]]), sigma0, trim),
+                  _fit(xy, np.concatenate([run_idx[~near_a], b.idx]), sigma0, trim)]
+
+
+@njit(cache=True, error_model="numpy")
+def _bic(rss, n, n_params, sigma0):  # pragma: no cover - compiled
+    n = max(n, 1)
+    return n * np.log(max(rss / n, sigma0 * sigma0)) + n_params * np.log(max(n, 2))
+
+
+@njit(cache=True, error_model="numpy")
+def _score_move(xy, sigma0, trim, idx, bounds, rss, n_params, noise2, pa, da, pb, db):  # pragma: no cover
+    # simplify_lines scores every run of up to five segments after each round of moves, about 200 per
+    # ring: the same arithmetic as segment_bic and _fit, compiled (numpy's per-call overhead on arrays
+    # of a few dozen points made the scoring most of the line regularisation's time).  Returns the gain,
+    # the move (0 merged line, 1 line through a and b, 2 corner), which run points lie nearer a, and
+    # for move 1 the line (point, direction, rss); move 2's lines are fitted by the caller.
+    m = len(rss)
+    n = bounds[m]
+    total_rss, params, pooled = 0.0, 0, 0.0
+    for j in range(m):
+        total_rss += rss[j]
+        params += n_params[j] + 1
+        pooled += (bounds[j + 1] - bounds[j]) * noise2[j]
+    floor = np.sqrt(pooled / max(n, 1))
+    before = _bic(total_rss, n, params, floor)
+    cx, cy, dx, dy, merged_rss, _, _ = _fit_segment(xy, idx, sigma0, trim)
+    kind = 0
+    p1 = np.array([cx, cy])
+    d1 = np.array([dx, dy])
+    rss1 = merged_rss
+    run = idx[bounds[1]:bounds[m - 1]]
+    near_a = np.zeros(len(run), np.bool_)
+    if m > 2:
+        ends = np.concatenate((idx[:bounds[1]], idx[bounds[m - 1]:]))
+        ex, ey, fx, fy, _, _, _ = _fit_segment(xy, ends, sigma0, trim)
+        core_rss = 0.0
+        for i in idx:
+            r = abs((xy[i, 0] - ex) * fy - (xy[i, 1] - ey) * fx)
+            core_rss += r * r
+        if core_rss < merged_rss:
+            kind, p1[0], p1[1], d1[0], d1[1], rss1 = 1, ex, ey, fx, fy, core_rss
+    after = _bic(rss1, n, 3, floor)
+    if m > 2:
+        cos = min(max(da[0] * db[0] + da[1] * db[1], -1.0), 1.0)
+        if np.degrees(np.arccos(cos)) >= _PARALLEL_DEG:
+            corner_rss = rss[0] + rss[m - 1]
+            run_rss = 0.0
+            for q in range(len(run)):
+                i = run[q]
+                ra = abs((xy[i, 0] - pa[0]) * da[1] - (xy[i, 1] - pa[1]) * da[0])
+                rb = abs((xy[i, 0] - pb[0]) * db[1] - (xy[i, 1] - pb[1]) * db[0])
+                near_a[q] = ra <= rb
+                r = min(ra, rb)
+                run_rss += r * r
+            corner = _bic(corner_rss + run_rss, n, n_params[0] + n_params[m - 1] + 2, floor)
+            if corner < after:
+                after, kind = corner, 2
+    return before - after, kind, near_a, p1, d1, rss1
 
 
 def simplify_lines(xy: np.ndarray, segments: list, sigma0, trim: int = 1, max_run: int = 3) -> list:

@@ -19,7 +19,7 @@ import shapely
 from scipy.spatial import QhullError, cKDTree
 from threadpoolctl import threadpool_limits
 
-from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_shape
+from rooftrace.contour.alpha_shape import AlphaOptions, AlphaShape, alpha_reach, alpha_shape
 from rooftrace.contour.cdspline import CDSplineOptions, iterative_cdspline
 from rooftrace.contour.corners import CornerOptions, ring_corners, ring_douglas_peucker
 from rooftrace.contour.coverage import MIN_COVERAGE, outline_coverage
@@ -28,6 +28,7 @@ from rooftrace.contour.knots import spline_outline
 from rooftrace.contour.lines import bridge_inlets, line_outline
 from rooftrace.contour.regularize import RegularizeOptions, dominant_direction, offset_ring, snap_ring
 from rooftrace.contour.repair import make_valid_outline
+from rooftrace.contour.spacing import PlanMesh
 from rooftrace.contour.surface import SurfaceOptions, outline_points
 from rooftrace.errors import GeometryError, InputError
 from rooftrace.io.vector import Layer
@@ -269,9 +270,10 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
     if options.regularize.method == "lines" and (around is not None or below.any()):
         # the building's own wall points on the boundary mark the edge (contour.edge)
         context = EdgeContext(None if around is None else around[:, :2], walls=pts[below, :2])
-    seen = _seen_through(xyz - origin, around, options.surface.tolerance) if options.alpha.seen_through else None
+    seen = _SeenThrough.around(xyz - origin, around, options.surface.tolerance) if options.alpha.seen_through else None
     # every ring's noise floor is measured on the building's points (lines.boundary_step): one tree for all
     roof = cKDTree(pts[:, :2]) if options.regularize.method == "lines" else None
+    mesh = PlanMesh(pts[:, :2])  # every alpha shape below is traced from these points
     best, first_error = None, None
     for k, (strategy, enlarge) in enumerate(_fallbacks(options.alpha.strategy, mean_spacing, options.alpha.alpha)):
         trial = options if k == 0 else dataclasses.replace(options, alpha=dataclasses.replace(
@@ -279,7 +281,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         # a building whose parts only a passage joins is one polygon: bridge it rather than lose a part
         for cut in (seen, None) if seen is not None else (None,):
             try:
-                shape, status = _alpha_shape(pts, trial.alpha, mean_spacing, cut)
+                shape, status = _alpha_shape(pts, trial.alpha, mean_spacing, cut, mesh)
             except GeometryError as exc:
                 if str(exc) != "no_ring":
                     raise
@@ -302,7 +304,7 @@ def trace_outline(xyz: np.ndarray, options: OutlineOptions | None = None, *, mea
         # a kept opening (a light well beside a wall, a notch) pinches the outline where the ring was
         # repaired, and no closed solid has such a plan: the shape without the cut is traced instead
         try:
-            uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None)
+            uncut, uncut_status = _alpha_shape(pts, trial.alpha, mean_spacing, None, mesh)
             retraced = _regularised_or_traced(pts, origin, uncut, uncut_status, trial,
                                               _traced_coverage(pts, uncut), context, roof)
         except GeometryError:
@@ -329,35 +331,64 @@ def _fallbacks(strategy: str, mean_spacing: float | None, alpha: float | None) -
     return [(s, 1.0) for s in order] + [(strategy, 2.0), (strategy, 3.0)]
 
 
-def _seen_through(pts: np.ndarray, around: np.ndarray | None, tolerance: float) -> np.ndarray | None:
-    """Plan positions of the points around that lie below the building beside them: where the laser saw past it.
+class _SeenThrough:
+    """The points around a building that lie below the building beside them: where the laser saw past it.
 
     ``pts`` are the building's points as measured (walls at their own
     height, not lifted to the roof), ``around`` the points that are not this
     roof (with heights, else nothing is known), both in metres in one frame;
     a point is below the building when it is more than ``tolerance`` (m)
-    under the nearest building point.
+    under the nearest building point.  Only the points within the alpha
+    shape's reach of the building matter (:func:`alpha_reach`): the ground of
+    a whole block lies in its bounding box, and the nearest-point search for
+    the far points was most of the cost.
     """
-    if around is None or around.shape[1] < 3 or len(around) == 0:
-        return None
-    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
-    inside = np.all((around[:, :2] >= lo) & (around[:, :2] <= hi), axis=1)
-    cand = around[inside]
-    if len(cand) == 0:
-        return None
-    _, nearest = cKDTree(pts[:, :2]).query(cand[:, :2])
-    return cand[cand[:, 2] < pts[nearest, 2] - tolerance, :2]
+
+    def __init__(self, pts: np.ndarray, candidates: np.ndarray, tolerance: float):
+        self._tree = cKDTree(pts[:, :2])
+        self._z = pts[:, 2]
+        self._candidates = candidates
+        self._tolerance = tolerance
+        self._reach = -1.0
+        self._below = np.zeros((0, 2))
+
+    @classmethod
+    def around(cls, pts: np.ndarray, around: np.ndarray | None, tolerance: float) -> _SeenThrough | None:
+        """None when nothing is known below the building (no points around, or none with heights)."""
+        if around is None or around.shape[1] < 3 or len(around) == 0:
+            return None
+        lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+        inside = np.all((around[:, :2] >= lo) & (around[:, :2] <= hi), axis=1)
+        cand = around[inside]
+        if len(cand) == 0:
+            return None
+        return cls(pts, cand, tolerance)
+
+    def within(self, reach: float) -> np.ndarray:
+        """Plan positions (M, 2) of the points below the building within ``reach`` metres of one of its points."""
+        if reach > self._reach:
+            cand = self._candidates
+            dist, nearest = self._tree.query(cand[:, :2], distance_upper_bound=reach)
+            near = np.isfinite(dist)
+            z = np.full(len(cand), -np.inf)
+            z[near] = self._z[nearest[near]]
+            self._below = cand[near & (cand[:, 2] < z - self._tolerance), :2]
+            self._reach = reach
+        return self._below
 
 
 def _alpha_shape(pts: np.ndarray, options: AlphaOptions, mean_spacing: float | None,
-                 seen_through: np.ndarray | None = None) -> tuple[AlphaShape, str]:
+                 seen_through: _SeenThrough | None = None, mesh: PlanMesh | None = None) -> tuple[AlphaShape, str]:
     """The alpha shape of the outline points, alpha enlarged until it closes, holds together and bridges the sampling."""
+    mesh = mesh if mesh is not None else PlanMesh(pts[:, :2])
     status = "ok"
     shape = None
     for scale in _RETRY_SCALES:
         try:
+            seen = None if seen_through is None else seen_through.within(
+                alpha_reach(mesh, options, mean_spacing=mean_spacing, alpha_scale=scale))
             trial = alpha_shape(pts[:, :2], options, mean_spacing=mean_spacing, alpha_scale=scale,
-                                seen_through=seen_through)
+                                seen_through=seen, mesh=mesh)
         except GeometryError as exc:
             if str(exc) != "no_ring":
                 raise
@@ -393,8 +424,14 @@ def _traced_coverage(pts: np.ndarray, shape: AlphaShape) -> float:
 
 def _regularised_or_traced(pts, origin, shape: AlphaShape, status: str, options: OutlineOptions, covered: float,
                            context: EdgeContext | None, roof: cKDTree | None) -> RoofOutline:
-    """The regularised outline, or the alpha shape's rings when the regularisation gave up points they hold."""
-    outline = _outline(pts, origin, shape, status, options, regularise=True, context=context, roof=roof)
+    """The regularised outline, or the alpha shape's rings when the regularisation gave up points they hold
+    or left nothing polygonal to repair."""
+    try:
+        outline = _outline(pts, origin, shape, status, options, regularise=True, context=context, roof=roof)
+    except GeometryError:
+        # the regularised rings cross so that no polygon is left (a hole regularised over its shell):
+        # the traced rings are still the building's outline
+        return _outline(pts, origin, shape, "unregularised", options, regularise=False)
     if outline.coverage < MIN_COVERAGE and covered > outline.coverage:
         # a corner cut off: keep the alpha shape's rings
         outline = _outline(pts, origin, shape, "unregularised", options, regularise=False)
@@ -489,9 +526,10 @@ def outline_buildings(xyz: np.ndarray, building_id: np.ndarray, options: Outline
     wanted = options.regularize.method == "lines" or options.alpha.seen_through
     around = _Surroundings(xyz[sel], building_id[sel], context_xy) if wanted else None
     outlines = []
-    # the CD-spline fits make thousands of small BLAS calls (AᵀA, solve); a
-    # multi-threaded BLAS turns each into a thread rendezvous: Delft's 34
-    # buildings took 23-25 s with two BLAS threads, 10 s with one
+    # the regularisation makes thousands of small BLAS calls (curve samples,
+    # distances to lines; the CD-spline fits did too before they were
+    # compiled); a multi-threaded BLAS turns each into a thread rendezvous:
+    # Delft's 34 buildings took 23-25 s with two BLAS threads, 10 s with one
     with reporter.stage("outline", total=len(ids)), threadpool_limits(limits=1, user_api="blas"):
         for bid, idx in zip(ids, groups):
             try:

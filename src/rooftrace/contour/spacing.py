@@ -17,7 +17,7 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 
-__all__ = ["delaunay_edges", "delaunay_mesh", "building_mean_spacing", "building_alpha", "point_spacing"]
+__all__ = ["delaunay_edges", "delaunay_mesh", "PlanMesh", "building_mean_spacing", "building_alpha", "point_spacing"]
 
 
 def delaunay_edges(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -78,13 +78,59 @@ def delaunay_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     # swapping corners 1 and 2 swaps the edges opposite them, so the neighbours swap too
     triangles[cw] = triangles[cw][:, [0, 2, 1]]
     neighbours[cw] = neighbours[cw][:, [0, 2, 1]]
-    e = np.concatenate([simplices[:, [0, 1]], simplices[:, [1, 2]], simplices[:, [2, 0]]])
+    # each edge once: from the triangle with the lower index, or the only one (hull); the edge
+    # between two corners is opposite the third, whose neighbour shares it
+    nb = tri.neighbors
+    own = np.arange(len(nb))[:, None]
+    first = (nb < 0) | (nb > own)
+    e = np.concatenate([simplices[first[:, 2]][:, [0, 1]], simplices[first[:, 0]][:, [1, 2]],
+                        simplices[first[:, 1]][:, [2, 0]]])
     e = np.sort(e, axis=1).astype(np.int64)
     n = np.int64(len(xy))
-    key = np.unique(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than unique rows
+    key = np.sort(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than sorting rows
+    if len(key) > 1 and not (key[1:] > key[:-1]).all():
+        key = np.unique(key)  # a degenerate mesh that lists an edge twice
     e = np.column_stack([key // n, key % n])
     lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
     return e, lengths, triangles, neighbours
+
+
+class PlanMesh:
+    """One building's Delaunay mesh in plan and its points' spacings, for every alpha shape traced from it.
+
+    A building's alpha shape is traced again with a larger alpha, another
+    strategy, or without the seen-through cut (:func:`rooftrace.contour.outline.trace_outline`);
+    the mesh and the ps_avg (a fifth of the outline stage on Delft) depend on
+    the points alone, so they are computed once.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2) float64
+        Planimetric coordinates (m), without duplicates.
+
+    Attributes
+    ----------
+    xy, edges, lengths, triangles, neighbours
+        As :func:`delaunay_mesh` returns them.
+
+    Raises
+    ------
+    GeometryError
+        As :func:`delaunay_mesh`.
+    """
+
+    def __init__(self, xy: np.ndarray):
+        self.xy = np.asarray(xy, dtype=np.float64)
+        self.edges, self.lengths, self.triangles, self.neighbours = delaunay_mesh(self.xy)
+        self._spacing: dict[float, np.ndarray] = {}
+
+    def point_spacing(self, radius: float) -> np.ndarray:
+        """ps_avg of every point for a circle of ``radius`` metres (:func:`point_spacing`); read-only."""
+        if radius not in self._spacing:
+            ps = point_spacing(self.xy, self.edges, self.lengths, radius)
+            ps.flags.writeable = False  # shared by every shape traced from the mesh
+            self._spacing[radius] = ps
+        return self._spacing[radius]
 
 
 def building_mean_spacing(xy: np.ndarray) -> float:
