@@ -314,3 +314,21 @@ def test_two_boundaries_simplified_onto_one_chord_are_caught():
     assert _meets_only_at_ends(arcs).tolist() == [False, False, False, False]
     apart = np.array([LineString([(0, 0), (1, 0)]), LineString([(0, 0), (0.5, 0.5), (1, 0)])], dtype=object)
     assert _meets_only_at_ends(apart).all()
+
+
+def test_points_in_boxes_are_the_str_tree_pairs():
+    """The compiled box scan of the face boundaries finds the (arc, point) pairs an STR tree of the arcs
+    queried with the points finds, by arc then point, points on a box's edge included."""
+    from rooftrace.roof.face_kernels import points_in_boxes
+
+    rng = np.random.default_rng(5)
+    xy = np.round(rng.uniform(0, 20, (3000, 2)) + [85000.0, 447000.0], 2)  # cm grid: ties and points on edges
+    ends = np.round(rng.uniform(0, 20, (60, 2, 2)) + [85000.0, 447000.0], 2)
+    ends[:5, :, 1] = ends[:5, :1, 1]  # horizontal arcs: boxes of zero height
+    ends[5:8] = xy[rng.integers(0, len(xy), (3, 2))]  # arcs from point to point
+    arcs = shapely.linestrings(ends)
+    pi, ri = shapely.STRtree(arcs).query(shapely.points(xy))
+    o = np.lexsort((pi, ri))
+    ptr, pts = points_in_boxes(xy[:, 0], xy[:, 1], np.argsort(xy[:, 0], kind="stable"), shapely.bounds(arcs))
+    assert np.array_equal(pts, pi[o]) and np.array_equal(ptr, np.r_[0, np.cumsum(np.bincount(ri, minlength=60))])
+    assert np.diff(ptr)[5:8].min() >= 2  # the arcs' own end points are in their boxes

@@ -6,7 +6,7 @@ import pytest
 from rooftrace.errors import GeometryError
 from rooftrace.roof import models
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted, plane_height, point_normals
-from rooftrace.roof.segmentation import detail_planes, segment_planes
+from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
 
 
 def _truth_match(labels, face, K):
@@ -227,6 +227,39 @@ def test_detail_planes_take_the_chimney_and_leave_the_main_planes():
         detail_planes(xyz, labels, s, distance=0.0)
     with pytest.raises(ValueError, match="do not match"):
         detail_planes(xyz, labels[:-1], s, distance=tol)
+
+
+def test_shared_neighbourhoods_give_the_same_planes():
+    """The neighbourhoods found once for both passes give the labels each pass finds on its own; the
+    neighbourhoods of other points or another k are refused."""
+    m = models.flat_annex(stair_house=True, angle=21, offset=(85000.0, 447000.0))
+    xyz, _ = models.sample_roof(m, 16, 0.03, seed=2)
+    s = estimate_spacing(xyz)
+    nb = point_neighbourhoods(xyz, 16)
+    labels, fit, tol = segment_planes(xyz, s)
+    shared, fit2, _ = segment_planes(xyz, s, neighbourhoods=nb)
+    assert np.array_equal(shared, labels) and np.array_equal(fit2.planes, fit.planes)
+    more = detail_planes(xyz, labels, s, distance=tol)
+    assert more.max() > labels.max()  # the chimney: the shared neighbours are used
+    assert np.array_equal(detail_planes(xyz, labels, s, distance=tol, neighbourhoods=nb), more)
+    with pytest.raises(ValueError, match="k=8"):
+        segment_planes(xyz, s, k=8, neighbourhoods=nb)
+    with pytest.raises(ValueError, match="not those of"):
+        detail_planes(xyz[1:], labels[1:], s, distance=tol, neighbourhoods=nb)
+
+
+def test_fit_planes_of_several_labels_equal_one_call_each():
+    """One call fitting many labels gives each label's plane bit for bit as a call of its points alone
+    (the coplanar merge fits all its candidate pairs at once)."""
+    rng = np.random.default_rng(11)
+    groups = [rng.normal(size=(n, 3)) * [5, 5, 0.1] + [85000.0 + 10 * i, 447000.0, 10 + i] for i, n in
+              enumerate([3, 7, 40, 400, 12])]
+    xyz, lab = np.vstack(groups), np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+    together = fit_planes(xyz, lab)
+    for i, g in enumerate(groups):
+        alone = fit_planes(g, np.zeros(len(g), dtype=np.int64))
+        for name in ("planes", "pqr", "centre", "cov", "sigma", "n"):
+            assert np.array_equal(getattr(together, name)[i], getattr(alone, name)[0], equal_nan=True), name
 
 
 def test_level_untilted_levels_only_what_the_points_do_not_tilt():

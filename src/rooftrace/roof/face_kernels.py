@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["cell_lines", "cell_choice", "simplify_arcs"]
+__all__ = ["cell_lines", "cell_choice", "simplify_arcs", "points_in_boxes"]
 
 
 @njit(cache=True)
@@ -200,3 +200,37 @@ def simplify_arcs(V, vptr, crease, pts, pptr, delta, foreign, free, floor, cap, 
                 stack[top + 1, 0], stack[top + 1, 1] = far, j
                 top += 2
     return keep
+
+
+@njit(cache=True)
+def points_in_boxes(x, y, order, boxes):  # pragma: no cover - compiled
+    """The points inside or on each box, as an STR tree of the boxes queried with the points finds them.
+
+    ``order`` sorts ``x``; ``boxes`` (R, 4) are ``(xmin, ymin, xmax, ymax)``.
+    Returns box pointers (R + 1,) and the points of each box in ascending
+    index order.  Each box scans its strip of ``x``: no point geometries,
+    no tree, the same inclusive comparisons of the same doubles as GEOS's
+    envelope test.
+    """
+    n = len(order)
+    xs = x[order]
+    ptr = np.zeros(len(boxes) + 1, dtype=np.int64)
+    lo = np.searchsorted(xs, boxes[:, 0], side="left")
+    hi = np.searchsorted(xs, boxes[:, 2], side="right")
+    for r in range(len(boxes)):
+        c = 0
+        for t in range(lo[r], min(hi[r], n)):
+            yv = y[order[t]]
+            if boxes[r, 1] <= yv <= boxes[r, 3]:
+                c += 1
+        ptr[r + 1] = ptr[r] + c
+    out = np.empty(ptr[-1], dtype=np.int64)
+    for r in range(len(boxes)):
+        w = ptr[r]
+        for t in range(lo[r], min(hi[r], n)):
+            yv = y[order[t]]
+            if boxes[r, 1] <= yv <= boxes[r, 3]:
+                out[w] = order[t]
+                w += 1
+        out[ptr[r]:ptr[r + 1]].sort()
+    return ptr, out

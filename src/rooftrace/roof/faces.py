@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 
 from rooftrace.graph import components
-from rooftrace.roof.face_kernels import cell_choice, cell_lines, simplify_arcs
+from rooftrace.roof.face_kernels import cell_choice, cell_lines, points_in_boxes, simplify_arcs
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
@@ -281,12 +281,12 @@ def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: 
         tol = np.maximum(max_dz, 2 * np.hypot(plane_sigma[a], plane_sigma[b]))
     crease = (np.abs(plane_height(planes[a], V) - plane_height(planes[b], V)) <= tol) & inner[at]
     # the labelled points near each arc that can be moved, and what a move does to each
-    pi, ri = shapely.STRtree(arcs).query(shapely.points(P[:, :2]))
-    sel = inner[ri]
-    pi, ri = pi[sel], ri[sel]
-    order = np.lexsort((pi, ri))
-    pi, ri = pi[order], ri[order]
-    pptr = np.r_[0, np.cumsum(np.bincount(ri, minlength=len(arcs)))]
+    # (the points in each inner arc's bounding box, by arc then point: an STR tree's pairs without a point
+    # geometry per labelled point)
+    boxes = shapely.bounds(arcs)
+    boxes[~inner] = [np.inf, np.inf, -np.inf, -np.inf]  # empty: only inner arcs move points
+    pptr, pi = points_in_boxes(P[:, 0], P[:, 1], np.argsort(P[:, 0], kind="stable"), boxes)
+    ri = np.repeat(np.arange(len(arcs)), np.diff(pptr))
     xy = P[pi, :2]
     col = np.clip(np.floor((xy[:, 0] - x0) / cell).astype(np.int64), 0, grid.shape[1] - 1)
     row = np.clip(np.floor((y1 - xy[:, 1]) / cell).astype(np.int64), 0, grid.shape[0] - 1)

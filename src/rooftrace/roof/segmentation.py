@@ -18,6 +18,7 @@ coplanar regions and rescue small planes by RANSAC.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -27,7 +28,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, fit_planes, neighbourhood_normals, plane_height
 
-__all__ = ["segment_planes", "detail_planes"]
+__all__ = ["Neighbourhoods", "point_neighbourhoods", "segment_planes", "detail_planes"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,13 @@ def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: in
         except QhullError:
             pass
     return ok
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (M, 3) arrays: ``np.cross``'s products and differences, without its
+    per-call axis handling (the RANSAC of :func:`_rescue` calls it for every candidate plane)."""
+    return np.column_stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+                            u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]])
 
 
 def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3,
@@ -91,7 +99,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             P = xyz[idx]
             tri = rng.integers(0, len(P), (trials, 3))
             v1, v2 = P[tri[:, 1]] - P[tri[:, 0]], P[tri[:, 2]] - P[tri[:, 0]]
-            n = np.cross(v1, v2)
+            n = _cross(v1, v2)
             nz = np.abs(n[:, 2])
             ok = nz > 1e-9
             if not ok.any():
@@ -104,10 +112,12 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             best = int(np.argmax(count))
             inl = np.abs(zs[:, best] - P[:, 2]) <= distance
             for _ in range(3):  # LS refinement of the consensus set
-                f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+                f, fitted = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1), inl
                 if not np.isfinite(f.planes[0]).all():
                     break
                 inl = np.abs(plane_height(f.planes[0], P[:, :2]) - P[:, 2]) <= distance
+                if np.array_equal(inl, fitted):
+                    break  # a refit of the same points gives the same plane and inliers
             if inl.sum() < floor or not np.isfinite(f.planes[0]).all() or f.planes[0, 2] < cos_max:
                 break
             # Keep the largest plan-connected part of the consensus set, and
@@ -123,7 +133,8 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
                 area = ConvexHull(P[inl, :2]).volume
             except QhullError:
                 break
-            f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
+            if not np.array_equal(inl, fitted):
+                f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
             if area < min_area or inl.sum() < min_density * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
                 break
             labels[idx[inl]] = nxt
@@ -146,6 +157,20 @@ def _best_candidate(xyz, nn, labels, planes, tol, margin=0.0):
     return _best_candidate_kernel(np.ascontiguousarray(xyz, dtype=np.float64), np.ascontiguousarray(nn, dtype=np.int64),
                                   np.ascontiguousarray(labels, dtype=np.int64),
                                   np.ascontiguousarray(planes, dtype=np.float64), float(tol), float(margin))
+
+
+def _grown(xyz, nn, labels, planes, tol):
+    """``labels`` with every unassigned point on its best candidate plane (:func:`_best_candidate`).
+
+    Only the unassigned points are evaluated (a few per cent of a roof):
+    their own labels come first in the label array the kernel reads, the
+    neighbours' after them.
+    """
+    un = np.flatnonzero(labels < 0)
+    out = labels.copy()
+    if len(un):
+        out[un] = _best_candidate(xyz[un], nn[un] + len(un), np.concatenate([labels[un], labels]), planes, tol)
+    return out
 
 
 @njit(cache=True, error_model="numpy")  # x / 0 gives inf, as in numpy
@@ -178,30 +203,39 @@ def _best_candidate_kernel(xyz, nn, labels, planes, tol, margin):  # pragma: no 
     return out
 
 
-def _merge_coplanar(xyz, labels, fit, angle_deg, tol, link):
-    """Union adjacent labels (points within ``link`` m in plan) whose planes agree."""
+def _merge_coplanar(xyz, labels, fit, angle_deg, tol, plan_pairs):
+    """Union adjacent labels whose planes agree.
+
+    ``plan_pairs`` (P, 2) are the point pairs within the link distance in
+    plan, over all the points: found once per building, the labelled ones
+    are taken each round.
+    """
     K = len(fit.planes)
-    sel = np.flatnonzero(labels >= 0)
-    ij = cKDTree(xyz[sel, :2]).query_pairs(link, output_type="ndarray")
-    if len(ij) == 0:
-        return labels, False
-    a, b = labels[sel[ij[:, 0]]], labels[sel[ij[:, 1]]]
-    m = a != b
+    a, b = labels[plan_pairs[:, 0]], labels[plan_pairs[:, 1]]
+    m = (a >= 0) & (b >= 0) & (a != b)
     if not m.any():
         return labels, False
     key = np.unique(np.minimum(a[m], b[m]) * K + np.maximum(a[m], b[m]))
     pairs = np.stack([key // K, key % K], axis=1)
     cosang = np.abs(np.einsum("ij,ij->i", fit.planes[pairs[:, 0], :3], fit.planes[pairs[:, 1], :3]))
-    close = cosang >= np.cos(np.radians(angle_deg))
+    close = np.flatnonzero(cosang >= np.cos(np.radians(angle_deg)))
     ok = np.zeros(len(pairs), dtype=bool)
-    for idx in np.flatnonzero(close):
-        i, j = pairs[idx]
-        both = xyz[(labels == i) | (labels == j)]
+    if len(close):
         # Coplanar when one plane fits both regions about as well as each
         # fits its own (a narrow region's own plane extrapolates badly, so
         # testing each region against the other's plane is not enough).
-        joint = fit_planes(both, np.zeros(len(both), dtype=np.int64))
-        ok[idx] = joint.sigma[0] <= min(1.3 * max(fit.sigma[i], fit.sigma[j]), tol)
+        # All candidate pairs are fitted in one call, each pair's points in
+        # point order: the sums, and so the planes, are those of one call per pair.
+        order = np.argsort(labels, kind="stable")
+        bounds = np.searchsorted(labels[order], np.arange(K + 1))
+        members = [np.sort(np.concatenate([order[bounds[i]:bounds[i + 1]], order[bounds[j]:bounds[j + 1]]]))
+                   for i, j in pairs[close]]
+        joint = fit_planes(xyz[np.concatenate(members)],
+                           np.repeat(np.arange(len(close)), [len(x) for x in members]), len(close))
+        si, sj = fit.sigma[pairs[close, 0]], fit.sigma[pairs[close, 1]]
+        # min(1.3 max(si, sj), tol) with Python's min and max (a NaN sigma as they treat it)
+        worst = 1.3 * np.where(sj > si, sj, si)
+        ok[close] = joint.sigma <= np.where(tol < worst, tol, worst)
     if not ok.any():
         return labels, False
     comp = components(K, pairs[ok])
@@ -231,6 +265,56 @@ def _two_neighbourhoods(tree: cKDTree, xyz: np.ndarray, k: int) -> tuple[np.ndar
     return nn, wide
 
 
+@dataclass(frozen=True)
+class Neighbourhoods:
+    """The nearest neighbours of one building's points, found once for both segmentation passes.
+
+    Attributes
+    ----------
+    near : ndarray of shape (N, k), int64
+        The ``k = min(k, N)`` nearest points of every point, itself first
+        (normals and the region graph).
+    wide : ndarray of shape (N, min(2 k, N)), int64
+        The ``2 k`` nearest: the candidate planes of growing and reassignment.
+    """
+
+    near: np.ndarray
+    wide: np.ndarray
+
+    def check(self, n: int, k: int) -> None:
+        """Raise ValueError unless these are the neighbourhoods of ``n`` points with ``k`` neighbours."""
+        k = int(min(k, n))
+        if self.near.shape != (n, k) or self.wide.shape != (n, min(2 * k, n)):
+            raise ValueError(f"neighbourhoods of shape {self.near.shape} and {self.wide.shape} are not those of "
+                             f"{n} points with k={k}")
+
+
+def point_neighbourhoods(xyz: np.ndarray, k: int = 16) -> Neighbourhoods:
+    """The ``k`` and ``2 k`` nearest neighbours (3D) of every point, for :func:`segment_planes` and :func:`detail_planes`.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        One building's roof points (m).
+    k : int
+        Neighbours (capped at N).
+
+    Returns
+    -------
+    Neighbourhoods
+
+    Examples
+    --------
+    >>> xyz = np.random.default_rng(0).uniform(0, 10, (100, 3))
+    >>> nb = point_neighbourhoods(xyz, 8)
+    >>> nb.near.shape, nb.wide.shape, bool((nb.near[:, 0] == np.arange(100)).all())
+    ((100, 8), (100, 16), True)
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    near, wide = _two_neighbourhoods(cKDTree(xyz), xyz, int(min(k, len(xyz))))
+    return Neighbourhoods(near, wide)
+
+
 def segment_planes(
     xyz: np.ndarray,
     spacing: float,
@@ -244,6 +328,7 @@ def segment_planes(
     iterations: int = 4,
     max_slope: float = 75.0,
     link: float | None = None,
+    neighbourhoods: Neighbourhoods | None = None,
 ) -> tuple[np.ndarray, PlaneFit, float]:
     """Segment a building's points into roof planes.
 
@@ -279,6 +364,9 @@ def segment_planes(
     link : float, optional
         Plan distance (m) within which points of two regions make them
         neighbours for merging; default ``2.5 s``.
+    neighbourhoods : Neighbourhoods, optional
+        :func:`point_neighbourhoods` of ``xyz`` with ``k``, when the caller
+        has them (they are found here otherwise).
 
     Returns
     -------
@@ -293,8 +381,10 @@ def segment_planes(
     min_pts = max(int(np.ceil(min_area / spacing**2)), 6)
     if min_pts > N:
         raise GeometryError(f"{N} points, fewer than the {min_pts} of one plane of {min_area} m²")
-    tree = cKDTree(xyz)
-    nn, nn_c = _two_neighbourhoods(tree, xyz, int(min(k, N)))
+    if neighbourhoods is None:
+        neighbourhoods = point_neighbourhoods(xyz, k)
+    neighbourhoods.check(N, k)
+    nn, nn_c = neighbourhoods.near, neighbourhoods.wide
     normals, rms, nn = neighbourhood_normals(xyz, nn)
     kk = nn.shape[1]
     med = float(np.median(rms))
@@ -350,6 +440,7 @@ def segment_planes(
     # neighbourhood (2k): on scan-line patterns the k nearest points of a
     # point can all lie on its own line, which may be wholly unassigned.
     link = link or 2.5 * spacing
+    plan_pairs = cKDTree(xyz[:, :2]).query_pairs(link, output_type="ndarray")
 
     def refine(labels, rounds):
         for it in range(rounds):
@@ -357,8 +448,7 @@ def segment_planes(
             # Grow into unassigned points first (ridge zones), then let every
             # point choose among its neighbours' planes.
             for _ in range(3):
-                grow = _best_candidate(xyz, nn_c, labels, fit.planes, distance)
-                new = np.where(labels < 0, grow, labels)
+                new = _grown(xyz, nn_c, labels, fit.planes, distance)
                 if np.array_equal(new, labels):
                     break
                 labels = new
@@ -367,7 +457,7 @@ def segment_planes(
             if labels.max() < 0:
                 raise GeometryError("no roof plane kept after refinement")
             fit = fit_planes(xyz, labels)
-            labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, link)
+            labels, merged = _merge_coplanar(xyz, labels, fit, merge_angle, distance, plan_pairs)
             if not merged and it >= 1:
                 break
         return labels
@@ -396,6 +486,7 @@ def detail_planes(
     k: int = 16,
     max_slope: float = 75.0,
     link: float | None = None,
+    neighbourhoods: Neighbourhoods | None = None,
 ) -> np.ndarray:
     """A second pass of the segmentation: small planes among the points left on no plane.
 
@@ -432,6 +523,9 @@ def detail_planes(
         Steeper planes (deg) are walls and are not taken.
     link : float, optional
         3D distance (m) linking leftover points into clusters; default ``2.5 s``.
+    neighbourhoods : Neighbourhoods, optional
+        :func:`point_neighbourhoods` of ``xyz`` with ``k`` (those of
+        :func:`segment_planes`), when the caller has them.
 
     Returns
     -------
@@ -469,8 +563,13 @@ def detail_planes(
     # only the unassigned points can grow a plane: their neighbours, not
     # every point's (a city block has 10^5 points and a few hundred left over)
     un = np.flatnonzero(labels < 0)
-    _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
-    nn = nn.reshape(len(un), -1) + len(un)  # into [the unassigned points' own labels, every label]
+    if neighbourhoods is None:
+        _, nn = cKDTree(xyz).query(xyz[un], k=min(2 * k, len(xyz)))
+        nn = nn.reshape(len(un), -1)
+    else:
+        neighbourhoods.check(len(xyz), k)
+        nn = neighbourhoods.wide[un]
+    nn = nn + len(un)  # into [the unassigned points' own labels, every label]
     for _ in range(3):
         grow = _best_candidate(xyz[un], nn, np.concatenate([labels[un], labels]), planes, distance)
         grow = np.where(labels[un] < 0, grow, labels[un])

@@ -32,7 +32,7 @@ from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines, step_edges
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
-from rooftrace.roof.segmentation import detail_planes, segment_planes
+from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
 from rooftrace.roof.superstructures import block_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
@@ -357,11 +357,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         parts = [g for g in getattr(outline2d, "geoms", []) if g.geom_type == "Polygon"]
         outline2d = max(parts, key=lambda g: g.area) if parts else outline2d
     link = max(2.5 * s, 1.5 * _edge_percentile(xyz, 90))
+    # one neighbour search for both segmentation passes
+    neighbourhoods = point_neighbourhoods(xyz, opt.k_neighbours)
     try:
         labels, fit, tol = segment_planes(
             xyz, s, k=opt.k_neighbours, normal_angle=opt.normal_angle, max_local_rms=opt.max_local_rms,
             distance=opt.distance, min_area=opt.min_area, merge_angle=opt.merge_angle, iterations=opt.iterations,
-            max_slope=opt.max_slope, link=opt.adjacency_radius or link,
+            max_slope=opt.max_slope, link=opt.adjacency_radius or link, neighbourhoods=neighbourhoods,
         )
     except GeometryError as exc:
         log.debug("building %s: %s", building_id, exc)
@@ -371,7 +373,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     main, n_main = labels, len(fit.planes)
     if opt.min_detail_area is not None and opt.min_detail_area < opt.min_area:
         labels = detail_planes(xyz, labels, s, distance=tol, min_area=opt.min_detail_area, k=opt.k_neighbours,
-                               max_slope=opt.max_slope, link=opt.adjacency_radius or link)
+                               max_slope=opt.max_slope, link=opt.adjacency_radius or link,
+                               neighbourhoods=neighbourhoods)
         if labels.max() + 1 > n_main:
             fit = fit_planes(xyz, labels)
     detail = np.arange(len(fit.planes)) >= n_main
