@@ -292,10 +292,8 @@ def point_hull(xy: np.ndarray, max_edge: float | None = None, *, floor: float = 
 
 def _edge_percentile(xyz: np.ndarray, q: float) -> float:
     """Percentile ``q`` of the plan Delaunay edge lengths (m)."""
-    xy = xyz[:, :2] - xyz[:, :2].mean(axis=0)
     try:
-        # centred: on national-grid coordinates (10⁵ m) Qhull's round-off left points of large blocks out
-        p = xy[Delaunay(xy).simplices]
+        p = xyz[Delaunay(xyz[:, :2]).simplices][:, :, :2]
     except QhullError:
         return 0.0
     return float(np.percentile(np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2), q))
