@@ -510,6 +510,14 @@ def _octant(dx, dy):  # pragma: no cover - compiled
     return 6 if steep else 7
 
 
+@njit(cache=True, inline="always")
+def _cell_of(px, py, x0, y0, side, nx, ny):  # pragma: no cover
+    """Column and row of the plan grid cell holding (px, py), clamped to the grid (a query may lie outside it)."""
+    cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
+    cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+    return cx, cy
+
+
 @njit(cache=True, parallel=True)
 def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n_sectors, out):  # pragma: no cover
     """Nearest point per angular sector of each row within ``radius``; ties go to the lower index.
@@ -521,8 +529,7 @@ def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n
     for r in numba.prange(len(rows)):
         i = rows[r]
         px, py = xy[i, 0], xy[i, 1]
-        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
-        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        cx, cy = _cell_of(px, py, x0, y0, side, nx, ny)
         best = np.full(n_sectors, np.inf)
         for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
             for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
@@ -611,8 +618,7 @@ def _counting_order(key, n_keys):  # pragma: no cover - compiled
 def _count_within(xy, label, flag, order, xs, ys, start, nx, ny, x0, y0, side, r2, count, flagged):  # pragma: no cover
     for i in numba.prange(len(xy)):
         px, py = xy[i, 0], xy[i, 1]
-        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
-        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        cx, cy = _cell_of(px, py, x0, y0, side, nx, ny)
         c = 0
         f = 0
         for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
@@ -669,8 +675,7 @@ def _nearest_scan(queries, order, xs, ys, zs, start, nx, ny, x0, y0, side, r2, o
     for q in numba.prange(len(queries)):
         px, py = queries[q, 0], queries[q, 1]
         pz = queries[q, 2] if len(zs) else 0.0
-        cx = min(max(int(np.floor((px - x0) / side)), 0), nx - 1)
-        cy = min(max(int(np.floor((py - y0) / side)), 0), ny - 1)
+        cx, cy = _cell_of(px, py, x0, y0, side, nx, ny)
         best = r2
         bj = -1
         t = False
