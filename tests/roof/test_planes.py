@@ -158,8 +158,9 @@ def test_small_dormer_at_low_density_is_found():
 
 @pytest.mark.parametrize("n_side", [3, 5, 12])
 def test_two_neighbourhoods_equal_two_queries(n_side):
-    """One 2k query gives the k and 2k nearest neighbours of two queries,
-    also where distances tie (a grid with duplicated points)."""
+    """The k and 2k nearest neighbours are those of two k-d tree queries,
+    also where distances tie (a grid with duplicated points) and where every
+    point is every point's neighbour."""
     from scipy.spatial import cKDTree
 
     from rooftrace.roof.segmentation import _two_neighbourhoods
@@ -170,9 +171,28 @@ def test_two_neighbourhoods_equal_two_queries(n_side):
     tree = cKDTree(xyz)
     for k in (1, 4, 16):
         k = min(k, len(xyz))
-        nn, wide = _two_neighbourhoods(tree, xyz, k)
+        nn, wide = _two_neighbourhoods(xyz, k)
         assert np.array_equal(nn, tree.query(xyz, k=k)[1].reshape(len(xyz), k))
         assert np.array_equal(wide, tree.query(xyz, k=min(2 * k, len(xyz)))[1].reshape(len(xyz), -1))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_two_neighbourhoods_of_a_roof_equal_two_queries(seed):
+    """On a scanned roof in national-grid coordinates (the grid search's
+    case: few ties) and with some points doubled (ties), the neighbours and
+    their order are those of two k-d tree queries."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.models import hip, sample_roof
+    from rooftrace.roof.segmentation import _two_neighbourhoods
+
+    xyz, _ = sample_roof(hip(), density=10, noise=0.03, seed=seed)
+    xyz = xyz + [85000.0, 446000.0, 0.0]
+    xyz = np.vstack([xyz, xyz[::37]])
+    tree = cKDTree(xyz)
+    nn, wide = _two_neighbourhoods(xyz, 16)
+    assert np.array_equal(nn, tree.query(xyz, k=16)[1])
+    assert np.array_equal(wide, tree.query(xyz, k=32)[1])
 
 
 def test_components_number_as_scipy():
@@ -275,3 +295,22 @@ def test_level_untilted_levels_only_what_the_points_do_not_tilt():
     assert np.array_equal(level_untilted(xyz, lab, fit, np.array([False, True])).planes[0], fit.planes[0])
     with pytest.raises(ValueError, match="candidates"):
         level_untilted(xyz, lab, fit, np.array([True]))
+
+
+def test_neighbourhood_normals_equal_the_numpy_covariances():
+    """The compiled covariances give the normals and RMS of the numpy form
+    (gather, centre, einsum) to the bit, in national-grid coordinates."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.models import gable, sample_roof
+    from rooftrace.roof.planes import neighbourhood_normals
+
+    xyz, _ = sample_roof(gable(chimney=True), density=12, noise=0.04, seed=3)
+    xyz = xyz + [85000.0, 446000.0, 0.0]
+    nn = cKDTree(xyz).query(xyz, k=16)[1]
+    nb = xyz[nn]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    w, v = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb) / 16)
+    normals, rms, _ = neighbourhood_normals(xyz, nn)
+    assert np.array_equal(rms, np.sqrt(np.clip(w[:, 0], 0, None)))
+    assert np.array_equal(np.abs(normals), np.abs(v[:, :, 0]))

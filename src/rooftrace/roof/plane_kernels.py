@@ -6,6 +6,11 @@ of them small; the ten ``np.bincount`` passes per fit cost more than the
 arithmetic.  These loops add the same products in the same order (point
 order, from 0.0, as ``np.bincount`` does), so the sums are identical.
 
+The covariance of every point's neighbourhood (:func:`rooftrace.roof.planes.neighbourhood_normals`)
+is summed here too, in the order of the numpy form it replaced (the mean
+over the neighbours, then each product summed over them), which gathered
+an (N, k, 3) array per building.
+
 The kernels of :mod:`rooftrace.roof.planes`.
 """
 
@@ -14,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["normal_sums", "residual_sums"]
+__all__ = ["neighbourhood_covariances", "normal_sums", "residual_sums"]
 
 
 @njit(cache=True)
@@ -73,3 +78,35 @@ def residual_sums(xyz, labels, centre, pqr):  # pragma: no cover - compiled
             res = xyz[p, 2] - (pqr[lab, 0] * dx + pqr[lab, 1] * dy + pqr[lab, 2])
             rss[lab] += res * res
     return rss
+
+
+@njit(cache=True)
+def neighbourhood_covariances(xyz, nn):  # pragma: no cover - compiled
+    """Covariance (N, 3, 3) of every point's neighbours ``nn`` (N, k) about their mean, divided by k."""
+    n, k = nn.shape
+    cov = np.empty((n, 3, 3))
+    centred = np.empty((k, 3))
+    for p in range(n):
+        m0 = 0.0
+        m1 = 0.0
+        m2 = 0.0
+        for j in range(k):
+            q = nn[p, j]
+            m0 += xyz[q, 0]
+            m1 += xyz[q, 1]
+            m2 += xyz[q, 2]
+        m0 /= k
+        m1 /= k
+        m2 /= k
+        for j in range(k):
+            q = nn[p, j]
+            centred[j, 0] = xyz[q, 0] - m0
+            centred[j, 1] = xyz[q, 1] - m1
+            centred[j, 2] = xyz[q, 2] - m2
+        for a in range(3):
+            for b in range(3):
+                s = 0.0
+                for j in range(k):
+                    s += centred[j, a] * centred[j, b]
+                cov[p, a, b] = s / k
+    return cov

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.roof.plane_kernels import normal_sums, residual_sums
+from rooftrace.roof.plane_kernels import neighbourhood_covariances, normal_sums, residual_sums
 
 __all__ = [
     "PlaneFit",
@@ -106,10 +106,8 @@ def point_normals(xyz: np.ndarray, k: int = 16, tree: cKDTree | None = None):
 
 def neighbourhood_normals(xyz: np.ndarray, nn: np.ndarray):
     """:func:`point_normals` from given neighbour indices (N, k)."""
-    k = nn.shape[1]
-    nb = xyz[nn]
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb) / k
+    cov = neighbourhood_covariances(np.ascontiguousarray(xyz, dtype=np.float64),
+                                    np.ascontiguousarray(nn, dtype=np.int64))
     w, v = np.linalg.eigh(cov)  # ascending eigenvalues
     normals = v[:, :, 0]
     normals *= np.where(normals[:, 2] < 0, -1.0, 1.0)[:, None]
