@@ -314,3 +314,26 @@ def test_neighbourhood_normals_equal_the_numpy_covariances():
     normals, rms, _ = neighbourhood_normals(xyz, nn)
     assert np.array_equal(rms, np.sqrt(np.clip(w[:, 0], 0, None)))
     assert np.array_equal(np.abs(normals), np.abs(v[:, :, 0]))
+
+
+def test_graph_edges_equal_the_numpy_form():
+    """The compiled candidate edges of the region graph are those of the
+    numpy form (gathered arrays and einsum), value for value."""
+    from rooftrace.roof.models import hip, sample_roof
+    from rooftrace.roof.planes import neighbourhood_normals
+    from rooftrace.roof.segmentation import _graph_edges
+
+    xyz, _ = sample_roof(hip(chimney=True), density=12, noise=0.04, seed=5)
+    xyz = xyz + [85000.0, 446000.0, 0.0]
+    normals, rms, nn = neighbourhood_normals(xyz, point_neighbourhoods(xyz, 16).near)
+    planar = rms <= 2 * np.median(rms)
+    i = np.repeat(np.arange(len(xyz)), 16)
+    j = nn.ravel()
+    keep = (i != j) & planar[i] & planar[j]
+    i, j = i[keep], j[keep]
+    cosang = np.einsum("ij,ij->i", normals[i], normals[j])
+    off = np.maximum(np.abs(np.einsum("ij,ij->i", normals[i], xyz[j] - xyz[i])),
+                     np.abs(np.einsum("ij,ij->i", normals[j], xyz[j] - xyz[i])))
+    got = _graph_edges(xyz, normals, rms, planar, nn)
+    for a, b in zip(got, (i, j, cosang, off, np.maximum(rms[i], rms[j]))):
+        assert np.array_equal(a, b)
