@@ -337,3 +337,28 @@ def test_graph_edges_equal_the_numpy_form():
     got = _graph_edges(xyz, normals, rms, planar, nn)
     for a, b in zip(got, (i, j, cosang, off, np.maximum(rms[i], rms[j]))):
         assert np.array_equal(a, b)
+
+
+def test_plan_hull_areas_match_qhull_and_decide_as_qhull():
+    """The compiled hull areas are Qhull's within 1e-9 (national-grid
+    coordinates, rounded ones with collinear runs); a test near its
+    threshold is decided by Qhull's own area, a degenerate hull by the
+    given answer."""
+    from scipy.spatial import ConvexHull
+
+    from rooftrace.roof.planes import hull_area_test, plan_hull_areas
+
+    rng = np.random.default_rng(4)
+    clouds = [np.round(rng.normal(size=(int(rng.integers(3, 200)), 2)) * rng.uniform(0.2, 10), 1)
+              + [85000.0, 446000.0] for _ in range(60)]
+    xy = np.vstack(clouds)
+    groups = np.repeat(np.arange(len(clouds)), [len(c) for c in clouds])
+    areas = plan_hull_areas(xy, groups, len(clouds) + 1)
+    qhull = np.array([ConvexHull(c).volume for c in clouds])
+    assert np.allclose(areas[:-1], qhull, rtol=1e-9, atol=1e-9) and areas[-1] == 0.0
+    c, a = clouds[0], float(qhull[0])
+    assert hull_area_test(c, a * (1 + 1e-8), lambda x: x >= a, False)  # Qhull's area decides at the threshold
+    assert not hull_area_test(c, a * (1 - 1e-8), lambda x: x > a, True)
+    line = np.column_stack([np.arange(5.0), np.arange(5.0)])
+    assert plan_hull_areas(line, np.zeros(5, np.int64), 1)[0] == 0.0
+    assert hull_area_test(line, 0.0, lambda x: x <= 0.0, True) and hull_area_test(line, 0.0, lambda x: x < 0, True)

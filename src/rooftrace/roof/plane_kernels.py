@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["neighbourhood_covariances", "normal_sums", "residual_sums"]
+__all__ = ["hull_areas", "neighbourhood_covariances", "normal_sums", "residual_sums"]
 
 
 @njit(cache=True)
@@ -110,3 +110,49 @@ def neighbourhood_covariances(xyz, nn):  # pragma: no cover - compiled
                     s += centred[j, a] * centred[j, b]
                 cov[p, a, b] = s / k
     return cov
+
+
+@njit(cache=True)
+def hull_areas(xy, members, starts):  # pragma: no cover - compiled
+    """Plan convex hull area of each group, the points ``members[starts[g]:starts[g + 1]]`` of ``xy``.
+
+    Andrew's monotone chain on coordinates relative to the group's first
+    point (national-grid offsets would cost digits); 0 for fewer than 3
+    points or collinear points.
+    """
+    n_groups = len(starts) - 1
+    areas = np.zeros(n_groups)
+    for g in range(n_groups):
+        idx = members[starts[g]:starts[g + 1]]
+        m = len(idx)
+        if m < 3:
+            continue
+        x = np.empty(m)
+        y = np.empty(m)
+        for t in range(m):
+            x[t] = xy[idx[t], 0] - xy[idx[0], 0]
+            y[t] = xy[idx[t], 1] - xy[idx[0], 1]
+        by_y = np.argsort(y, kind="mergesort")
+        order = by_y[np.argsort(x[by_y], kind="mergesort")]  # by x, then y
+        hull = np.empty(2 * m, np.int64)
+        h = 0
+        for t in range(m):  # lower chain
+            q = order[t]
+            while h >= 2 and ((x[hull[h - 1]] - x[hull[h - 2]]) * (y[q] - y[hull[h - 2]])
+                              - (y[hull[h - 1]] - y[hull[h - 2]]) * (x[q] - x[hull[h - 2]])) <= 0.0:
+                h -= 1
+            hull[h] = q
+            h += 1
+        low = h + 1
+        for t in range(m - 2, -1, -1):  # upper chain
+            q = order[t]
+            while h >= low and ((x[hull[h - 1]] - x[hull[h - 2]]) * (y[q] - y[hull[h - 2]])
+                                - (y[hull[h - 1]] - y[hull[h - 2]]) * (x[q] - x[hull[h - 2]])) <= 0.0:
+                h -= 1
+            hull[h] = q
+            h += 1
+        a = 0.0
+        for t in range(h - 1):  # the last vertex repeats the first
+            a += x[hull[t]] * y[hull[t + 1]] - x[hull[t + 1]] * y[hull[t]]
+        areas[g] = abs(a) / 2.0
+    return areas

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.roof.plane_kernels import neighbourhood_covariances, normal_sums, residual_sums
+from rooftrace.roof.plane_kernels import hull_areas, neighbourhood_covariances, normal_sums, residual_sums
 
 __all__ = [
     "PlaneFit",
@@ -28,6 +28,8 @@ __all__ = [
     "plane_height",
     "neighbourhood_normals",
     "level_untilted",
+    "plan_hull_areas",
+    "hull_area_test",
 ]
 
 log = logging.getLogger(__name__)
@@ -79,6 +81,74 @@ def estimate_spacing(xy: np.ndarray) -> float:
     if not area > 0:
         raise GeometryError("cannot estimate the point spacing: zero hull area")
     return float(np.sqrt(area / len(xy)))
+
+
+def plan_hull_areas(xy: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
+    """Area (m²) of the plan convex hull of every group of points, all groups in one compiled call.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (N, 2+), float64
+        Points (m); only x and y are read.
+    groups : ndarray of shape (N,), int
+        Group per point, ``-1`` for none.
+    n_groups : int
+        Number of groups.
+
+    Returns
+    -------
+    ndarray of shape (n_groups,), float64
+        0 for a group of fewer than 3 points or of collinear points.
+
+    Examples
+    --------
+    >>> xy = np.array([[0, 0], [2, 0], [0, 2], [1, 1], [5, 5]], dtype=float)
+    >>> plan_hull_areas(xy, np.array([0, 0, 0, 0, 1]), 3).tolist()
+    [2.0, 0.0, 0.0]
+    """
+    groups = np.asarray(groups, dtype=np.int64)
+    on = np.flatnonzero(groups >= 0)
+    members = on[np.argsort(groups[on], kind="stable")]
+    starts = np.searchsorted(groups[members], np.arange(int(n_groups) + 1))
+    return hull_areas(np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2]), members, starts)
+
+
+def hull_area_test(xy: np.ndarray, approx: float, test, degenerate: bool) -> bool:
+    """``test(area)`` of the plan convex hull of ``xy`` as Qhull measures it, from an approximate area.
+
+    ``test`` must be monotone in the area.  When it gives the same answer
+    1e-6 (relative, at least 1e-6 m²) below and above ``approx`` (the same
+    hull's area by :func:`plan_hull_areas`, within 1e-9 relative of
+    Qhull's in national-grid coordinates), that is the answer; only near a
+    threshold is the hull computed again by Qhull (whose area the
+    thresholds were set with), so the answers are those of Qhull at a
+    fraction of its cost.
+
+    Parameters
+    ----------
+    xy : ndarray of shape (M, 2+), float64
+        The points (m).
+    approx : float
+        Their hull's area (m²) by another method.
+    test : callable
+        Area (m²) -> bool, monotone.
+    degenerate : bool
+        The answer when Qhull finds no hull (collinear points).
+
+    Returns
+    -------
+    bool
+    """
+    from scipy.spatial import ConvexHull, QhullError
+
+    tol = 1e-6 * max(approx, 1.0)
+    low, high = bool(test(approx - tol)), bool(test(approx + tol))
+    if low == high:
+        return low
+    try:
+        return bool(test(ConvexHull(np.asarray(xy, dtype=np.float64)[:, :2]).volume))
+    except QhullError:
+        return degenerate
 
 
 def point_normals(xyz: np.ndarray, k: int = 16, tree: cKDTree | None = None):

@@ -28,7 +28,8 @@ from scipy.spatial import cKDTree
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.lidar._kernels import GridKnn
-from rooftrace.roof.planes import PlaneFit, fit_planes, neighbourhood_normals, plane_height
+from rooftrace.roof.planes import (PlaneFit, fit_planes, hull_area_test, neighbourhood_normals, plan_hull_areas,
+                                   plane_height)
 
 __all__ = ["Neighbourhoods", "point_neighbourhoods", "segment_planes", "detail_planes"]
 
@@ -50,16 +51,15 @@ def _big_enough(xy: np.ndarray, labels: np.ndarray, min_area: float, min_pts: in
     gaps, occlusion).  Regions with at least ``2 min_pts`` points are large
     anyway; regions under ``0.4 min_pts`` (or 6) points are too small anyway.
     """
-    from scipy.spatial import ConvexHull, QhullError
-
     K = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
     n = np.bincount(labels[labels >= 0], minlength=K)
     ok = n >= 2 * min_pts
-    for k in np.flatnonzero(~ok & (n >= max(6, 0.4 * min_pts))):
-        try:
-            ok[k] = ConvexHull(xy[labels == k]).volume >= min_area
-        except QhullError:
-            pass
+    measured = ~ok & (n >= max(6, 0.4 * min_pts))
+    if not measured.any():
+        return ok
+    areas = plan_hull_areas(xy, np.where(measured[np.maximum(labels, 0)] & (labels >= 0), labels, -1), K)
+    for k in np.flatnonzero(measured):
+        ok[k] = hull_area_test(xy[labels == k], areas[k], lambda a: a >= min_area, False)
     return ok
 
 
@@ -68,6 +68,29 @@ def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     per-call axis handling (the RANSAC of :func:`_rescue` calls it for every candidate plane)."""
     return np.column_stack([u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1], u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
                             u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]])
+
+
+def _heights(P: np.ndarray, origin: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Height (m) at the points ``P`` of the plane through ``origin`` with the (unnormalised) ``normal``."""
+    return origin[2] - ((P[:, 0] - origin[0]) * normal[0] + (P[:, 1] - origin[1]) * normal[1]) / normal[2]
+
+
+@njit(cache=True)
+def _consensus(P, origin, normal, distance):  # pragma: no cover - compiled
+    """Points of ``P`` within ``distance`` in height of each sampled plane (the count per plane).
+
+    The height is :func:`_heights`' expression, operation for operation
+    (the (points x planes) array it replaced held every residual).
+    """
+    count = np.zeros(len(origin), np.int64)
+    for t in range(len(origin)):
+        x0, y0, z0 = origin[t, 0], origin[t, 1], origin[t, 2]
+        a, b, c = normal[t, 0], normal[t, 1], normal[t, 2]
+        for p in range(len(P)):
+            z = z0 - ((P[p, 0] - x0) * a + (P[p, 1] - y0) * b) / c
+            if abs(z - P[p, 2]) <= distance:
+                count[t] += 1
+    return count
 
 
 def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: int = 64, per_cluster: int = 3,
@@ -81,8 +104,6 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
     (``min_pts / min_area``), an RMS under ``distance / 2`` and a slope under
     ``max_slope``.  Deterministic (fixed seed).
     """
-    from scipy.spatial import ConvexHull, QhullError
-
     rng = np.random.default_rng(0)
     labels = labels.copy()
     floor = max(6, int(0.4 * min_pts))
@@ -106,13 +127,9 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             ok = nz > 1e-9
             if not ok.any():
                 break
-            # Height residuals of every point to every sampled plane.
-            zs = P[tri[ok, 0], 2][None, :] - (
-                (P[:, :1] - P[tri[ok, 0], 0][None, :]) * n[ok, 0] + (P[:, 1:2] - P[tri[ok, 0], 1][None, :]) * n[ok, 1]
-            ) / n[ok, 2]
-            count = (np.abs(zs - P[:, 2:3]) <= distance).sum(axis=0)
-            best = int(np.argmax(count))
-            inl = np.abs(zs[:, best] - P[:, 2]) <= distance
+            origin, normal = P[tri[ok, 0]], n[ok]
+            best = int(np.argmax(_consensus(P, origin, normal, distance)))
+            inl = np.abs(_heights(P, origin[best], normal[best]) - P[:, 2]) <= distance
             for _ in range(3):  # LS refinement of the consensus set
                 f, fitted = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1), inl
                 if not np.isfinite(f.planes[0]).all():
@@ -131,13 +148,14 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             inl[sub[cc == np.argmax(np.bincount(cc))]] = True
             if inl.sum() < floor:
                 break
-            try:
-                area = ConvexHull(P[inl, :2]).volume
-            except QhullError:
+            n_in = inl.sum()
+            area = float(plan_hull_areas(P[inl], np.zeros(n_in, np.int64), 1)[0])
+            if not hull_area_test(P[inl], area, lambda a: not (a < min_area or n_in < min_density * a * min_pts / min_area),
+                                  False):
                 break
             if not np.array_equal(inl, fitted):
                 f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)
-            if area < min_area or inl.sum() < min_density * area * min_pts / min_area or not f.sigma[0] <= distance / 2:
+            if not f.sigma[0] <= distance / 2:
                 break
             labels[idx[inl]] = nxt
             nxt, added = nxt + 1, True

@@ -16,10 +16,10 @@ sides; the face partition gives each its face like any plane.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.roof.planes import PlaneFit, plane_height
+from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_areas, plane_height
 
 __all__ = ["block_planes"]
 
@@ -96,11 +96,10 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
             if len(layer) < min_points or not np.median(above[layer]) > rise:
                 break
             cluster = cluster[~top]
-            try:
-                area = ConvexHull(xyz[un[layer], :2]).volume
-            except QhullError:
-                area = 0.0  # a chain of points (a parapet's coping seen by one scan line)
-            if len(layer) >= min_density * area / spacing**2:
+            # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
+            pts = xyz[un[layer]]
+            area = float(plan_hull_areas(pts, np.zeros(len(layer), np.int64), 1)[0])
+            if hull_area_test(pts, area, lambda a: len(layer) >= min_density * a / spacing**2, True):
                 blocks.append(un[layer])
     if not blocks:
         return labels, fit
