@@ -362,3 +362,32 @@ def test_plan_hull_areas_match_qhull_and_decide_as_qhull():
     line = np.column_stack([np.arange(5.0), np.arange(5.0)])
     assert plan_hull_areas(line, np.zeros(5, np.int64), 1)[0] == 0.0
     assert hull_area_test(line, 0.0, lambda x: x <= 0.0, True) and hull_area_test(line, 0.0, lambda x: x < 0, True)
+
+
+def test_fit_planes_equal_the_numpy_form():
+    """The compiled plane parameters are those of the numpy expressions
+    (einsum solution, residuals, sigma, covariance, normal form) to the bit,
+    with a collinear plane and a plane of two points among them."""
+    from rooftrace.roof.plane_kernels import normal_sums, residual_sums
+    from rooftrace.roof.planes import fit_planes
+
+    rng = np.random.default_rng(6)
+    xyz = rng.uniform(0, 10, (300, 3)) + [85000.0, 446000.0, 0.0]
+    labels = rng.integers(-1, 5, 300)
+    xyz[labels == 3, 1] = xyz[labels == 3, 0] * 0.5  # collinear in plan: no plane
+    labels[np.flatnonzero(labels == 4)[2:]] = -1  # two points: no plane
+    n, centre, N, u = normal_sums(xyz, labels, 5)
+    good = (n >= 3) & (np.abs(np.linalg.det(N[:, :2, :2])) > 1e-9 * np.maximum(N[:, 0, 0] * N[:, 1, 1], 1e-30))
+    Ninv = np.full((5, 3, 3), np.nan)
+    Ninv[good] = np.linalg.inv(N[good])
+    pqr = np.einsum("kij,kj->ki", Ninv, u)
+    sigma = np.sqrt(residual_sums(xyz, labels, centre, pqr) / np.maximum(n - 3, 1))
+    sigma[~good] = np.nan
+    p, q, r = pqr.T
+    planes = np.stack([-p, -q, np.ones_like(p), p * centre[:, 0] + q * centre[:, 1] - r], axis=1) / np.sqrt(
+        1 + p * p + q * q)[:, None]
+    fit = fit_planes(xyz, labels)
+    assert good.tolist() == [True, True, True, False, False]
+    for got, want in ((fit.pqr, pqr), (fit.sigma, sigma), (fit.cov, Ninv * (sigma**2)[:, None, None]),
+                      (fit.planes, planes), (fit.centre, centre[:, :2]), (fit.n, n)):
+        assert np.array_equal(got, want, equal_nan=True)

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
-from rooftrace.roof.plane_kernels import hull_areas, neighbourhood_covariances, normal_sums, residual_sums
+from rooftrace.roof.plane_kernels import hull_areas, neighbourhood_covariances, normal_sums, plane_parameters
 
 __all__ = [
     "PlaneFit",
@@ -202,11 +202,11 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
         points) have NaN parameters.
     """
     xyz = np.ascontiguousarray(xyz, dtype=np.float64)
-    labels = np.asarray(labels)
-    K = int(labels.max()) + 1 if n_planes is None else int(n_planes)
     lab = np.ascontiguousarray(labels, dtype=np.int64)
-    if len(lab) and lab.max() >= K:
-        raise ValueError(f"fit_planes: labels up to {int(lab.max())} but n_planes={K}")
+    top = int(lab.max()) if len(lab) else -1
+    K = top + 1 if n_planes is None else int(n_planes)
+    if top >= K:
+        raise ValueError(f"fit_planes: labels up to {top} but n_planes={K}")
     # Centred design [x', y', 1]: well conditioned whatever the CRS offsets.
     # The sums per label are compiled (rooftrace.roof.plane_kernels), in point order.
     n, centre, N, u = normal_sums(xyz, lab, K)
@@ -216,16 +216,8 @@ def fit_planes(xyz: np.ndarray, labels: np.ndarray, n_planes: int | None = None)
     Ninv = np.full((K, 3, 3), np.nan)
     if good.any():
         Ninv[good] = np.linalg.inv(N[good])
-    pqr = np.einsum("kij,kj->ki", Ninv, u)
-    rss = residual_sums(xyz, lab, centre, pqr)
-    dof = np.maximum(n - 3, 1)
-    sigma = np.sqrt(rss / dof)
-    sigma[~good] = np.nan
-    cov = Ninv * (sigma**2)[:, None, None]
-    p, q, r = pqr.T
-    norm = np.sqrt(1 + p * p + q * q)
-    d = p * centre[:, 0] + q * centre[:, 1] - r
-    planes = np.stack([-p, -q, np.ones_like(p), d], axis=1) / norm[:, None]
+    # the rest (solution, residuals, precision, the plane's normal form) in one compiled pass
+    pqr, sigma, cov, planes = plane_parameters(xyz, lab, centre, Ninv, u, n, good)
     return PlaneFit(planes, pqr, centre[:, :2].copy(), cov, sigma, n)
 
 
