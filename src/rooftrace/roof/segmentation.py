@@ -121,6 +121,10 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
                 break
             P = xyz[idx]
             tri = rng.integers(0, len(P), (trials, 3))
+            # no part of points whose plan hull is under min_area can pass the area test below: the search
+            # would end there (drawn first, so the random stream and every later cluster stay the same)
+            if plan_hull_areas(P, np.zeros(len(P), np.int64), 1)[0] < min_area - 1e-6 * max(min_area, 1.0):
+                break
             v1, v2 = P[tri[:, 1]] - P[tri[:, 0]], P[tri[:, 2]] - P[tri[:, 0]]
             n = _cross(v1, v2)
             nz = np.abs(n[:, 2])
