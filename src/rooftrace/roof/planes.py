@@ -28,6 +28,7 @@ __all__ = [
     "plane_height",
     "neighbourhood_normals",
     "level_untilted",
+    "plan_hull_area",
     "plan_hull_areas",
     "hull_area_test",
 ]
@@ -110,7 +111,13 @@ def plan_hull_areas(xy: np.ndarray, groups: np.ndarray, n_groups: int) -> np.nda
     on = np.flatnonzero(groups >= 0)
     members = on[np.argsort(groups[on], kind="stable")]
     starts = np.searchsorted(groups[members], np.arange(int(n_groups) + 1))
-    return hull_areas(np.ascontiguousarray(np.asarray(xy, dtype=np.float64)[:, :2]), members, starts)
+    return hull_areas(np.asarray(xy, dtype=np.float64), members, starts)
+
+
+def plan_hull_area(xy: np.ndarray) -> float:
+    """Area (m²) of the plan convex hull of the points ``xy`` (N, 2+): :func:`plan_hull_areas` of one group."""
+    xy = np.asarray(xy, dtype=np.float64)
+    return float(hull_areas(xy, np.arange(len(xy)), np.array([0, len(xy)]))[0])
 
 
 def hull_area_test(xy: np.ndarray, approx: float, test, degenerate: bool) -> bool:

@@ -28,8 +28,8 @@ from scipy.spatial import cKDTree
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.lidar._kernels import GridKnn
-from rooftrace.roof.planes import (PlaneFit, fit_planes, hull_area_test, neighbourhood_normals, plan_hull_areas,
-                                   plane_height)
+from rooftrace.roof.planes import (PlaneFit, fit_planes, hull_area_test, neighbourhood_normals, plan_hull_area,
+                                   plan_hull_areas, plane_height)
 
 __all__ = ["Neighbourhoods", "point_neighbourhoods", "segment_planes", "detail_planes"]
 
@@ -123,7 +123,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             tri = rng.integers(0, len(P), (trials, 3))
             # no part of points whose plan hull is under min_area can pass the area test below: the search
             # would end there (drawn first, so the random stream and every later cluster stay the same)
-            if plan_hull_areas(P, np.zeros(len(P), np.int64), 1)[0] < min_area - 1e-6 * max(min_area, 1.0):
+            if plan_hull_area(P) < min_area - 1e-6 * max(min_area, 1.0):
                 break
             v1, v2 = P[tri[:, 1]] - P[tri[:, 0]], P[tri[:, 2]] - P[tri[:, 0]]
             n = _cross(v1, v2)
@@ -153,7 +153,7 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             if inl.sum() < floor:
                 break
             n_in = inl.sum()
-            area = float(plan_hull_areas(P[inl], np.zeros(n_in, np.int64), 1)[0])
+            area = plan_hull_area(P[inl])
             if not hull_area_test(P[inl], area, lambda a: not (a < min_area or n_in < min_density * a * min_pts / min_area),
                                   False):
                 break

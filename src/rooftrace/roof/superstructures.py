@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_areas, plane_height
+from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height
 
 __all__ = ["block_planes"]
 
@@ -98,7 +98,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
             cluster = cluster[~top]
             # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
             pts = xyz[un[layer]]
-            area = float(plan_hull_areas(pts, np.zeros(len(layer), np.int64), 1)[0])
+            area = plan_hull_area(pts)
             if hull_area_test(pts, area, lambda a: len(layer) >= min_density * a / spacing**2, True):
                 blocks.append(un[layer])
     if not blocks:
