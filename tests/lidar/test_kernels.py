@@ -5,13 +5,13 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rooftrace.lidar._kernels import (
-    GridKnn,
     dense_unique,
     lowest_per_group,
     lowest_point_per_group,
     pair_pull,
     sort_by_bucket,
 )
+from rooftrace.lidar.neighbours import GridKnn
 
 
 def _clouds(rng):

@@ -19,7 +19,7 @@ Two neighbourhoods:
   building F1 from 0.933 to 0.950 (docs/design-notes.md).
 
 The neighbours are those of ``cKDTree.query``, in its order: an exact search
-on a plan grid finds them (:class:`rooftrace.lidar._kernels.GridKnn`, about
+on a plan grid finds them (:class:`rooftrace.lidar.neighbours.GridKnn`, about
 twice as fast at N = 60) and the KD-tree answers the rows where two distances
 tie, whose order is its traversal's.
 
@@ -41,7 +41,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from rooftrace.lidar._kernels import GridKnn
+from rooftrace.lidar.neighbours import GridKnn
 
 __all__ = ["eigen_features"]
 

@@ -27,9 +27,16 @@ from scipy.spatial import cKDTree
 
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
-from rooftrace.lidar._kernels import GridKnn
-from rooftrace.roof.planes import (PlaneFit, fit_planes, hull_area_test, neighbourhood_normals, plan_hull_area,
-                                   plan_hull_areas, plane_height)
+from rooftrace.lidar.neighbours import GridKnn
+from rooftrace.roof.planes import (
+    PlaneFit,
+    fit_planes,
+    hull_area_test,
+    neighbourhood_normals,
+    plan_hull_area,
+    plan_hull_areas,
+    plane_height,
+)
 
 __all__ = ["Neighbourhoods", "point_neighbourhoods", "segment_planes", "detail_planes"]
 
@@ -153,9 +160,11 @@ def _rescue(xyz, labels, distance, link, min_area, min_pts, max_slope, trials: i
             if inl.sum() < floor:
                 break
             n_in = inl.sum()
-            area = plan_hull_area(P[inl])
-            if not hull_area_test(P[inl], area, lambda a: not (a < min_area or n_in < min_density * a * min_pts / min_area),
-                                  False):
+
+            def spans(a, n_in=n_in):  # a plane of min_area, at least min_density of the mean density
+                return not (a < min_area or n_in < min_density * a * min_pts / min_area)
+
+            if not hull_area_test(P[inl], plan_hull_area(P[inl]), spans, False):
                 break
             if not np.array_equal(inl, fitted):
                 f = fit_planes(P[inl], np.zeros(int(inl.sum()), dtype=np.int64), 1)

@@ -97,9 +97,8 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
                 break
             cluster = cluster[~top]
             # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
-            pts = xyz[un[layer]]
-            area = plan_hull_area(pts)
-            if hull_area_test(pts, area, lambda a: len(layer) >= min_density * a / spacing**2, True):
+            pts, n = xyz[un[layer]], len(layer)
+            if hull_area_test(pts, plan_hull_area(pts), lambda a, n=n: n >= min_density * a / spacing**2, True):
                 blocks.append(un[layer])
     if not blocks:
         return labels, fit
