@@ -26,7 +26,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
@@ -94,6 +93,7 @@ def harris_response(image: np.ndarray, sigma_d: float = 1.0, sigma_i: float = 2.
 
 def _region(mask_or_window, shape, pad):
     """Slices of the searched box and the mask inside it."""
+    import cv2  # here, not at the top: the run's config reads HarrisOptions and a LiDAR-only run needs no OpenCV
     if mask_or_window is None:
         return (slice(0, shape[0]), slice(0, shape[1])), None
     arr = np.asarray(mask_or_window)
@@ -148,6 +148,8 @@ def harris_corners(image: np.ndarray, mask_or_window=None, *, options: HarrisOpt
         img = img.mean(axis=2)
     if img.ndim != 2:
         raise ValueError(f"image must be 2-D (H, W) or colour (H, W, C), got shape {img.shape}")
+    import cv2  # see _region
+
     pad = int(np.ceil(3 * (opt.sigma_d + opt.sigma_i))) + 1
     sl, mask = _region(mask_or_window, img.shape, pad)
     if sl is None:
