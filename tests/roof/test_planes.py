@@ -391,3 +391,17 @@ def test_fit_planes_equal_the_numpy_form():
     for got, want in ((fit.pqr, pqr), (fit.sigma, sigma), (fit.cov, Ninv * (sigma**2)[:, None, None]),
                       (fit.planes, planes), (fit.centre, centre[:, :2]), (fit.n, n)):
         assert np.array_equal(got, want, equal_nan=True)
+
+
+def test_adjacent_labels_are_the_unique_label_pairs():
+    """The compiled adjacency gives np.unique's sorted distinct label pairs of the point pairs."""
+    from rooftrace.roof.segmentation import _adjacent_labels
+
+    rng = np.random.default_rng(7)
+    labels = rng.integers(-1, 9, 500)
+    pairs = rng.integers(0, 500, (3000, 2))
+    a, b = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    m = (a >= 0) & (b >= 0) & (a != b)
+    key = np.unique(np.minimum(a[m], b[m]) * 9 + np.maximum(a[m], b[m]))
+    assert np.array_equal(_adjacent_labels(labels, pairs, 9), np.stack([key // 9, key % 9], axis=1))
+    assert _adjacent_labels(labels, pairs[:0], 9).shape == (0, 2)

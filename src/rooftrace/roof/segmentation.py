@@ -278,6 +278,29 @@ def _graph_edges(xyz, normals, rms, planar, nn):  # pragma: no cover - compiled
     return i, j, cosang, off, worst
 
 
+@njit(cache=True)
+def _adjacent_labels(labels, point_pairs, K):  # pragma: no cover - compiled
+    """The distinct label pairs (i < j) of the point pairs, (P, 2) in (i, j) order (``np.unique`` of their keys)."""
+    seen = np.zeros((K, K), np.bool_)
+    count = 0
+    for p in range(len(point_pairs)):
+        a, b = labels[point_pairs[p, 0]], labels[point_pairs[p, 1]]
+        if a >= 0 and b >= 0 and a != b:
+            lo, hi = min(a, b), max(a, b)
+            if not seen[lo, hi]:
+                seen[lo, hi] = True
+                count += 1
+    out = np.empty((count, 2), np.int64)
+    t = 0
+    for i in range(K):
+        for j in range(i + 1, K):
+            if seen[i, j]:
+                out[t, 0] = i
+                out[t, 1] = j
+                t += 1
+    return out
+
+
 def _merge_coplanar(xyz, labels, fit, angle_deg, tol, plan_pairs):
     """Union adjacent labels whose planes agree.
 
@@ -286,12 +309,15 @@ def _merge_coplanar(xyz, labels, fit, angle_deg, tol, plan_pairs):
     are taken each round.
     """
     K = len(fit.planes)
-    a, b = labels[plan_pairs[:, 0]], labels[plan_pairs[:, 1]]
-    m = (a >= 0) & (b >= 0) & (a != b)
-    if not m.any():
+    if K * K <= 1 << 22:
+        pairs = _adjacent_labels(np.ascontiguousarray(labels, dtype=np.int64), plan_pairs, K)
+    else:  # too many planes for a K x K table
+        a, b = labels[plan_pairs[:, 0]], labels[plan_pairs[:, 1]]
+        m = (a >= 0) & (b >= 0) & (a != b)
+        key = np.unique(np.minimum(a[m], b[m]) * K + np.maximum(a[m], b[m]))
+        pairs = np.stack([key // K, key % K], axis=1)
+    if not len(pairs):
         return labels, False
-    key = np.unique(np.minimum(a[m], b[m]) * K + np.maximum(a[m], b[m]))
-    pairs = np.stack([key // K, key % K], axis=1)
     cosang = np.abs(np.einsum("ij,ij->i", fit.planes[pairs[:, 0], :3], fit.planes[pairs[:, 1], :3]))
     close = np.flatnonzero(cosang >= np.cos(np.radians(angle_deg)))
     ok = np.zeros(len(pairs), dtype=bool)
