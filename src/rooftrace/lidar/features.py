@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 
 from rooftrace.lidar.neighbours import GridKnn
 
-__all__ = ["eigen_features"]
+__all__ = ["eigen_features", "scatter_sums"]
 
 
 @numba.njit(cache=True)
@@ -85,8 +85,12 @@ def _entropy(lin: float, pla: float, sph: float) -> float:  # pragma: no cover -
 
 
 @numba.njit(cache=True)
-def _scatter(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no cover - compiled
-    """Scatter matrix entries (a, b, c, d, e, f) = (xx, yy, zz, xy, xz, yz) of the points ``row[:k]`` about their mean."""
+def scatter_sums(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no cover - compiled
+    """Scatter matrix entries (a, b, c, d, e, f) = (xx, yy, zz, xy, xz, yz) (m²) of the points ``row[:k]`` about their mean.
+
+    The mean and each product summed in ``row``'s order (also the roof
+    segmentation's neighbourhood covariances, :mod:`rooftrace.roof.plane_kernels`).
+    """
     mx = my = mz = 0.0
     for j in range(k):
         p = row[j]
@@ -113,7 +117,7 @@ def _scatter(xyz: np.ndarray, row: np.ndarray, k: int) -> tuple:  # pragma: no c
 
 @numba.njit(cache=True)
 def _fixed_row(xyz, row, k, out_row):  # pragma: no cover - compiled
-    a, b, c, d, e, f = _scatter(xyz, row, k)
+    a, b, c, d, e, f = scatter_sums(xyz, row, k)
     out_row[0], out_row[1], out_row[2] = _dimensionality(a, b, c, d, e, f)
 
 
@@ -157,7 +161,7 @@ def _min_entropy_row(xyz, row, ks, out_row, lin_n, i):  # pragma: no cover - com
 
 @numba.njit(cache=True)
 def _normal_row(xyz, row, kn, out_row):  # pragma: no cover - compiled
-    a, b, c, d, e, f = _scatter(xyz, row, kn)
+    a, b, c, d, e, f = scatter_sums(xyz, row, kn)
     w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
     nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
     if nz < 0:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from rooftrace.lidar.features import scatter_sums
+
 __all__ = ["hull_areas", "neighbourhood_covariances", "normal_sums", "plane_parameters", "residual_sums"]
 
 
@@ -120,30 +122,12 @@ def neighbourhood_covariances(xyz, nn):  # pragma: no cover - compiled
     """Covariance (N, 3, 3) of every point's neighbours ``nn`` (N, k) about their mean, divided by k."""
     n, k = nn.shape
     cov = np.empty((n, 3, 3))
-    centred = np.empty((k, 3))
     for p in range(n):
-        m0 = 0.0
-        m1 = 0.0
-        m2 = 0.0
-        for j in range(k):
-            q = nn[p, j]
-            m0 += xyz[q, 0]
-            m1 += xyz[q, 1]
-            m2 += xyz[q, 2]
-        m0 /= k
-        m1 /= k
-        m2 /= k
-        for j in range(k):
-            q = nn[p, j]
-            centred[j, 0] = xyz[q, 0] - m0
-            centred[j, 1] = xyz[q, 1] - m1
-            centred[j, 2] = xyz[q, 2] - m2
-        for a in range(3):
-            for b in range(3):
-                s = 0.0
-                for j in range(k):
-                    s += centred[j, a] * centred[j, b]
-                cov[p, a, b] = s / k
+        xx, yy, zz, xy, xz, yz = scatter_sums(xyz, nn[p], k)
+        cov[p, 0, 0], cov[p, 1, 1], cov[p, 2, 2] = xx / k, yy / k, zz / k
+        cov[p, 0, 1] = cov[p, 1, 0] = xy / k
+        cov[p, 0, 2] = cov[p, 2, 0] = xz / k
+        cov[p, 1, 2] = cov[p, 2, 1] = yz / k
     return cov
 
 
