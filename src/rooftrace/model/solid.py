@@ -224,6 +224,34 @@ class _Rings:
     def polygon(self, poly: Polygon) -> list[list[int]]:
         return [self.ring(poly.exterior.coords)] + [self.ring(h.coords) for h in poly.interiors]
 
+    def polygons(self, polys: list) -> list[list[list[int]]]:
+        """:meth:`polygon` of each of ``polys`` in turn (vertices numbered as it would), in a few array calls."""
+        if self.xy:  # numbering after existing vertices: one polygon at a time
+            return [self.polygon(p) for p in polys]
+        rings, of = shapely.get_rings(np.asarray(polys, dtype=object), return_index=True)
+        coords, at = shapely.get_coordinates(rings, return_index=True)
+        size = np.bincount(at, minlength=len(rings)) - 1  # rings are closed: the last coordinate is the first
+        open_ = np.ones(len(coords), bool)
+        open_[np.cumsum(size + 1) - 1] = False
+        keys = np.round(coords[open_, :2] / self.grid).astype(np.int64)
+        # vertices numbered in order of first appearance, as vertex() numbers them
+        uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        by_first = np.argsort(first, kind="stable")
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[by_first] = np.arange(len(first))
+        vid = rank[inverse.ravel()]
+        self.xy = [tuple(k) for k in uniq[by_first].tolist()]
+        self.index = {k: v for v, k in enumerate(self.xy)}
+        # consecutive repeats out, the ring's last vertex being its first one's predecessor (as ring())
+        start = np.concatenate(([0], np.cumsum(size)[:-1]))
+        prev = np.arange(len(vid)) - 1
+        prev[start] = start + size - 1
+        keep = (vid != vid[prev]) | np.repeat(size <= 1, size)
+        vid, keep, cut = vid.tolist(), keep.tolist(), np.cumsum(size).tolist()
+        kept = [[v for v, k in zip(vid[a:b], keep[a:b]) if k] for a, b in zip([0] + cut[:-1], cut)]
+        bounds = np.concatenate(([0], np.cumsum(np.bincount(of, minlength=len(polys))))).tolist()
+        return [kept[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
     def split_edges(self, rings: list[list[int]]) -> list[list[int]]:
         """Insert into every ring edge the table's vertices lying exactly on it (no T-junctions)."""
         xy = np.asarray(self.xy, dtype=np.float64)
@@ -465,8 +493,7 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
            max_tilt: float) -> Solid:
     faces, face_cell, whole = _tile(cells, footprint, snap)
     table = _Rings(grid)
-    face_rings = [table.polygon(f) for f in faces]
-    ground_rings = table.polygon(whole)
+    *face_rings, ground_rings = table.polygons([*faces, whole])
     g = int(round(ground_height / grid))
     planes = np.array([cells[c][1] for c in face_cell], dtype=np.float64)
     if not (np.abs(planes[:, 2]) > 1e-9).all():
