@@ -289,7 +289,7 @@ class _Rings:
         return out
 
 
-def _split_tilted(roofs: list[list[list[tuple]]], max_tilt: float) -> list[list[list[tuple]]]:
+def _split_tilted(roofs: list[list], max_tilt: float) -> list[list]:
     """Roof surfaces, each one whose triangles tilt apart more than ``max_tilt`` degrees cut into them.
 
     A roof vertex is on its plane only to the grid (and to ``z_tolerance``
@@ -608,8 +608,9 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
             return lv[bisect_right(lv, z0):bisect_left(lv, z1)]
         return lv[bisect_right(lv, z1):bisect_left(lv, z0)][::-1]
 
-    bounds = np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])].tolist()
-    flat_rings = [[point(v, z) for v, z in zip(p_list[a:b], z_list[a:b])] for a, b in zip(bounds[:-1], bounds[1:])]
+    bounds = np.concatenate(([0], np.cumsum([len(r) for rings in face_rings for r in rings]))).tolist()
+    roof_xyz = np.column_stack([np.asarray(xy, dtype=np.int64)[p], snapped])  # the roof rings' vertices, in order
+    flat_rings = [roof_xyz[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
     counts = np.cumsum([0] + [len(rings) for rings in face_rings])
     roofs = [flat_rings[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
     walls = []
@@ -642,9 +643,18 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
 
     roofs = _split_tilted(roofs, max_tilt)
     surfaces = [(r, "RoofSurface") for r in roofs] + [(r, "WallSurface") for r in walls] + [(ground, "GroundSurface")]
-    # every vertex of the shell converted in one call, then cut into rings
+    # every vertex of the shell converted in one call (the roofs' are arrays already), then cut into rings
     rings = [r for rs, _ in surfaces for r in rs]
-    coords = np.split(np.array([v for r in rings for v in r], dtype=np.float64) * grid,
-                      np.cumsum([len(r) for r in rings])[:-1])
+    stacked = [isinstance(r, np.ndarray) for r in rings]
+    sizes = [len(r) for r in rings]
+    table_xyz = np.empty((sum(sizes), 3), dtype=np.int64)
+    in_array = np.repeat(stacked, sizes)
+    if in_array.any():
+        table_xyz[in_array] = np.concatenate([r for r, a in zip(rings, stacked) if a])
+    if not in_array.all():
+        table_xyz[~in_array] = np.array([v for r, a in zip(rings, stacked) if not a for v in r], dtype=np.int64)
+    cut = np.cumsum([0] + sizes).tolist()
+    table_xyz = table_xyz.astype(np.float64) * grid
+    coords = [table_xyz[a:b] for a, b in zip(cut[:-1], cut[1:])]
     at = np.cumsum([0] + [len(rs) for rs, _ in surfaces]).tolist()
     return Solid([Surface(coords[at[i]:at[i + 1]], kind) for i, (_, kind) in enumerate(surfaces)])
