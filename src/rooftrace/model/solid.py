@@ -47,8 +47,6 @@ has the same vertices on both sides and the parts' solids do not overlap.
 
 from __future__ import annotations
 
-from bisect import bisect_left, bisect_right
-
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
@@ -489,6 +487,68 @@ def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius, sma
     return [(poly, plane) for poly, (_, plane) in zip(polys, cells) if not poly.is_empty]
 
 
+def _walls(wp: np.ndarray, wq: np.ndarray, zlp: np.ndarray, zlq: np.ndarray, zrp: np.ndarray, zrq: np.ndarray,
+           v: np.ndarray, z: np.ndarray, ground_v: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The wall under each edge ``wp -> wq``: its rings' vertices and heights, all walls one after the other.
+
+    A wall runs ``(p, zrp), (q, zrq)``, up ``q`` through every height the
+    vertex has between ``zrq`` and ``zlq``, ``(q, zlq), (p, zlp)``, and down
+    ``p`` through its heights between ``zlp`` and ``zrp`` (so that each
+    vertical edge is shared by exactly two walls); a vertex equal to the one
+    before it (the first one's predecessor being the last) is left out.  The
+    heights of a vertex are those of every roof ring vertex ``v`` at ``z``
+    and ``g`` for the ground ring's vertices (grid units).
+
+    Returns
+    -------
+    wall_v, wall_z : ndarray of shape (M,), int
+        Vertex and height of each wall vertex.
+    wall_of : ndarray of shape (M,), int
+        Wall of each (sorted).
+    """
+    n = len(wp)
+    if not n:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # every vertex's distinct heights, sorted by (vertex, height): one key per pair
+    all_v = np.concatenate([v, ground_v])
+    all_z = np.concatenate([z, np.full(len(ground_v), g, dtype=np.int64)])
+    low = min(int(all_z.min()), int(min(zrp.min(), zrq.min(), zlp.min(), zlq.min())))
+    span = max(int(all_z.max()), int(max(zrp.max(), zrq.max(), zlp.max(), zlq.max()))) - low + 1
+    level = np.unique(all_v * span + (all_z - low))
+    level_z = level % span + low
+
+    def strictly_between(u, z0, z1):
+        """Where the heights of ``u`` strictly between z0 and z1 start in ``level``, how many, and their direction."""
+        lo, hi = np.minimum(z0, z1), np.maximum(z0, z1)
+        first = np.searchsorted(level, u * span + (lo - low), side="right")
+        count = np.maximum(np.searchsorted(level, u * span + (hi - low), side="left") - first, 0)
+        return first, count, z1 > z0
+
+    c_first, c_count, c_up = strictly_between(wq, zrq, zlq)
+    f_first, f_count, f_up = strictly_between(wp, zlp, zrp)
+    size = 4 + c_count + f_count
+    of = np.repeat(np.arange(n), size)
+    pos = np.arange(len(of)) - np.repeat(np.cumsum(size) - size, size)
+    cc, fc = c_count[of], f_count[of]
+    on_q = (pos >= 1) & (pos <= 2 + cc)
+    out_v = np.where(on_q, wq[of], wp[of])
+    out_z = np.empty(len(of), dtype=np.int64)
+    # the four corners
+    for at, zz in ((pos == 0, zrp), (pos == 1, zrq), (pos == 2 + cc, zlq), (pos == 3 + cc, zlp)):
+        out_z[at] = zz[of[at]]
+    # up (or down) q from zrq to zlq, then p from zlp to zrp
+    for at, k, first, count, up in (((pos >= 2) & (pos < 2 + cc), pos - 2, c_first, c_count, c_up),
+                                   ((pos >= 4 + cc) & (pos < 4 + cc + fc), pos - 4 - cc, f_first, f_count, f_up)):
+        w = of[at]
+        out_z[at] = level_z[np.where(up[w], first[w] + k[at], first[w] + count[w] - 1 - k[at])]
+    # consecutive repeats out, each ring closing on itself
+    before = np.arange(len(of)) - 1
+    starts = np.cumsum(size) - size
+    before[starts] = starts + size - 1
+    keep = (out_v != out_v[before]) | (out_z != out_z[before])
+    return out_v[keep], out_z[keep], of[keep]
+
+
 def _prism(cells: list, ground_height: float, footprint, grid: float, snap: float, z_tolerance: float,
            max_tilt: float) -> Solid:
     faces, face_cell, whole = _tile(cells, footprint, snap)
@@ -587,59 +647,35 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     if snapped.min() <= g:
         raise GeometryError(f"a roof lies at or below the ground height ({snapped.min() * grid:.2f} <= "
                             f"{ground_height:.2f} m)")
-    p_list, z_list = p.tolist(), snapped.tolist()
-    levels: dict[int, set] = {}
-    for v, z in zip(p_list, z_list):
-        levels.setdefault(v, set()).add(z)
-    for r in ground_rings:
-        for v in r:
-            levels.setdefault(v, set()).add(g)
-    levels = {v: sorted(x) for v, x in levels.items()}
-    xy = table.xy  # (int, int) per vertex
-
-    def point(v, z):
-        x, y = xy[v]
-        return (x, y, z)
-
-    def between(v, z0, z1):
-        """The vertex's heights strictly between z0 and z1, from z0 to z1."""
-        lv = levels[v]
-        if z1 > z0:
-            return lv[bisect_right(lv, z0):bisect_left(lv, z1)]
-        return lv[bisect_right(lv, z1):bisect_left(lv, z0)][::-1]
-
+    xy = np.asarray(table.xy, dtype=np.int64)  # (x, y) per vertex, grid units
     bounds = np.concatenate(([0], np.cumsum([len(r) for rings in face_rings for r in rings]))).tolist()
-    roof_xyz = np.column_stack([np.asarray(xy, dtype=np.int64)[p], snapped])  # the roof rings' vertices, in order
+    roof_xyz = np.column_stack([xy[p], snapped])  # the roof rings' vertices, in order
     flat_rings = [roof_xyz[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
     counts = np.cumsum([0] + [len(rings) for rings in face_rings])
     roofs = [flat_rings[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
-    walls = []
-    need = (~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q))
-    q_list, zlq_list, zrp_list, zrq_list = q.tolist(), zl_q.tolist(), zr_p.tolist(), zr_q.tolist()
-    for k in np.flatnonzero(need).tolist():
-        pk, qk = p_list[k], q_list[k]
-        zlp, zlq, zrp, zrq = z_list[k], zlq_list[k], zrp_list[k], zrq_list[k]
-        ring = [point(pk, zrp), point(qk, zrq)]
-        ring += [point(qk, z) for z in between(qk, zrq, zlq)]
-        ring += [point(qk, zlq), point(pk, zlp)]
-        ring += [point(pk, z) for z in between(pk, zlp, zrp)]
-        walls.append([[c for j, c in enumerate(ring) if c != ring[j - 1]]])
+    need = np.flatnonzero((~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q)))
+    wall_v, wall_z, wall_of = _walls(p[need], q[need], snapped[need], zl_q[need], zr_p[need], zr_q[need], p, snapped,
+                                     np.concatenate(ground_rings).astype(np.int64), g)
     # each elementary vertical edge must be in exactly two walls; more means a
     # saddle vertex (heights high, low, high, low around it)
-    vertical: dict[tuple, int] = {}
-    for (ring,) in walls:
-        for a, b in zip(ring, ring[1:] + ring[:1]):
-            if a[:2] == b[:2]:
-                key = (a[0], a[1], min(a[2], b[2]))
-                vertical[key] = vertical.get(key, 0) + 1
-    saddles = sorted({k[:2] for k, n in vertical.items() if n > 2})
-    if saddles:
-        at = [table.index[s] for s in saddles]
+    after = np.arange(len(wall_v)) + 1
+    ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True])
+    after[ends] = np.r_[0, ends[:-1] + 1]
+    upright = wall_v == wall_v[after]
+    edge_key = np.column_stack([wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]])
+    keys, uses = np.unique(edge_key, axis=0, return_counts=True) if len(edge_key) else (edge_key, np.zeros(0, int))
+    saddle_v = np.unique(keys[uses > 2, 0])
+    if len(saddle_v):
+        at = saddle_v[np.lexsort((xy[saddle_v, 1], xy[saddle_v, 0]))].tolist()  # in (x, y) order
         highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]
-        raise _Saddle(np.asarray(saddles, dtype=np.float64) * grid, [face_cell[i] for i in highest],
+        raise _Saddle(xy[at].astype(np.float64) * grid, [face_cell[i] for i in highest],
                       _narrowest_sector(at, [r for rings in face_rings for r in rings] + ground_rings,
-                                        np.asarray(table.xy, dtype=np.float64)))
-    ground = [[point(v, g) for v in r[::-1]] for r in ground_rings]
+                                        xy.astype(np.float64)))
+    wall_xyz = np.column_stack([xy[wall_v], wall_z])
+    cut = np.r_[0, ends + 1].tolist()
+    walls = [[wall_xyz[a:b]] for a, b in zip(cut[:-1], cut[1:])]
+    ground = [np.column_stack([xy[np.asarray(r[::-1], dtype=np.int64)], np.full(len(r), g, dtype=np.int64)])
+              for r in ground_rings]
 
     roofs = _split_tilted(roofs, max_tilt)
     surfaces = [(r, "RoofSurface") for r in roofs] + [(r, "WallSurface") for r in walls] + [(ground, "GroundSurface")]
