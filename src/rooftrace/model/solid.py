@@ -360,6 +360,29 @@ def _simple_with(rings: list[list[int]], edge: tuple[int, int], point: tuple[int
     return bool(shapely.Polygon(coords[0], coords[1:]).is_valid)
 
 
+def _simple_with_all(faces: list, edges: list, points: list, xy: np.ndarray) -> np.ndarray:
+    """:func:`_simple_with` of each ``(faces[k], edges[k], points[k])``, the polygons built and tested in array calls."""
+    if not faces:
+        return np.zeros(0, dtype=bool)
+    ring_v = [np.asarray(r, dtype=np.int64) for rings in faces for r in rings]
+    n_rings = [len(rings) for rings in faces]
+    v = np.concatenate(ring_v)
+    size = np.array([len(r) for r in ring_v])
+    ring = np.repeat(np.arange(len(ring_v)), size)
+    face = np.repeat(np.arange(len(faces)), n_rings)[ring]
+    after = np.arange(len(v)) + 1
+    ends = np.cumsum(size) - 1
+    after[ends] = ends - size + 1
+    a, b = np.array(edges, dtype=np.int64).T
+    w = v[after]
+    hit = np.flatnonzero(((v == a[face]) & (w == b[face])) | ((v == b[face]) & (w == a[face])))
+    # the point after every occurrence of the edge, in its ring
+    coords = np.insert(xy[v], hit + 1, np.asarray(points, dtype=np.float64)[face[hit]], axis=0)
+    ring = np.insert(ring, hit + 1, ring[hit])
+    rings = shapely.linearrings(coords, indices=ring)
+    return shapely.is_valid(shapely.polygons(rings, indices=np.repeat(np.arange(len(faces)), n_rings)))
+
+
 def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
     """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
     out = []
@@ -631,13 +654,32 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
         exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for k, pp, qq, (ex, ey) in zip(cross.tolist(), p[cross].tolist(), q[cross].tolist(), exact.tolist()):
-            # the nearest candidate that keeps both faces valid (the test builds two polygons: stop at the first)
-            free = next((c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
-                         if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))), None)
+        pq = list(zip(p[cross].tolist(), q[cross].tolist()))
+        candidates = [_crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
+                      for (pp, qq), (ex, ey) in zip(pq, exact.tolist())]
+        # the nearest candidate of every crossing tested in both faces at once (nearly always the one taken)
+        nearest = [k for k, c in enumerate(candidates) if c]
+        sides = [(int(f[cross[k]]), int(f[o[cross[k]]])) for k in nearest]
+        valid = _simple_with_all([face_rings[i] for pair in sides for i in pair],
+                                 [pq[k] for k in nearest for _ in range(2)],
+                                 [candidates[k][0] for k in nearest for _ in range(2)], xyf).reshape(-1, 2).all(axis=1)
+        first_ok = dict(zip(nearest, valid.tolist()))
+        added: set[tuple[int, int]] = set()
+        for n, (k, (pp, qq)) in enumerate(zip(cross.tolist(), pq)):
+            # the nearest candidate that keeps both faces valid (the points taken by the crossings before are
+            # taken for this one too)
+            free = None
+            for j, c in enumerate(candidates[n]):
+                if c in added:
+                    continue
+                if j == 0 and first_ok[n] or j > 0 and all(
+                        _simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]])):
+                    free = c
+                    break
             if free is None:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
             crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free)
+            added.add(free)
             # on the lattice the point is up to half a step off the crossing, where the two
             # heights may differ by more than the tolerance: they are made one there
             crossings.add(crossing[(pp, qq)])
