@@ -627,8 +627,10 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ground_rings = flat[counts[-1]:]
     # a face whose rings pass twice through a vertex (a hole touching its
     # outer ring) would pinch the shell there: open it like a saddle
-    pinch = [(v, i) for i, rings in enumerate(face_rings)
-             for v, n in zip(*np.unique(np.concatenate(rings), return_counts=True)) if n > 1]
+    ring_v = np.concatenate([r for rings in face_rings for r in rings]).astype(np.int64)
+    ring_face = np.repeat(np.arange(len(face_rings)), [sum(map(len, rings)) for rings in face_rings])
+    uses, twice = np.unique(ring_face * len(table.xy) + ring_v, return_counts=True)
+    pinch = [(v, i) for i, v in zip(*(a.tolist() for a in np.divmod(uses[twice > 1], len(table.xy))))]  # by face, vertex
     if pinch:
         xy = np.asarray(table.xy, dtype=np.float64)
         at = [v for v, _ in pinch]

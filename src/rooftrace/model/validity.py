@@ -44,9 +44,11 @@ __all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "
 
 def _ring_table(surfaces):
     """All rings stacked: vertices (V, 3), ring of each vertex, next vertex, surface of each ring."""
-    rings = [r for s in surfaces for r in s.rings]
-    sizes = np.array([len(r) for r in rings], dtype=np.int64)
-    owner = np.repeat(np.arange(len(surfaces)), [len(s.rings) for s in surfaces])
+    per_surface = [s.rings for s in surfaces]
+    rings = [r for rs in per_surface for r in rs]
+    sizes = np.fromiter(map(len, rings), dtype=np.int64, count=len(rings))
+    owner = np.repeat(np.arange(len(surfaces)), np.fromiter(map(len, per_surface), dtype=np.int64,
+                                                            count=len(per_surface)))
     try:
         # the builders' rings are (K, 3) float arrays: one concatenation, no conversion per ring
         xyz = np.concatenate(rings).astype(np.float64, copy=False) if rings else np.zeros((0, 3))
