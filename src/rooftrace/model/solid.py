@@ -64,7 +64,8 @@ def horizontal_plane(height: float) -> np.ndarray:
 
 
 def _polygons(geom) -> list[Polygon]:
-    return [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty and g.area > 0]
+    parts = shapely.get_parts(geom)
+    return list(parts[(shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts) & (shapely.area(parts) > 0)])
 
 
 def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[int], Polygon]:
@@ -84,12 +85,12 @@ def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[i
     reps = reps[shapely.contains(fp, reps)]
     if not len(pieces):
         raise GeometryError("the footprint has no area")
-    owner = np.full(len(pieces), -1, dtype=np.int64)
+    owner = np.full(len(pieces), len(polys), dtype=np.int64)
     tree = shapely.STRtree(np.array(polys, dtype=object))
     at, cell = tree.query(reps, predicate="within")
     # overlapping cells: the first one wins (a fixed rule, so the result is deterministic)
-    for i, c in zip(at[::-1], cell[::-1]):
-        owner[i] = c if owner[i] < 0 or c < owner[i] else owner[i]
+    np.minimum.at(owner, at, cell)
+    owner[owner == len(polys)] = -1
     # gaps of the partition go to the neighbour they share most boundary with
     while (owner < 0).any():
         changed = False
@@ -117,9 +118,8 @@ def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[i
         merged = mine if len(mine) == 1 else _polygons(shapely.coverage_union_all(mine))
         if not all(g.is_valid for g in merged):
             merged = _polygons(shapely.union_all(mine, grid_size=lattice))
-        for g in merged:
-            faces.append(shapely.orient_polygons(g, exterior_cw=False))
-            face_cell.append(int(c))
+        faces.extend(shapely.orient_polygons(np.array(merged, dtype=object), exterior_cw=False))
+        face_cell.extend([int(c)] * len(merged))
     # the pieces are a coverage (edges shared exactly): their fast coverage union
     whole = _polygons(shapely.coverage_union_all(pieces))
     if len(whole) != 1 or not whole[0].is_valid:
