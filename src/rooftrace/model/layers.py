@@ -7,12 +7,21 @@ import shapely
 
 from rooftrace.io.vector import Layer
 from rooftrace.model.types import LODS, SURFACE_KINDS
-from rooftrace.model.validity import surface_polygons
 
 __all__ = ["model_layers", "LAYER_NAMES"]
 
 #: GeoPackage layer of each level of detail
 LAYER_NAMES = {lod: "lod" + lod.replace(".", "") for lod in LODS}
+
+
+def _multipolygon(surfaces) -> shapely.MultiPolygon:
+    # surfaces without holes (nearly all: walls) built in one call, one feature at a time: built for a whole
+    # layer at once, the rings and polygons alive together kept the garbage collector busy (slower on Delft)
+    simple = [s.rings[0] for s in surfaces if len(s.rings) == 1]
+    polys = iter(shapely.polygons(shapely.linearrings(np.concatenate(simple), indices=np.repeat(
+        np.arange(len(simple)), [len(r) for r in simple]))) if simple else [])
+    return shapely.multipolygons([next(polys) if len(s.rings) == 1 else shapely.Polygon(s.rings[0], s.rings[1:])
+                                  for s in surfaces])
 
 
 def model_layers(models: list) -> dict[str, Layer]:
@@ -26,7 +35,7 @@ def model_layers(models: list) -> dict[str, Layer]:
     """
     out = {}
     for lod, name in LAYER_NAMES.items():
-        surfaces, feature = [], []
+        geoms = []
         cols = {k: [] for k in ("building_id", "part_id", "surface_type", "status", "h_ground", "h_roof_70p",
                                 "volume")}
         for m in models:
@@ -35,11 +44,10 @@ def model_layers(models: list) -> dict[str, Layer]:
                 if solid is None:
                     continue
                 for kind in SURFACE_KINDS:
-                    mine = [s for s in solid.surfaces if s.kind == kind]
-                    if not mine:
+                    surfaces = [s for s in solid.surfaces if s.kind == kind]
+                    if not surfaces:
                         continue
-                    feature.extend([len(cols["building_id"])] * len(mine))
-                    surfaces.extend(mine)
+                    geoms.append(_multipolygon(surfaces))
                     cols["building_id"].append(int(m.building_id))
                     cols["part_id"].append(int(part.part_id))
                     cols["surface_type"].append(kind)
@@ -49,8 +57,6 @@ def model_layers(models: list) -> dict[str, Layer]:
                         cols[key].append(np.nan if v is None else float(v))
                     v = part.attributes.get(f"volume_{name}")
                     cols["volume"].append(np.nan if v is None else float(v))
-        # every surface of the layer built in a few array calls, then grouped into the features
-        geoms = list(shapely.multipolygons(surface_polygons(surfaces), indices=feature)) if surfaces else []
         cols["building_id"] = np.asarray(cols["building_id"], dtype=np.int64)
         cols["part_id"] = np.asarray(cols["part_id"], dtype=np.int64)
         for key in ("h_ground", "h_roof_70p", "volume"):
