@@ -135,10 +135,14 @@ def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     """
     if not solid.surfaces:
         return 0.0
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
+    return _volume(*_ring_table(solid.surfaces), len(solid.surfaces), origin)
+
+
+def _volume(xyz, ring, nxt, owner, sizes, start, n_surfaces, origin=None) -> float:
+    """:func:`solid_volume` from the solid's ring table."""
     if origin is None:
         origin = xyz[0]
-    area = _area_vectors(xyz, ring, nxt, owner, sizes, len(solid.surfaces), origin) / 2.0
+    area = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin) / 2.0
     first = np.unique(owner, return_index=True)[1]
     p = xyz[start[first]] - origin
     return float((area * p).sum()) / 3.0
@@ -491,7 +495,8 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     uk, counts = np.unique(key, return_counts=True)
     if (counts > 1).any():
         errors.append(f"{int((counts > 1).sum())} edges used twice in the same direction (flipped or non-manifold)")
-    missing = ~np.isin(b * n + a, uk)
+    at = np.minimum(np.searchsorted(uk, b * n + a), len(uk) - 1)  # uk is sorted: the same test as np.isin
+    missing = uk[at] != b * n + a
     if missing.any():
         errors.append(f"not closed: {int(missing.sum())} edges without an opposite edge")
     if errors:
@@ -513,7 +518,7 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     bad = int((np.bincount(fans) > 1).sum())
     if bad:
         errors.append(f"{bad} non-manifold vertices (the surfaces around them make several fans)")
-    volume = solid_volume(solid)
+    volume = _volume(xyz, ring, nxt, owner, sizes, start, len(surfaces))
     if not volume > 0:
         errors.append(f"surfaces face inward (signed volume {volume:.3f} m³)")
     return errors
