@@ -630,7 +630,8 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ring_v = np.concatenate([r for rings in face_rings for r in rings]).astype(np.int64)
     ring_face = np.repeat(np.arange(len(face_rings)), [sum(map(len, rings)) for rings in face_rings])
     uses, twice = np.unique(ring_face * len(table.xy) + ring_v, return_counts=True)
-    pinch = [(v, i) for i, v in zip(*(a.tolist() for a in np.divmod(uses[twice > 1], len(table.xy))))]  # by face, vertex
+    # by face, then vertex
+    pinch = [(v, i) for i, v in zip(*(a.tolist() for a in np.divmod(uses[twice > 1], len(table.xy))))]
     if pinch:
         xy = np.asarray(table.xy, dtype=np.float64)
         at = [v for v, _ in pinch]
@@ -674,8 +675,8 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
             for j, c in enumerate(candidates[n]):
                 if c in added:
                     continue
-                if j == 0 and first_ok[n] or j > 0 and all(
-                        _simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]])):
+                if (j == 0 and first_ok[n]) or (j > 0 and all(
+                        _simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))):
                     free = c
                     break
             if free is None:
@@ -703,7 +704,7 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     # each elementary vertical edge must be in exactly two walls; more means a
     # saddle vertex (heights high, low, high, low around it)
     after = np.arange(len(wall_v)) + 1
-    ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True])
+    ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True]) if len(wall_of) else np.zeros(0, np.int64)
     after[ends] = np.r_[0, ends[:-1] + 1]
     upright = wall_v == wall_v[after]
     edge_key = np.column_stack([wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]])
