@@ -238,7 +238,9 @@ class GridKnn:
         # hold ~2.9 k points (at twice that distance, ~11 k: Delft's search 20 % slower)
         side = float(np.sqrt(self.k * occupied * 2.0 / (np.pi * n)))
         # at most ~4 cells a point: a sparse, wide cloud gets coarser cells
-        side = max(side, float(np.sqrt(span[0] * span[1] / (4.0 * n))), 1e-6)
+        # and along a line (one span near 0) not more cells than ~4 a point either: a few points kilometres
+        # apart made billions of cells
+        side = max(side, float(np.sqrt(span[0] * span[1] / (4.0 * n))), float(span.max()) / (4.0 * n), 1e-6)
         self.side = side
         self.x0, self.y0 = float(lo[0]), float(lo[1])
         self.nx = int(span[0] // side) + 1
