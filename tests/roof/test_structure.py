@@ -191,7 +191,7 @@ def test_superstructures_get_faces_and_the_lod22_roof_fits_them():
     assert np.flatnonzero(roof.plane_detail)[0] in roof.face_plane
     assert all(np.flatnonzero(roof.plane_detail)[0] not in pair for pair in roof.ridge_planes)
     assert np.median(dz[None]) > 1.0 and np.median(dz[0.5]) < 0.05
-    assert rmse[0.5] < 0.08 < rmse[None]  # s / 4 face raster: 0.055 / 0.106 m (s / 2: under 0.12 / over it)
+    assert rmse[0.5] < 0.12 < rmse[None]
 
 
 def test_chimney_too_small_for_a_plane_becomes_a_flat_block():

@@ -105,10 +105,11 @@ class RoofOptions:
     step_height : float
         Smallest height jump (m) between neighbouring faces for a step edge.
     cell : float or None
-        Raster cell (m) of the face partition; default ``s / 4``.  At a
-        height step the two levels' points lie closer than ``s`` in plan:
-        a cell of ``s / 2`` may hold points of both and put one under the
-        other level's face (docs/design-notes.md, the issue's RMSE).
+        Raster cell (m) of the face partition; default ``s / 2``.  At a
+        height step a cell of ``s / 2`` may hold points of both levels and
+        put one under the other level's face; ``s / 4`` fits better but
+        its finer party walls let val3dity find overlapping building parts
+        (docs/design-notes.md, the issue's RMSE).
     face_boundaries : {'each', 'held', 'free'}
         How the face boundaries are simplified
         (:func:`rooftrace.roof.faces.partition_outline`): ``'each'`` every
@@ -404,7 +405,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         roof.status = "no_lines"
         return roof
     roof.ridges, roof.ridge_kind, roof.ridge_planes = list(lines.lines), list(lines.kinds), list(lines.pairs)
-    cell = opt.cell or s / 4
+    cell = opt.cell or s / 2
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
