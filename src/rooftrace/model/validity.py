@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 
 __all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_normals", "surface_triangles",
-           "triangle_tilt", "surface_tilt", "overlapping_parts", "solid_plan", "surface_polygons"]
+           "triangle_tilt", "surface_tilt", "overlapping_parts", "t_junctions", "solid_plan", "surface_polygons"]
 
 
 def _ring_table(surfaces):
