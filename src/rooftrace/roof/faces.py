@@ -68,33 +68,38 @@ def _polygon(rings: list) -> Polygon:
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
     """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary."""
-    polys, ids = list(polys), list(ids)
-    while len(polys) >= 2:
-        geoms = np.array(polys, dtype=object)
-        areas = shapely.area(geoms)
-        small = np.flatnonzero(areas < min_area)
+    geoms = np.array(polys, dtype=object)
+    ids = list(ids)
+    if len(geoms) < 2:
+        return list(geoms), ids
+    # areas, boxes and boundaries are kept per face and renewed only for the merged one (a roof has hundreds of
+    # faces and as many merges); the list order is the index order of the faces still alive
+    alive = np.ones(len(geoms), dtype=bool)
+    areas = shapely.area(geoms)
+    box = shapely.bounds(geoms)
+    edges = shapely.boundary(geoms)
+    while alive.sum() >= 2:
+        small = np.flatnonzero(alive & (areas < min_area))
         if not len(small):
             break
         i = int(small[np.argmin(areas[small])])
-        # only faces whose boxes touch this one's can share boundary with it (a roof has hundreds of faces)
-        box = shapely.bounds(geoms)
-        near = np.flatnonzero((box[:, 0] <= box[i, 2]) & (box[:, 2] >= box[i, 0]) & (box[:, 1] <= box[i, 3])
+        # only faces whose boxes touch this one's can share boundary with it
+        near = np.flatnonzero(alive & (box[:, 0] <= box[i, 2]) & (box[:, 2] >= box[i, 0]) & (box[:, 1] <= box[i, 3])
                               & (box[:, 3] >= box[i, 1]))
         near = near[near != i]
-        shared = shapely.length(shapely.intersection(shapely.boundary(geoms[i]), shapely.boundary(geoms[near])))
-        if not len(near) or shared.max() <= 0:
+        if not len(near) or (shared := shapely.length(shapely.intersection(edges[i], edges[near]))).max() <= 0:
             # Isolated island: keep it (it is still part of the tiling).
             if areas[i] < 1e-9:
-                del polys[i], ids[i]
+                alive[i] = False
                 continue
             break
         j = int(near[np.argmax(shared)])
-        merged = shapely.union(polys[j], polys[i])
+        merged = shapely.union(geoms[j], geoms[i])
         if merged.geom_type != "Polygon":
             merged = merged.buffer(0)
-        polys[j] = merged
-        del polys[i], ids[i]
-    return polys, ids
+        geoms[j], areas[j], box[j], edges[j] = merged, merged.area, merged.bounds, merged.boundary
+        alive[i] = False
+    return list(geoms[alive]), [pid for pid, on in zip(ids, alive) if on]
 
 
 def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.ndarray, planes: np.ndarray,
@@ -503,6 +508,11 @@ def partition_outline(
     return polys, pids
 
 
+def _area_sum(faces) -> float:
+    """Total area of the faces, summed in order as ``sum(p.area for p in faces)`` (the tiling checks compare it)."""
+    return sum(shapely.area(np.asarray(faces, dtype=object)).tolist())
+
+
 def merge_close_vertices(polys: list, outline, eps: float) -> list:
     """Face vertices moved onto a vertex within ``eps`` (m): no face edge that short, the outline's vertices kept.
 
@@ -520,8 +530,9 @@ def merge_close_vertices(polys: list, outline, eps: float) -> list:
     """
     if eps <= 0 or not polys:
         return polys
-    coords = [shapely.get_coordinates(p) for p in polys]
-    xy, inv = np.unique(np.vstack(coords), axis=0, return_inverse=True)
+    faces = np.array(polys, dtype=object)
+    allxy, owner = shapely.get_coordinates(faces, return_index=True)
+    xy, inv = np.unique(allxy, axis=0, return_inverse=True)
     ring = shapely.boundary(outline)
     off = shapely.distance(ring, shapely.points(xy))
     # vertices a hair inside the outline go onto it (else the wall there is a hair long)
@@ -545,25 +556,22 @@ def merge_close_vertices(polys: list, outline, eps: float) -> list:
     np.minimum.at(best, label, rank)
     target = np.where(fixed, np.arange(len(xy)), order[best[label]])  # the outline's own vertices stay
     inv = inv.ravel()
-    starts = np.cumsum([0] + [len(c) for c in coords])
-    area = sum(p.area for p in polys)
+    area = _area_sum(faces)
     held = np.zeros(len(xy), bool)
     # a face the moves would make invalid keeps its vertices (and so do its neighbours, which share them)
     for _ in range(8):
         at = np.where(held[:, None], xy, pos)[np.where(held, np.arange(len(xy)), target)][inv]
         try:
-            moved = [shapely.remove_repeated_points(shapely.transform(p, lambda _, a=at[starts[k]:starts[k + 1]]: a))
-                     for k, p in enumerate(polys)]
+            moved = shapely.remove_repeated_points(shapely.transform(faces, lambda _: at))
         except shapely.errors.GEOSException:
             break
-        bad = [k for k, p in enumerate(moved) if not (p.geom_type == "Polygon" and not p.is_empty and p.is_valid)]
-        if not bad:
-            if (abs(sum(p.area for p in moved) - area) <= 1e-6 * max(area, 1.0)
+        bad = ~((shapely.get_type_id(moved) == 3) & ~shapely.is_empty(moved) & shapely.is_valid(moved))
+        if not bad.any():
+            if (abs(_area_sum(moved) - area) <= 1e-6 * max(area, 1.0)
                     and abs(shapely.union_all(moved).area - area) <= 1e-6 * max(area, 1.0)):
-                return moved
+                return list(moved)
             break
-        for k in bad:
-            held[inv[starts[k]:starts[k + 1]]] = True
+        held[inv[bad[owner]]] = True
     log.debug("merging close face vertices undone (would break the tiling)")
     return polys
 
@@ -589,7 +597,11 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
     boundary = outline.boundary
 
     def _snap(coords):
-        xy = coords[:, :2]
+        # every vertex of every face at once, in slices: the (vertices, lines) arrays stay small
+        return np.concatenate([_snap_some(coords[k:k + 4096, :2]) for k in range(0, len(coords), 4096)]
+                              + [np.zeros((0, 2))])
+
+    def _snap_some(xy):
         out = xy.copy()
         de = np.hypot(xy[:, None, 0] - ends[None, :, 0], xy[:, None, 1] - ends[None, :, 1])
         je = np.argmin(de, axis=1)
@@ -608,10 +620,10 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
         return out
 
     try:
-        snapped = [shapely.remove_repeated_points(shapely.transform(p, _snap)) for p in polys]
-        area = sum(p.area for p in polys)
-        ok = (all(p.is_valid and p.geom_type == "Polygon" for p in snapped)
-              and abs(sum(p.area for p in snapped) - area) <= 1e-6 * max(area, 1.0)
+        snapped = list(shapely.remove_repeated_points(shapely.transform(np.array(polys, dtype=object), _snap)))
+        area = _area_sum(polys)
+        ok = (bool(shapely.is_valid(snapped).all() and (shapely.get_type_id(snapped) == 3).all())
+              and abs(_area_sum(snapped) - area) <= 1e-6 * max(area, 1.0)
               and abs(shapely.union_all(snapped).area - area) <= 1e-6 * max(area, 1.0))
     except shapely.errors.GEOSException:
         ok = False
