@@ -669,36 +669,42 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     lines, pairs = [], []
     if len(polys) < 2:
         return lines, pairs
-    tree = shapely.STRtree(polys)
-    done = set()
-    for i, j in zip(*tree.query(polys, predicate="intersects")):
-        a, b = plane_ids[i], plane_ids[j]
-        if i >= j or a == b or (i, j) in done:
-            continue
-        done.add((i, j))
-        shared = shapely.intersection(polys[i].boundary, polys[j].boundary)
-        segs = [g for g in getattr(shared, "geoms", [shared]) if isinstance(g, LineString) and not g.is_empty]
-        if not segs:
-            continue
-        merged = shapely.line_merge(shapely.MultiLineString(segs))
-        for g in getattr(merged, "geoms", [merged]):
-            if g.length < min_length:
+    faces = np.array(polys, dtype=object)
+    plane_ids = np.asarray(plane_ids)
+    i, j = shapely.STRtree(faces).query(faces, predicate="intersects")
+    keep = (i < j) & (plane_ids[i] != plane_ids[j])
+    i, j = i[keep], j[keep]
+    # the shared boundaries of all touching pairs in one call, each pair's line pieces merged
+    rims = shapely.boundary(faces)
+    parts, of = shapely.get_parts(shapely.intersection(rims[i], rims[j]), return_index=True)
+    line = np.isin(shapely.get_type_id(parts), (1, 2)) & ~shapely.is_empty(parts)
+    parts, of = parts[line], of[line]
+    if not len(parts):
+        return lines, pairs
+    pair, of = np.unique(of, return_inverse=True)
+    merged, of = shapely.get_parts(shapely.line_merge(shapely.multilinestrings(parts, indices=of)), return_index=True)
+    length = shapely.length(merged)
+    long = length >= min_length
+    merged, of, length = merged[long], pair[of[long]], length[long]
+    # A shared boundary can be partly a step and partly a crease (a dormer's
+    # cheeks and its top): keep the runs where the planes are apart, judged
+    # on a densified copy of the boundary.
+    dense, at = shapely.get_coordinates(shapely.segmentize(merged, np.maximum(length / 200, 0.05)), return_index=True)
+    start = np.r_[0, np.cumsum(np.bincount(at, minlength=len(merged)))]
+    for m, k in enumerate(of):
+        a, b = plane_ids[i[k]], plane_ids[j[k]]
+        xy = dense[start[m]:start[m + 1]]
+        za = plane_height(planes[a][None, :], xy)[:, 0]
+        zb = plane_height(planes[b][None, :], xy)[:, 0]
+        jump = np.abs(za - zb) > step_height
+        edges = np.flatnonzero(np.diff(np.r_[0, jump.astype(np.int8), 0]))
+        for r0, r1 in zip(edges[::2], edges[1::2]):
+            if r1 - r0 < 2:
                 continue
-            # A shared boundary can be partly a step and partly a crease (a
-            # dormer's cheeks and its top): keep the runs where the planes
-            # are apart, judged on a densified copy of the boundary.
-            xy = np.asarray(shapely.segmentize(g, max(g.length / 200, 0.05)).coords)[:, :2]
-            za = plane_height(planes[a][None, :], xy)[:, 0]
-            zb = plane_height(planes[b][None, :], xy)[:, 0]
-            jump = np.abs(za - zb) > step_height
-            edges = np.flatnonzero(np.diff(np.r_[0, jump.astype(np.int8), 0]))
-            for r0, r1 in zip(edges[::2], edges[1::2]):
-                if r1 - r0 < 2:
-                    continue
-                run = shapely.simplify(LineString(xy[r0:r1]), simplify)
-                if run.length < min_length:
-                    continue
-                up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
-                lines.append(lift_to_plane(run, planes[up]))
-                pairs.append((int(up), int(lo)))
+            run = shapely.simplify(LineString(xy[r0:r1]), simplify)
+            if run.length < min_length:
+                continue
+            up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
+            lines.append(lift_to_plane(run, planes[up]))
+            pairs.append((int(up), int(lo)))
     return lines, pairs
