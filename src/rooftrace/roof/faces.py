@@ -226,16 +226,29 @@ def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.n
     its left.
     """
     V, at = shapely.get_coordinates(arcs, return_index=True)
-    same = np.r_[at[1:] == at[:-1], False]
-    edge = {(*V[k], *V[k + 1]): (at[k], 0) for k in np.flatnonzero(same)}
-    edge.update({(*V[k + 1], *V[k]): (at[k], 1) for k in np.flatnonzero(same)})
+    k = np.flatnonzero(np.r_[at[1:] == at[:-1], False])
     c, i = shapely.get_coordinates(shapely.get_exterior_ring(shapely.orient_polygons(faces)), return_index=True)
     start = np.r_[0, np.flatnonzero(i[1:] != i[:-1]) + 1]
+    # vertices as integers (equal coordinates, equal number; + 0.0 makes -0.0 equal to 0.0 bytewise, as in a
+    # comparison), then each directed edge as one integer: the arc edges along and against their arc, and the
+    # faces' first edges
+    ends = np.concatenate([V[k], V[k + 1], c[start], c[start + 1]]) + 0.0
+    _, vid = np.unique(ends.view(np.dtype((np.void, 16))).ravel(), return_inverse=True)
+    n, m = len(k), len(start)
+    a, b, fa, fb = np.split(vid.ravel().astype(np.int64), [n, 2 * n, 2 * n + m])
+    nv = np.int64(len(ends))
+    key = np.concatenate([a * nv + b, b * nv + a])
+    arc = np.concatenate([at[k], at[k]])
+    side = np.repeat([0, 1], n)
+    # an edge listed twice takes its last listing (along before against, arcs in order)
+    order = np.argsort(key, kind="stable")
+    last = np.r_[key[order][1:] != key[order][:-1], True]
+    key, order = key[order][last], order[last]
+    want = fa * nv + fb
+    pos = np.minimum(np.searchsorted(key, want), len(key) - 1)
     out = np.full(len(faces), -3, dtype=np.int64)  # -3: no arc found
-    for f, k in enumerate(start):
-        hit = edge.get((*c[k], *c[k + 1]))
-        if hit is not None:
-            out[f] = sides[hit[0], hit[1]]
+    hit = key[pos] == want if len(key) else np.zeros(m, dtype=bool)
+    out[hit] = sides[arc[order[pos[hit]]], side[order[pos[hit]]]]
     return out
 
 
@@ -495,15 +508,13 @@ def partition_outline(
         near = mixed[row, col]
         regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell,
                                floor=min(0.75, simplify) * cell, max_dz=max_dz)
-    polys, pids = [], []
-    for reg, pid in zip(regions, ids):
-        if pid < 0:
-            continue
-        part = shapely.intersection(shapely.make_valid(reg), outline)
-        for g in getattr(part, "geoms", [part]):
-            if isinstance(g, Polygon) and not g.is_empty and g.area > 0:
-                polys.append(g)
-                pids.append(pid)
+    # each plane's regions cut by the outline, their polygons kept
+    labelled = np.asarray(ids) >= 0
+    parts, of = shapely.get_parts(shapely.intersection(shapely.make_valid(np.asarray(regions, dtype=object)[labelled]),
+                                                       outline), return_index=True)
+    keep = (shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)
+    keep[keep] = shapely.area(parts[keep]) > 0
+    polys, pids = list(parts[keep]), np.asarray(ids)[labelled][of[keep]].tolist()
     polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
     return polys, pids
 
