@@ -332,3 +332,24 @@ def test_points_in_boxes_are_the_str_tree_pairs():
     ptr, pts = points_in_boxes(xy[:, 0], xy[:, 1], np.argsort(xy[:, 0], kind="stable"), shapely.bounds(arcs))
     assert np.array_equal(pts, pi[o]) and np.array_equal(ptr, np.r_[0, np.cumsum(np.bincount(ri, minlength=60))])
     assert np.diff(ptr)[5:8].min() >= 2  # the arcs' own end points are in their boxes
+
+
+@pytest.mark.parametrize("k", [1, 8, 40])
+def test_nearest_labels_are_the_kd_tree_query(k):
+    """The compiled nearest-point search of the face raster gives each cell the labels, in order, that
+    ``cKDTree.query`` gives it, also where ties (duplicated points, a lattice queried at its cell
+    centres) and far cells (outside the points) could order them otherwise."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.faces import _nearest
+
+    rng = np.random.default_rng(6)
+    lattice = np.mgrid[0:30, 0:20].reshape(2, -1).T * 0.5
+    scattered = np.round(rng.uniform(0, 15, (1500, 2)), 2)
+    xy = np.concatenate([lattice, scattered, scattered[:300]]) + [85000.0, 447000.0]  # RD offsets, duplicates
+    lab = rng.integers(0, 4, len(xy))
+    cells = np.concatenate([np.mgrid[-10:70, -10:50].reshape(2, -1).T * 0.25 + 0.125,  # lattice ties, far cells
+                            rng.uniform(-5, 20, (2000, 2))]) + [85000.0, 447000.0]
+    got = lab[_nearest(xy, lab, cells, k)]
+    want = lab[cKDTree(xy).query(cells, k=k)[1].reshape(len(cells), k)]
+    assert np.array_equal(got, want)
