@@ -32,8 +32,6 @@ import logging
 
 import numpy as np
 import shapely
-from rasterio import features
-from rasterio.transform import Affine
 from scipy import ndimage
 from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
@@ -507,6 +505,10 @@ def partition_outline(
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
+    # rasterio (GDAL) only here: importing it costs every command's start-up a tenth of a second
+    from rasterio import features
+    from rasterio.transform import Affine
+
     transform = Affine(cell, 0, x0, 0, -cell, y1)
     regions, ids = [], []
     for geom, value in features.shapes(grid, transform=transform, connectivity=4):
