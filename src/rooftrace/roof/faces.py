@@ -29,12 +29,13 @@ Z from its plane.
 from __future__ import annotations
 
 import logging
+from itertools import chain
 
 import numpy as np
 import shapely
 from scipy import ndimage
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import LineString
 
 from rooftrace.graph import components
 from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points, points_in_boxes, simplify_arcs
@@ -58,10 +59,22 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.hypot(d[:, 0], d[:, 1])
 
 
-def _polygon(rings: list) -> Polygon:
-    """The polygon of GeoJSON-like rings (as ``shapely.geometry.shape`` builds it, without its per-vertex loop)."""
-    rings = [np.asarray(r, dtype=np.float64) for r in rings]
-    return Polygon(rings[0], rings[1:])
+def _polygons(shapes) -> tuple[list, list]:
+    """The polygons and values of ``rasterio.features.shapes``' GeoJSON-like output, built in one call.
+
+    As ``shapely.geometry.shape`` builds each (first ring the shell, the
+    others holes), without a Python loop over vertices or polygons.
+    """
+    rings, of, ids = [], [], []
+    for geom, value in shapes:
+        rings.extend(geom["coordinates"])
+        of.extend([len(ids)] * len(geom["coordinates"]))
+        ids.append(int(value))
+    if not ids:
+        return [], []
+    n = np.fromiter((len(r) for r in rings), dtype=np.int64, count=len(rings))
+    xy = np.array(list(chain.from_iterable(rings)), dtype=np.float64).reshape(-1, 2)
+    return list(shapely.polygons(shapely.linearrings(xy, indices=np.repeat(np.arange(len(rings)), n)), indices=of)), ids
 
 
 def _nearest(xy: np.ndarray, lab: np.ndarray, C: np.ndarray, k: int) -> np.ndarray:
@@ -510,10 +523,7 @@ def partition_outline(
     from rasterio.transform import Affine
 
     transform = Affine(cell, 0, x0, 0, -cell, y1)
-    regions, ids = [], []
-    for geom, value in features.shapes(grid, transform=transform, connectivity=4):
-        regions.append(_polygon(geom["coordinates"]))
-        ids.append(int(value))
+    regions, ids = _polygons(features.shapes(grid, transform=transform, connectivity=4))
     if max_dz is None or boundaries == "free":
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     elif boundaries == "each":
@@ -594,7 +604,7 @@ def merge_close_vertices(polys: list, outline, eps: float) -> list:
     for _ in range(8):
         at = np.where(held[:, None], xy, pos)[np.where(held, np.arange(len(xy)), target)][inv]
         try:
-            moved = shapely.remove_repeated_points(shapely.transform(faces, lambda _: at))
+            moved = shapely.remove_repeated_points(shapely.transform(faces, lambda _, to=at: to))
         except shapely.errors.GEOSException:
             break
         bad = ~((shapely.get_type_id(moved) == 3) & ~shapely.is_empty(moved) & shapely.is_valid(moved))

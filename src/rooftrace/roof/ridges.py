@@ -136,7 +136,7 @@ def _supported_runs(tree, lab, lines: list, tol: float) -> list:
     """
     step = tol / 4
     samples, offsets = [], []
-    for a, b, x0, u, t0, t1 in lines:
+    for _, _, x0, u, t0, t1 in lines:
         ts = np.arange(t0, t1 + step / 2, step) if t1 > t0 else np.array([t0])
         side = np.array([-u[1], u[0]]) * (tol / 2)
         pts = x0[:2] + ts[:, None] * u[:2]
