@@ -676,12 +676,24 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
 
 
 def lift_to_plane(geom, plane: np.ndarray):
-    """Give a plan geometry the Z of a plane ``(a, b, c, d)`` at every vertex."""
+    """Give a plan geometry the Z of a plane ``(a, b, c, d)`` at every vertex.
 
-    def _z(coords):
-        return np.column_stack([coords[:, :2], plane_height(plane[None, :], coords[:, :2])[:, 0]])
+    ``geom`` may also be an array of K geometries with ``plane`` of shape
+    (K, 4), one plane each (one call for a roof's faces).
+    """
+    plane = np.asarray(plane, dtype=np.float64)
+    geom = shapely.force_3d(geom)
+    if plane.ndim == 2:
+        _, owner = shapely.get_coordinates(geom, include_z=True, return_index=True)
 
-    return shapely.transform(shapely.force_3d(geom), _z, include_z=True)
+        def _z(coords):
+            return np.column_stack([coords[:, :2], plane_height(plane[owner], coords[:, :2])])
+    else:
+
+        def _z(coords):
+            return np.column_stack([coords[:, :2], plane_height(plane[None, :], coords[:, :2])[:, 0]])
+
+    return shapely.transform(geom, _z, include_z=True)
 
 
 def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height: float, min_length: float,
@@ -747,6 +759,8 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
             if run.length < min_length:
                 continue
             up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
-            lines.append(lift_to_plane(run, planes[up]))
+            lines.append(run)
             pairs.append((int(up), int(lo)))
+    if lines:
+        lines = list(lift_to_plane(np.array(lines, dtype=object), planes[[up for up, _ in pairs]]))
     return lines, pairs
