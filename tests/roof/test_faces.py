@@ -353,3 +353,28 @@ def test_nearest_labels_are_the_kd_tree_query(k):
     got = lab[_nearest(xy, lab, cells, k)]
     want = lab[cKDTree(xy).query(cells, k=k)[1].reshape(len(cells), k)]
     assert np.array_equal(got, want)
+
+
+def test_arcs_meeting_inside_are_found_among_all_pairs():
+    """Only pairs with an arc the noding split or dissolved are tested; the verdicts are those of every pair
+    tested: crossings, a T, an overlap, a duplicate and a self-crossing arc beside arcs meeting at ends."""
+    from rooftrace.roof.faces import _meets_only_at_ends
+
+    rng = np.random.default_rng(7)
+    corners = rng.uniform(0, 10, (30, 2))
+    arcs = [shapely.LineString(corners[[a, a + 1]]) for a in range(0, 28, 2)]  # loose segments, some crossing
+    arcs += [shapely.LineString([(20, 0), (22, 1), (24, 0)]), shapely.LineString([(24, 0), (26, 2)]),  # end to end
+             shapely.LineString([(22, 1), (22, 5)]),  # a T on the first one's vertex: meets it inside
+             shapely.LineString([(30, 0), (34, 0)]), shapely.LineString([(32, 0), (36, 0)]),  # overlap
+             shapely.LineString([(40, 0), (44, 4)]), shapely.LineString([(40, 0), (44, 4)]),  # duplicate
+             shapely.LineString([(50, 0), (54, 4), (54, 0), (50, 4)])]  # crosses itself
+    arcs = np.array(arcs, dtype=object)
+    ok = shapely.is_simple(arcs)
+    for i in range(len(arcs)):
+        for j in range(i + 1, len(arcs)):
+            ends = [shapely.MultiPoint([arcs[n].coords[0], arcs[n].coords[-1]]) for n in (i, j)]
+            if not shapely.difference(shapely.intersection(arcs[i], arcs[j]), shapely.intersection(*ends)).is_empty:
+                ok[i] = ok[j] = False
+    got = _meets_only_at_ends(arcs)
+    assert np.array_equal(got, ok)
+    assert not got[14:].all() and got[15] and not got[16]  # the T's stem meets the first arc inside

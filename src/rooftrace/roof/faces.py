@@ -29,6 +29,7 @@ Z from its plane.
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from itertools import chain
 
 import numpy as np
@@ -240,8 +241,14 @@ def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
                                               rtol=0, atol=1e-9 * len(arcs)):
         return np.ones(len(arcs), dtype=bool)  # noding changed nothing: no arc meets another inside
     ok = shapely.is_simple(arcs)
+    # an arc that meets another anywhere but at ends of both is split there by the noding (or, overlapping it,
+    # dissolved): only pairs with an arc that did not come through the noding whole and alone need the test
+    whole = Counter(shapely.to_wkb(noded).tolist())
+    mine = shapely.to_wkb(arcs).tolist()
+    alone = Counter(mine)
+    changed = np.array([whole[w] != 1 or alone[w] != 1 for w in mine], dtype=bool)
     i, j = shapely.STRtree(arcs).query(arcs, predicate="intersects")
-    keep = i < j
+    keep = (i < j) & (changed[i] | changed[j])
     i, j = i[keep], j[keep]
     ends = shapely.multipoints(np.stack([shapely.get_point(arcs, 0), shapely.get_point(arcs, -1)], axis=1))
     extra = shapely.difference(shapely.intersection(arcs[i], arcs[j]), shapely.intersection(ends[i], ends[j]))
