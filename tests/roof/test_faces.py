@@ -378,3 +378,18 @@ def test_arcs_meeting_inside_are_found_among_all_pairs():
     got = _meets_only_at_ends(arcs)
     assert np.array_equal(got, ok)
     assert not got[14:].all() and got[15] and not got[16]  # the T's stem meets the first arc inside
+
+
+def test_nearest_labels_far_from_the_points_are_the_kd_tree_query():
+    """Cells far from every labelled point (an outline part without planes) are left to the k-d tree,
+    not searched ring by ring across empty buckets."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.faces import _nearest
+
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(0, 5, (400, 2))
+    lab = rng.integers(0, 3, len(xy))
+    cells = np.concatenate([rng.uniform(0, 5, (200, 2)), rng.uniform(200, 300, (300, 2))])
+    got = lab[_nearest(xy, lab, cells, 8)]
+    assert np.array_equal(got, lab[cKDTree(xy).query(cells, k=8)[1]])

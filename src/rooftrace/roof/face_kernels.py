@@ -239,12 +239,14 @@ def points_in_boxes(x, y, order, boxes):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def nearest_points(px, py, lab, qx, qy, k, bucket):  # pragma: no cover - compiled
+def nearest_points(px, py, lab, qx, qy, k, bucket, max_ring=4):  # pragma: no cover - compiled
     """The ``k`` labelled points nearest each query point, nearest first, and where that order is not certain.
 
     The points are bucketed on a square grid of ``bucket`` (m); each query
     scans rings of buckets outwards until no unscanned point can be nearer
-    than its ``k + 1``-th.  Distances are compared squared, as
+    than its ``k + 1``-th, at most ``max_ring`` rings (a query farther from
+    the points is flagged, a k-d tree finds those in logarithmic time).
+    Distances are compared squared, as
     ``dx * dx + dy * dy`` (the sum ``cKDTree`` forms in 2D).  A query is
     flagged ``unsure`` where the order could depend on how ties are broken:
     its ``k``-th and ``k + 1``-th distances within a relative 1e-9, or two
@@ -312,6 +314,11 @@ def nearest_points(px, py, lab, qx, qy, k, bucket):  # pragma: no cover - compil
             if done or (found == kk and gap > 0 and bd[kk - 1] * (1 + 1e-9) < gap * gap):
                 break
             r += 1
+            if r > max_ring:
+                break
+        if r > max_ring:
+            unsure[q] = True
+            continue
         for s in range(k):
             idx[q, s] = bi[s]
         if kk > k and bd[k] - bd[k - 1] <= 1e-9 * bd[k]:
