@@ -127,18 +127,30 @@ def _one_part(building_id: int, n: int, outline) -> BuildingParts:
     return BuildingParts(building_id, np.ones(n, np.int32), [outline] if outline is not None else [], [])
 
 
-def _face_links(faces: list, planes_of_face: np.ndarray, planes: np.ndarray, min_edge: float):
-    """Pairs of faces sharing an edge longer than ``min_edge``: (i, j, shared line, plane gap along it in m)."""
-    tree = shapely.STRtree(faces)
-    left, right = tree.query(faces, predicate="intersects")
+def _face_links(faces: list, planes_of_face: np.ndarray, planes: np.ndarray, min_edge: float,
+                skip: np.ndarray | None = None):
+    """Pairs of faces sharing an edge longer than ``min_edge``: (i, j, shared line, plane gap along it in m).
+
+    Pairs with a face in ``skip`` (faces that neither join nor split) are not measured.
+    """
+    polys = np.array(faces, dtype=object)
+    left, right = shapely.STRtree(polys).query(polys, predicate="intersects")
     keep = left < right
+    if skip is not None:
+        keep &= ~(skip[left] | skip[right])
+    left, right = left[keep], right[keep]
+    boundary = shapely.boundary(polys)
+    # every pair's shared boundary in one call; its line parts are merged pair by pair
+    touch, pair = shapely.get_parts(shapely.intersection(boundary[left], boundary[right]), return_index=True)
+    lines = np.isin(shapely.get_type_id(touch), (1, 5))  # LineString, MultiLineString
+    touch, pair = touch[lines], pair[lines]
+    cut = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]]).tolist() + [len(pair)]
     out = []
-    for i, j in zip(left[keep], right[keep]):
-        shared = faces[i].boundary.intersection(faces[j].boundary)
-        shared = shapely.line_merge(shapely.union_all([g for g in shapely.get_parts(shared)
-                                                        if g.geom_type in ("LineString", "MultiLineString")]))
+    for a, b in zip(cut[:-1], cut[1:]):
+        shared = shapely.line_merge(shapely.union_all(list(touch[a:b])))
         if shared.is_empty or shared.length < min_edge:
             continue
+        i, j = left[pair[a]], right[pair[a]]
         xy = shapely.get_coordinates(shapely.segmentize(shared, 0.5))
         pa, pb = planes[planes_of_face[i]], planes[planes_of_face[j]]
         za = -(pa[0] * xy[:, 0] + pa[1] * xy[:, 1] + pa[3]) / pa[2]
@@ -209,17 +221,14 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
     faces2d = [shapely.force_2d(f) for f in faces]
     face_plane = np.asarray(face_plane, dtype=np.int64)
     centre = np.array([np.asarray(f.centroid.coords[0][:2]) for f in faces2d])
-    links = _face_links(faces2d, face_plane, planes, options.min_edge)
-
     # superstructures' faces and slivers of the partition (a plane's stray corner where its extension happens
     # to cross a neighbour's: a 0.1 m² face joined two houses of a simulated row) neither join nor split
     detail = (np.zeros(len(planes), bool) if plane_detail is None
               else np.asarray(plane_detail, dtype=bool))[face_plane]
     detail |= np.array([f.area < options.min_edge**2 for f in faces2d])
+    links = _face_links(faces2d, face_plane, planes, options.min_edge, skip=detail)
     joined, cuts = [], []
     for i, j, line, gap in links:
-        if detail[i] or detail[j]:
-            continue
         if gap > options.step_height:
             cuts.append((i, j, "step"))
         elif _is_gutter(planes[face_plane[i]], planes[face_plane[j]], centre[i], centre[j], line, options):
@@ -227,9 +236,9 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
         else:
             joined.append((i, j))
     # faces of one plane are one surface even where another face cuts between them
-    same_plane = [(i, j) for i in range(len(faces2d)) for j in range(i + 1, len(faces2d))
-                  if face_plane[i] == face_plane[j] and not (detail[i] or detail[j])]
-    group = components(len(faces2d), np.array(joined + same_plane, dtype=np.int64).reshape(-1, 2))
+    same_plane = np.argwhere(np.triu((face_plane[:, None] == face_plane[None, :]) & ~detail[:, None] & ~detail[None, :],
+                                     k=1))
+    group = components(len(faces2d), np.vstack([np.array(joined, dtype=np.int64).reshape(-1, 2), same_plane]))
     pieces = _group_polygons(faces2d, group, outline)
     pieces = _merge_small(pieces, outline, options)
     if len(pieces) <= 1:
@@ -256,8 +265,8 @@ def _group_polygons(faces: list, group: np.ndarray, outline) -> list:
     for r in shapely.get_parts(rest):
         if r.geom_type != "Polygon" or r.area <= 0 or not out:
             continue
-        shared = [r.boundary.intersection(p.boundary).length for p in out]
-        k = int(np.argmax(shared)) if max(shared) > 0 else int(np.argmin([r.distance(p) for p in out]))
+        shared = shapely.length(shapely.intersection(r.boundary, shapely.boundary(np.array(out, dtype=object))))
+        k = int(np.argmax(shared)) if shared.max() > 0 else int(np.argmin(shapely.distance(r, np.array(out, dtype=object))))
         out[k] = _largest(shapely.union_all([out[k], r])) or out[k]
     return out
 
@@ -277,13 +286,19 @@ def _merge_small(pieces: list, outline, options: PartOptions) -> list:
     # (measuring every piece on every merge was most of the step: O(P²) intersections)
     boundaries = list(shapely.boundary(np.array(pieces, dtype=object))) if pieces else []
     area = [p.area for p in pieces]
-    facade = [b.intersection(ring).length for b in boundaries]
+    facade = shapely.length(shapely.intersection(np.array(boundaries, dtype=object), ring)).tolist()
+    box = [tuple(b) for b in shapely.bounds(np.array(boundaries, dtype=object)).tolist()]
     while len(pieces) > 1:
         small = np.flatnonzero((np.array(area) < options.min_area) | (np.array(facade) < options.min_facade))
         if not len(small):
             break
         k = int(small[np.argmin(np.array(area)[small])])  # the smallest first: it may make its neighbour big enough
-        shared = shapely.length(shapely.intersection(boundaries[k], np.array(boundaries, dtype=object)))
+        # only boundaries whose boxes meet k's can share a length with it
+        b = np.array(box)
+        near = np.flatnonzero((b[:, 0] <= box[k][2]) & (b[:, 2] >= box[k][0]) & (b[:, 1] <= box[k][3])
+                              & (b[:, 3] >= box[k][1]))
+        shared = np.zeros(len(pieces))
+        shared[near] = shapely.length(shapely.intersection(boundaries[k], np.array(boundaries, dtype=object)[near]))
         shared[k] = -1.0
         if shared.max() <= 0:
             break  # an island part touching nothing: nothing to merge it into
@@ -291,7 +306,8 @@ def _merge_small(pieces: list, outline, options: PartOptions) -> list:
         pieces[j] = _largest(shapely.union_all([pieces[j], pieces[k]])) or pieces[j]
         boundaries[j] = pieces[j].boundary
         area[j], facade[j] = pieces[j].area, boundaries[j].intersection(ring).length
-        for cache in (pieces, boundaries, area, facade):
+        box[j] = shapely.bounds(boundaries[j]).tolist()
+        for cache in (pieces, boundaries, area, facade, box):
             del cache[k]
     # stable order: by lowest (x, y) of the part's centroid, so ids do not depend on the face order
     return sorted(pieces, key=lambda p: (round(p.centroid.x, 6), round(p.centroid.y, 6)))

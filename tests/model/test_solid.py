@@ -213,3 +213,16 @@ def test_dropping_slivers_at_a_saddle_does_not_spend_the_last_attempt(monkeypatc
     monkeypatch.setattr(solid_module, "_prism", always)
     with pytest.raises(GeometryError, match="saddle"):  # saddles that never go still end in an error
         prism_solid(cells, 0.0)
+
+
+def test_crossing_candidates_tested_in_one_call_as_one_by_one():
+    """The batched validity test of a point put into a face's edge says what the polygon-by-polygon one says."""
+    from rooftrace.model.solid import _simple_with, _simple_with_all
+
+    xy = np.array([[0, 0], [10, 0], [10, 10], [0, 10], [3, 3], [6, 3], [6, 6], [3, 6]], dtype=np.float64)
+    square, holed = [[0, 1, 2, 3]], [[0, 1, 2, 3], [4, 7, 6, 5]]
+    cases = [(square, (0, 1), (5, 0)), (square, (0, 1), (5, 20)), (square, (1, 0), (5, -1)),
+             (holed, (4, 7), (2, 4)), (holed, (4, 7), (8, 4)), (holed, (2, 3), (5, 11)), (square, (3, 0), (0, 5))]
+    got = _simple_with_all(*map(list, zip(*cases)), xy)
+    assert got.tolist() == [_simple_with(r, e, p, xy) for r, e, p in cases]
+    assert not got.all() and got.any()

@@ -206,17 +206,20 @@ def _levels(cells: list, step: float) -> list[list[int]]:
     tree = shapely.STRtree(polys)
     a, b = tree.query(polys, predicate="intersects")
     keep = a < b
-    pairs = []
-    for i, j in zip(a[keep], b[keep]):
-        shared = shapely.intersection(polys[i].boundary, polys[j].boundary)
-        if shared.length <= 0:
-            continue
-        xy = shapely.get_coordinates(shapely.segmentize(shared, 0.5))
-        zi = -(cells[i][1][0] * xy[:, 0] + cells[i][1][1] * xy[:, 1] + cells[i][1][3]) / cells[i][1][2]
-        zj = -(cells[j][1][0] * xy[:, 0] + cells[j][1][1] * xy[:, 1] + cells[j][1][3]) / cells[j][1][2]
-        if np.abs(zi - zj).max() <= step:
-            pairs.append((i, j))
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    a, b = a[keep], b[keep]
+    # every neighbour pair's shared boundary in one call, the planes' heights along it in a few more
+    boundary = shapely.boundary(polys)
+    shared = shapely.intersection(boundary[a], boundary[b])
+    along = shapely.length(shared) > 0
+    a, b = a[along], b[along]
+    xy, pair = shapely.get_coordinates(shapely.segmentize(shared[along], 0.5), return_index=True)
+    plane = np.array([pl for _, pl in cells], dtype=np.float64)
+    pi, pj = plane[a[pair]], plane[b[pair]]
+    zi = -(pi[:, 0] * xy[:, 0] + pi[:, 1] * xy[:, 1] + pi[:, 3]) / pi[:, 2]
+    zj = -(pj[:, 0] * xy[:, 0] + pj[:, 1] * xy[:, 1] + pj[:, 3]) / pj[:, 2]
+    jump = np.full(len(a), -np.inf)
+    np.maximum.at(jump, pair, np.abs(zi - zj))
+    pairs = np.column_stack([a, b])[jump <= step]
     label = components(n, pairs)
     return [list(np.flatnonzero(label == k)) for k in np.unique(label)]
 

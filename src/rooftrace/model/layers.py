@@ -15,12 +15,13 @@ LAYER_NAMES = {lod: "lod" + lod.replace(".", "") for lod in LODS}
 
 
 def _multipolygon(surfaces) -> shapely.MultiPolygon:
-    # surfaces without holes (nearly all: walls) built in one call
+    # surfaces without holes (nearly all: walls) built in one call, one feature at a time: built for a whole
+    # layer at once, the rings and polygons alive together kept the garbage collector busy (slower on Delft)
     simple = [s.rings[0] for s in surfaces if len(s.rings) == 1]
-    polys = iter(shapely.polygons(shapely.linearrings(np.vstack(simple), indices=np.repeat(
+    polys = iter(shapely.polygons(shapely.linearrings(np.concatenate(simple), indices=np.repeat(
         np.arange(len(simple)), [len(r) for r in simple]))) if simple else [])
-    return shapely.MultiPolygon([next(polys) if len(s.rings) == 1 else shapely.Polygon(s.rings[0], s.rings[1:])
-                                 for s in surfaces])
+    return shapely.multipolygons([next(polys) if len(s.rings) == 1 else shapely.Polygon(s.rings[0], s.rings[1:])
+                                  for s in surfaces])
 
 
 def model_layers(models: list) -> dict[str, Layer]:

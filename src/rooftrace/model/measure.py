@@ -7,7 +7,7 @@ from collections.abc import Iterable
 import numpy as np
 import shapely
 
-from rooftrace.model.validity import surface_normal
+from rooftrace.model.validity import surface_normal, surface_normals, surface_polygons
 
 __all__ = ["roof_height_at", "surface_distance", "vertical_rmse"]
 
@@ -40,19 +40,15 @@ def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
     roofs = [s for solid in solids for s in solid.surfaces if s.kind == "RoofSurface"]
     if not roofs or not len(xy):
         return out
-    polys, planes = [], []
-    for s in roofs:
-        rings = [np.asarray(r, dtype=np.float64) for r in s.rings]
-        n = surface_normal(rings)
-        if abs(n[2]) < 1e-9 * max(np.linalg.norm(n), 1e-300):
-            continue  # a vertical roof surface covers no plan area
-        polys.append(shapely.Polygon(rings[0][:, :2], [r[:, :2] for r in rings[1:]]))
-        c = np.vstack(rings).mean(axis=0)
-        planes.append(np.r_[n, -n @ c])
-    if not polys:
+    # every roof's normal, centre and plan polygon from one table of its rings
+    normal, centre = surface_normals(roofs)
+    polys = surface_polygons(roofs, plan=True)
+    # a vertical roof surface covers no plan area
+    flat = np.abs(normal[:, 2]) >= 1e-9 * np.maximum(np.linalg.norm(normal, axis=1), 1e-300)
+    if not flat.any():
         return out
-    planes = np.asarray(planes)
-    polys = np.array(polys, dtype=object)
+    polys = polys[flat]
+    planes = np.array([np.r_[n, -n @ c] for n, c in zip(normal[flat], centre[flat])])
     shapely.prepare(polys)
     # a few hundred surfaces over up to 10^5 points: each surface tests the points in its box
     # (sorted by X, a slice) rather than each point querying a tree of the surfaces

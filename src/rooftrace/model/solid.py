@@ -47,8 +47,6 @@ has the same vertices on both sides and the parts' solids do not overlap.
 
 from __future__ import annotations
 
-from bisect import bisect_left, bisect_right
-
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
@@ -66,7 +64,8 @@ def horizontal_plane(height: float) -> np.ndarray:
 
 
 def _polygons(geom) -> list[Polygon]:
-    return [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and not g.is_empty and g.area > 0]
+    parts = shapely.get_parts(geom)
+    return list(parts[(shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts) & (shapely.area(parts) > 0)])
 
 
 def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[int], Polygon]:
@@ -86,12 +85,12 @@ def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[i
     reps = reps[shapely.contains(fp, reps)]
     if not len(pieces):
         raise GeometryError("the footprint has no area")
-    owner = np.full(len(pieces), -1, dtype=np.int64)
+    owner = np.full(len(pieces), len(polys), dtype=np.int64)
     tree = shapely.STRtree(np.array(polys, dtype=object))
     at, cell = tree.query(reps, predicate="within")
     # overlapping cells: the first one wins (a fixed rule, so the result is deterministic)
-    for i, c in zip(at[::-1], cell[::-1]):
-        owner[i] = c if owner[i] < 0 or c < owner[i] else owner[i]
+    np.minimum.at(owner, at, cell)
+    owner[owner == len(polys)] = -1
     # gaps of the partition go to the neighbour they share most boundary with
     while (owner < 0).any():
         changed = False
@@ -119,9 +118,8 @@ def _tile(cells: list, footprint, lattice: float) -> tuple[list[Polygon], list[i
         merged = mine if len(mine) == 1 else _polygons(shapely.coverage_union_all(mine))
         if not all(g.is_valid for g in merged):
             merged = _polygons(shapely.union_all(mine, grid_size=lattice))
-        for g in merged:
-            faces.append(shapely.orient_polygons(g, exterior_cw=False))
-            face_cell.append(int(c))
+        faces.extend(shapely.orient_polygons(np.array(merged, dtype=object), exterior_cw=False))
+        face_cell.extend([int(c)] * len(merged))
     # the pieces are a coverage (edges shared exactly): their fast coverage union
     whole = _polygons(shapely.coverage_union_all(pieces))
     if len(whole) != 1 or not whole[0].is_valid:
@@ -224,6 +222,34 @@ class _Rings:
     def polygon(self, poly: Polygon) -> list[list[int]]:
         return [self.ring(poly.exterior.coords)] + [self.ring(h.coords) for h in poly.interiors]
 
+    def polygons(self, polys: list) -> list[list[list[int]]]:
+        """:meth:`polygon` of each of ``polys`` in turn (vertices numbered as it would), in a few array calls."""
+        if self.xy:  # numbering after existing vertices: one polygon at a time
+            return [self.polygon(p) for p in polys]
+        rings, of = shapely.get_rings(np.asarray(polys, dtype=object), return_index=True)
+        coords, at = shapely.get_coordinates(rings, return_index=True)
+        size = np.bincount(at, minlength=len(rings)) - 1  # rings are closed: the last coordinate is the first
+        open_ = np.ones(len(coords), bool)
+        open_[np.cumsum(size + 1) - 1] = False
+        keys = np.round(coords[open_, :2] / self.grid).astype(np.int64)
+        # vertices numbered in order of first appearance, as vertex() numbers them
+        uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        by_first = np.argsort(first, kind="stable")
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[by_first] = np.arange(len(first))
+        vid = rank[inverse.ravel()]
+        self.xy = [tuple(k) for k in uniq[by_first].tolist()]
+        self.index = {k: v for v, k in enumerate(self.xy)}
+        # consecutive repeats out, the ring's last vertex being its first one's predecessor (as ring())
+        start = np.concatenate(([0], np.cumsum(size)[:-1]))
+        prev = np.arange(len(vid)) - 1
+        prev[start] = start + size - 1
+        keep = (vid != vid[prev]) | np.repeat(size <= 1, size)
+        vid, keep, cut = vid.tolist(), keep.tolist(), np.cumsum(size).tolist()
+        kept = [[v for v, k in zip(vid[a:b], keep[a:b]) if k] for a, b in zip([0] + cut[:-1], cut)]
+        bounds = np.concatenate(([0], np.cumsum(np.bincount(of, minlength=len(polys))))).tolist()
+        return [kept[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
     def split_edges(self, rings: list[list[int]]) -> list[list[int]]:
         """Insert into every ring edge the table's vertices lying exactly on it (no T-junctions)."""
         xy = np.asarray(self.xy, dtype=np.float64)
@@ -261,7 +287,7 @@ class _Rings:
         return out
 
 
-def _split_tilted(roofs: list[list[list[tuple]]], max_tilt: float) -> list[list[list[tuple]]]:
+def _split_tilted(roofs: list[list], max_tilt: float) -> list[list]:
     """Roof surfaces, each one whose triangles tilt apart more than ``max_tilt`` degrees cut into them.
 
     A roof vertex is on its plane only to the grid (and to ``z_tolerance``
@@ -332,6 +358,29 @@ def _simple_with(rings: list[list[int]], edge: tuple[int, int], point: tuple[int
         coords.append(np.insert(xy[r], at + 1, np.broadcast_to(np.asarray(point, dtype=np.float64), (len(at), 2)),
                                 axis=0))
     return bool(shapely.Polygon(coords[0], coords[1:]).is_valid)
+
+
+def _simple_with_all(faces: list, edges: list, points: list, xy: np.ndarray) -> np.ndarray:
+    """:func:`_simple_with` of each ``(faces[k], edges[k], points[k])``, the polygons built and tested in array calls."""
+    if not faces:
+        return np.zeros(0, dtype=bool)
+    ring_v = [np.asarray(r, dtype=np.int64) for rings in faces for r in rings]
+    n_rings = [len(rings) for rings in faces]
+    v = np.concatenate(ring_v)
+    size = np.array([len(r) for r in ring_v])
+    ring = np.repeat(np.arange(len(ring_v)), size)
+    face = np.repeat(np.arange(len(faces)), n_rings)[ring]
+    after = np.arange(len(v)) + 1
+    ends = np.cumsum(size) - 1
+    after[ends] = ends - size + 1
+    a, b = np.array(edges, dtype=np.int64).T
+    w = v[after]
+    hit = np.flatnonzero(((v == a[face]) & (w == b[face])) | ((v == b[face]) & (w == a[face])))
+    # the point after every occurrence of the edge, in its ring
+    coords = np.insert(xy[v], hit + 1, np.asarray(points, dtype=np.float64)[face[hit]], axis=0)
+    ring = np.insert(ring, hit + 1, ring[hit])
+    rings = shapely.linearrings(coords, indices=ring)
+    return shapely.is_valid(shapely.polygons(rings, indices=np.repeat(np.arange(len(faces)), n_rings)))
 
 
 def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
@@ -461,12 +510,73 @@ def _open_saddles(cells: list, points: np.ndarray, faces: list[int], radius, sma
     return [(poly, plane) for poly, (_, plane) in zip(polys, cells) if not poly.is_empty]
 
 
+def _walls(wp: np.ndarray, wq: np.ndarray, zlp: np.ndarray, zlq: np.ndarray, zrp: np.ndarray, zrq: np.ndarray,
+           v: np.ndarray, z: np.ndarray, ground_v: np.ndarray, g: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The wall under each edge ``wp -> wq``: its rings' vertices and heights, all walls one after the other.
+
+    A wall runs ``(p, zrp), (q, zrq)``, up ``q`` through every height the
+    vertex has between ``zrq`` and ``zlq``, ``(q, zlq), (p, zlp)``, and down
+    ``p`` through its heights between ``zlp`` and ``zrp`` (so that each
+    vertical edge is shared by exactly two walls); a vertex equal to the one
+    before it (the first one's predecessor being the last) is left out.  The
+    heights of a vertex are those of every roof ring vertex ``v`` at ``z``
+    and ``g`` for the ground ring's vertices (grid units).
+
+    Returns
+    -------
+    wall_v, wall_z : ndarray of shape (M,), int
+        Vertex and height of each wall vertex.
+    wall_of : ndarray of shape (M,), int
+        Wall of each (sorted).
+    """
+    n = len(wp)
+    if not n:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # every vertex's distinct heights, sorted by (vertex, height): one key per pair
+    all_v = np.concatenate([v, ground_v])
+    all_z = np.concatenate([z, np.full(len(ground_v), g, dtype=np.int64)])
+    low = min(int(all_z.min()), int(min(zrp.min(), zrq.min(), zlp.min(), zlq.min())))
+    span = max(int(all_z.max()), int(max(zrp.max(), zrq.max(), zlp.max(), zlq.max()))) - low + 1
+    level = np.unique(all_v * span + (all_z - low))
+    level_z = level % span + low
+
+    def strictly_between(u, z0, z1):
+        """Where the heights of ``u`` strictly between z0 and z1 start in ``level``, how many, and their direction."""
+        lo, hi = np.minimum(z0, z1), np.maximum(z0, z1)
+        first = np.searchsorted(level, u * span + (lo - low), side="right")
+        count = np.maximum(np.searchsorted(level, u * span + (hi - low), side="left") - first, 0)
+        return first, count, z1 > z0
+
+    c_first, c_count, c_up = strictly_between(wq, zrq, zlq)
+    f_first, f_count, f_up = strictly_between(wp, zlp, zrp)
+    size = 4 + c_count + f_count
+    of = np.repeat(np.arange(n), size)
+    pos = np.arange(len(of)) - np.repeat(np.cumsum(size) - size, size)
+    cc, fc = c_count[of], f_count[of]
+    on_q = (pos >= 1) & (pos <= 2 + cc)
+    out_v = np.where(on_q, wq[of], wp[of])
+    out_z = np.empty(len(of), dtype=np.int64)
+    # the four corners
+    for at, zz in ((pos == 0, zrp), (pos == 1, zrq), (pos == 2 + cc, zlq), (pos == 3 + cc, zlp)):
+        out_z[at] = zz[of[at]]
+    # up (or down) q from zrq to zlq, then p from zlp to zrp
+    for at, k, first, count, up in (((pos >= 2) & (pos < 2 + cc), pos - 2, c_first, c_count, c_up),
+                                   ((pos >= 4 + cc) & (pos < 4 + cc + fc), pos - 4 - cc, f_first, f_count, f_up)):
+        w = of[at]
+        out_z[at] = level_z[np.where(up[w], first[w] + k[at], first[w] + count[w] - 1 - k[at])]
+    # consecutive repeats out, each ring closing on itself
+    before = np.arange(len(of)) - 1
+    starts = np.cumsum(size) - size
+    before[starts] = starts + size - 1
+    keep = (out_v != out_v[before]) | (out_z != out_z[before])
+    return out_v[keep], out_z[keep], of[keep]
+
+
 def _prism(cells: list, ground_height: float, footprint, grid: float, snap: float, z_tolerance: float,
            max_tilt: float) -> Solid:
     faces, face_cell, whole = _tile(cells, footprint, snap)
     table = _Rings(grid)
-    face_rings = [table.polygon(f) for f in faces]
-    ground_rings = table.polygon(whole)
+    *face_rings, ground_rings = table.polygons([*faces, whole])
     g = int(round(ground_height / grid))
     planes = np.array([cells[c][1] for c in face_cell], dtype=np.float64)
     if not (np.abs(planes[:, 2]) > 1e-9).all():
@@ -517,8 +627,11 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ground_rings = flat[counts[-1]:]
     # a face whose rings pass twice through a vertex (a hole touching its
     # outer ring) would pinch the shell there: open it like a saddle
-    pinch = [(v, i) for i, rings in enumerate(face_rings)
-             for v, n in zip(*np.unique(np.concatenate(rings), return_counts=True)) if n > 1]
+    ring_v = np.concatenate([r for rings in face_rings for r in rings]).astype(np.int64)
+    ring_face = np.repeat(np.arange(len(face_rings)), [sum(map(len, rings)) for rings in face_rings])
+    uses, twice = np.unique(ring_face * len(table.xy) + ring_v, return_counts=True)
+    # by face, then vertex
+    pinch = [(v, i) for i, v in zip(*(a.tolist() for a in np.divmod(uses[twice > 1], len(table.xy))))]
     if pinch:
         xy = np.asarray(table.xy, dtype=np.float64)
         at = [v for v, _ in pinch]
@@ -544,13 +657,32 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
         t = np.clip(d0 / np.where(d0 != d1, d0 - d1, 1.0), 0.0, 1.0)
         exact = (xyf[p[cross]] + t[:, None] * (xyf[q[cross]] - xyf[p[cross]])) / lattice
         crossing: dict[tuple[int, int], int] = {}
-        for k, pp, qq, (ex, ey) in zip(cross.tolist(), p[cross].tolist(), q[cross].tolist(), exact.tolist()):
-            # the nearest candidate that keeps both faces valid (the test builds two polygons: stop at the first)
-            free = next((c for c in _crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
-                         if all(_simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))), None)
+        pq = list(zip(p[cross].tolist(), q[cross].tolist()))
+        candidates = [_crossing_candidates(xyf[pp], xyf[qq], ex, ey, lattice, table.index)
+                      for (pp, qq), (ex, ey) in zip(pq, exact.tolist())]
+        # the nearest candidate of every crossing tested in both faces at once (nearly always the one taken)
+        nearest = [k for k, c in enumerate(candidates) if c]
+        sides = [(int(f[cross[k]]), int(f[o[cross[k]]])) for k in nearest]
+        valid = _simple_with_all([face_rings[i] for pair in sides for i in pair],
+                                 [pq[k] for k in nearest for _ in range(2)],
+                                 [candidates[k][0] for k in nearest for _ in range(2)], xyf).reshape(-1, 2).all(axis=1)
+        first_ok = dict(zip(nearest, valid.tolist()))
+        added: set[tuple[int, int]] = set()
+        for n, (k, (pp, qq)) in enumerate(zip(cross.tolist(), pq)):
+            # the nearest candidate that keeps both faces valid (the points taken by the crossings before are
+            # taken for this one too)
+            free = None
+            for j, c in enumerate(candidates[n]):
+                if c in added:
+                    continue
+                if (j == 0 and first_ok[n]) or (j > 0 and all(
+                        _simple_with(face_rings[i], (pp, qq), c, xyf) for i in (f[k], f[o[k]]))):
+                    free = c
+                    break
             if free is None:
                 raise GeometryError("two roof faces cross along their shared edge at one of its vertices")
             crossing[(pp, qq)] = crossing[(qq, pp)] = table.vertex(free)
+            added.add(free)
             # on the lattice the point is up to half a step off the crossing, where the two
             # heights may differ by more than the tolerance: they are made one there
             crossings.add(crossing[(pp, qq)])
@@ -560,64 +692,50 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     if snapped.min() <= g:
         raise GeometryError(f"a roof lies at or below the ground height ({snapped.min() * grid:.2f} <= "
                             f"{ground_height:.2f} m)")
-    p_list, z_list = p.tolist(), snapped.tolist()
-    levels: dict[int, set] = {}
-    for v, z in zip(p_list, z_list):
-        levels.setdefault(v, set()).add(z)
-    for r in ground_rings:
-        for v in r:
-            levels.setdefault(v, set()).add(g)
-    levels = {v: sorted(x) for v, x in levels.items()}
-    xy = table.xy  # (int, int) per vertex
-
-    def point(v, z):
-        x, y = xy[v]
-        return (x, y, z)
-
-    def between(v, z0, z1):
-        """The vertex's heights strictly between z0 and z1, from z0 to z1."""
-        lv = levels[v]
-        if z1 > z0:
-            return lv[bisect_right(lv, z0):bisect_left(lv, z1)]
-        return lv[bisect_right(lv, z1):bisect_left(lv, z0)][::-1]
-
-    bounds = np.r_[0, np.cumsum([len(r) for rings in face_rings for r in rings])].tolist()
-    flat_rings = [[point(v, z) for v, z in zip(p_list[a:b], z_list[a:b])] for a, b in zip(bounds[:-1], bounds[1:])]
+    xy = np.asarray(table.xy, dtype=np.int64)  # (x, y) per vertex, grid units
+    bounds = np.concatenate(([0], np.cumsum([len(r) for rings in face_rings for r in rings]))).tolist()
+    roof_xyz = np.column_stack([xy[p], snapped])  # the roof rings' vertices, in order
+    flat_rings = [roof_xyz[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
     counts = np.cumsum([0] + [len(rings) for rings in face_rings])
     roofs = [flat_rings[counts[i]:counts[i + 1]] for i in range(len(face_rings))]
-    walls = []
-    need = (~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q))
-    q_list, zlq_list, zrp_list, zrq_list = q.tolist(), zl_q.tolist(), zr_p.tolist(), zr_q.tolist()
-    for k in np.flatnonzero(need).tolist():
-        pk, qk = p_list[k], q_list[k]
-        zlp, zlq, zrp, zrq = z_list[k], zlq_list[k], zrp_list[k], zrq_list[k]
-        ring = [point(pk, zrp), point(qk, zrq)]
-        ring += [point(qk, z) for z in between(qk, zrq, zlq)]
-        ring += [point(qk, zlq), point(pk, zlp)]
-        ring += [point(pk, z) for z in between(pk, zlp, zrp)]
-        walls.append([[c for j, c in enumerate(ring) if c != ring[j - 1]]])
+    need = np.flatnonzero((~has | (f < f[o])) & ((snapped != zr_p) | (zl_q != zr_q)))
+    wall_v, wall_z, wall_of = _walls(p[need], q[need], snapped[need], zl_q[need], zr_p[need], zr_q[need], p, snapped,
+                                     np.concatenate(ground_rings).astype(np.int64), g)
     # each elementary vertical edge must be in exactly two walls; more means a
     # saddle vertex (heights high, low, high, low around it)
-    vertical: dict[tuple, int] = {}
-    for (ring,) in walls:
-        for a, b in zip(ring, ring[1:] + ring[:1]):
-            if a[:2] == b[:2]:
-                key = (a[0], a[1], min(a[2], b[2]))
-                vertical[key] = vertical.get(key, 0) + 1
-    saddles = sorted({k[:2] for k, n in vertical.items() if n > 2})
-    if saddles:
-        at = [table.index[s] for s in saddles]
+    after = np.arange(len(wall_v)) + 1
+    ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True]) if len(wall_of) else np.zeros(0, np.int64)
+    after[ends] = np.r_[0, ends[:-1] + 1]
+    upright = wall_v == wall_v[after]
+    edge_key = np.column_stack([wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]])
+    keys, uses = np.unique(edge_key, axis=0, return_counts=True) if len(edge_key) else (edge_key, np.zeros(0, int))
+    saddle_v = np.unique(keys[uses > 2, 0])
+    if len(saddle_v):
+        at = saddle_v[np.lexsort((xy[saddle_v, 1], xy[saddle_v, 0]))].tolist()  # in (x, y) order
         highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]
-        raise _Saddle(np.asarray(saddles, dtype=np.float64) * grid, [face_cell[i] for i in highest],
+        raise _Saddle(xy[at].astype(np.float64) * grid, [face_cell[i] for i in highest],
                       _narrowest_sector(at, [r for rings in face_rings for r in rings] + ground_rings,
-                                        np.asarray(table.xy, dtype=np.float64)))
-    ground = [[point(v, g) for v in r[::-1]] for r in ground_rings]
+                                        xy.astype(np.float64)))
+    wall_xyz = np.column_stack([xy[wall_v], wall_z])
+    cut = np.r_[0, ends + 1].tolist()
+    walls = [[wall_xyz[a:b]] for a, b in zip(cut[:-1], cut[1:])]
+    ground = [np.column_stack([xy[np.asarray(r[::-1], dtype=np.int64)], np.full(len(r), g, dtype=np.int64)])
+              for r in ground_rings]
 
     roofs = _split_tilted(roofs, max_tilt)
     surfaces = [(r, "RoofSurface") for r in roofs] + [(r, "WallSurface") for r in walls] + [(ground, "GroundSurface")]
-    # every vertex of the shell converted in one call, then cut into rings
+    # every vertex of the shell converted in one call (the roofs' are arrays already), then cut into rings
     rings = [r for rs, _ in surfaces for r in rs]
-    coords = np.split(np.array([v for r in rings for v in r], dtype=np.float64) * grid,
-                      np.cumsum([len(r) for r in rings])[:-1])
+    stacked = [isinstance(r, np.ndarray) for r in rings]
+    sizes = [len(r) for r in rings]
+    table_xyz = np.empty((sum(sizes), 3), dtype=np.int64)
+    in_array = np.repeat(stacked, sizes)
+    if in_array.any():
+        table_xyz[in_array] = np.concatenate([r for r, a in zip(rings, stacked) if a])
+    if not in_array.all():
+        table_xyz[~in_array] = np.array([v for r, a in zip(rings, stacked) if not a for v in r], dtype=np.int64)
+    cut = np.cumsum([0] + sizes).tolist()
+    table_xyz = table_xyz.astype(np.float64) * grid
+    coords = [table_xyz[a:b] for a, b in zip(cut[:-1], cut[1:])]
     at = np.cumsum([0] + [len(rs) for rs, _ in surfaces]).tolist()
     return Solid([Surface(coords[at[i]:at[i + 1]], kind) for i, (_, kind) in enumerate(surfaces)])

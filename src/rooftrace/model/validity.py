@@ -38,18 +38,28 @@ from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 
-__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_triangles", "triangle_tilt",
-           "surface_tilt", "overlapping_parts", "solid_plan"]
+__all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_normals", "surface_triangles",
+           "triangle_tilt", "surface_tilt", "overlapping_parts", "solid_plan", "surface_polygons"]
 
 
 def _ring_table(surfaces):
     """All rings stacked: vertices (V, 3), ring of each vertex, next vertex, surface of each ring."""
-    rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for s in surfaces for r in s.rings]
-    sizes = np.array([len(r) for r in rings], dtype=np.int64)
-    owner = np.repeat(np.arange(len(surfaces)), [len(s.rings) for s in surfaces])
-    xyz = np.vstack(rings) if rings else np.zeros((0, 3))
+    per_surface = [s.rings for s in surfaces]
+    rings = [r for rs in per_surface for r in rs]
+    sizes = np.fromiter(map(len, rings), dtype=np.int64, count=len(rings))
+    owner = np.repeat(np.arange(len(surfaces)), np.fromiter(map(len, per_surface), dtype=np.int64,
+                                                            count=len(per_surface)))
+    try:
+        # the builders' rings are (K, 3) float arrays: one concatenation, no conversion per ring
+        xyz = np.concatenate(rings).astype(np.float64, copy=False) if rings else np.zeros((0, 3))
+    except ValueError:  # rings of mixed shapes (an empty one)
+        xyz = None
+    if xyz is None or xyz.ndim != 2 or xyz.shape[1] != 3:
+        rings = [np.asarray(r, dtype=np.float64).reshape(-1, 3) for r in rings]
+        sizes = np.array([len(r) for r in rings], dtype=np.int64)
+        xyz = np.vstack(rings)
     ring = np.repeat(np.arange(len(rings)), sizes)
-    start = np.r_[0, np.cumsum(sizes)[:-1]]
+    start = np.concatenate(([0], np.cumsum(sizes)[:-1])).astype(np.int64)
     nxt = np.arange(len(xyz)) + 1
     nxt[start + sizes - 1] = start
     return xyz, ring, nxt, owner, sizes, start
@@ -63,7 +73,7 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin):
     """Newell area vector (twice the area, along the normal) of every surface; holes count negatively."""
     p = xyz - origin
-    per_ring = np.add.reduceat(_cross(p, p[nxt]), np.r_[0, np.cumsum(sizes)[:-1]], axis=0) if len(p) else \
+    per_ring = np.add.reduceat(_cross(p, p[nxt]), np.concatenate(([0], np.cumsum(sizes)[:-1])), axis=0) if len(p) else \
         np.zeros((0, 3))
     out = np.zeros((n_surfaces, 3))
     np.add.at(out, owner, per_ring)
@@ -85,6 +95,36 @@ def surface_normal(rings: list[np.ndarray]) -> np.ndarray:
     return total
 
 
+def surface_normals(surfaces) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`surface_normal` of every surface at once, and the mean of each surface's vertices.
+
+    The same sums in the same order as :func:`surface_normal` (each ring
+    centred on its own mean), so the results are equal bit for bit.
+
+    Parameters
+    ----------
+    surfaces : sequence of Surface
+
+    Returns
+    -------
+    normal : ndarray of shape (S, 3)
+        Area vectors (m²; twice the area along the normal).
+    centre : ndarray of shape (S, 3)
+        Mean of the vertices of all rings of each surface (m).
+    """
+    xyz, ring, nxt, owner, sizes, start = _ring_table(surfaces)
+    n_rings = np.bincount(owner, minlength=len(surfaces))
+    if not len(xyz) or not (n_rings > 0).all() or not (sizes > 0).all():
+        return (np.array([surface_normal(s.rings) for s in surfaces]).reshape(-1, 3),
+                np.array([np.vstack(s.rings).mean(axis=0) for s in surfaces]).reshape(-1, 3))
+    normal = np.zeros((len(surfaces), 3))
+    rel = xyz - (np.add.reduceat(xyz, start, axis=0) / sizes[:, None])[ring]
+    np.add.at(normal, owner, np.add.reduceat(_cross(rel, rel[nxt]), start, axis=0))
+    first = start[np.concatenate(([0], np.cumsum(n_rings)[:-1]))]
+    count = np.add.reduceat(sizes, np.concatenate(([0], np.cumsum(n_rings)[:-1])))
+    return normal, np.add.reduceat(xyz, first, axis=0) / count[:, None]
+
+
 def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     """Signed volume (m³) enclosed by the solid's surfaces, positive when they face outward.
 
@@ -95,10 +135,14 @@ def solid_volume(solid, origin: np.ndarray | None = None) -> float:
     """
     if not solid.surfaces:
         return 0.0
-    xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
+    return _volume(*_ring_table(solid.surfaces), len(solid.surfaces), origin)
+
+
+def _volume(xyz, ring, nxt, owner, sizes, start, n_surfaces, origin=None) -> float:
+    """:func:`solid_volume` from the solid's ring table."""
     if origin is None:
         origin = xyz[0]
-    area = _area_vectors(xyz, ring, nxt, owner, sizes, len(solid.surfaces), origin) / 2.0
+    area = _area_vectors(xyz, ring, nxt, owner, sizes, n_surfaces, origin) / 2.0
     first = np.unique(owner, return_index=True)[1]
     p = xyz[start[first]] - origin
     return float((area * p).sum()) / 3.0
@@ -246,17 +290,59 @@ def _in_plane(xyz, ring, nxt, owner, sizes, start, n_surfaces):
     rel = xyz - origin - _centres(xyz - origin, surf, n_surfaces)[surf]
     u, v = _bases(np.where(np.linalg.norm(normal, axis=1, keepdims=True) > 1e-12, normal, [[0.0, 0.0, 1.0]]))
     flat = np.column_stack([(rel * u[surf]).sum(axis=1), (rel * v[surf]).sum(axis=1)])
-    closed_idx = np.insert(np.arange(len(xyz)), np.cumsum(sizes), start)
+    lr, first, polys = _ring_polygons(flat, sizes, start, owner, n_surfaces)
+    return origin, normal, flat, lr, first, polys
+
+
+def surface_polygons(surfaces, *, plan: bool = False) -> np.ndarray:
+    """Each surface as one shapely Polygon (Z kept, or its plan), all built in a few array calls.
+
+    Parameters
+    ----------
+    surfaces : sequence of Surface
+    plan : bool, default False
+        Drop Z (the plan view of roofs).
+
+    Returns
+    -------
+    ndarray of shapely Polygon, shape (S,)
+    """
+    xyz, _, _, owner, sizes, start = _ring_table(surfaces)
+    return _ring_polygons(xyz[:, :2] if plan else xyz, sizes, start, owner, len(surfaces))[2]
+
+
+def _ring_polygons(flat: np.ndarray, sizes: np.ndarray, start: np.ndarray, owner: np.ndarray,
+                   n_surfaces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Surfaces as polygons from their stacked open rings (as :func:`_ring_table` gives them).
+
+    Parameters
+    ----------
+    flat : ndarray of shape (V, 2) or (V, 3)
+        Vertices of all rings, one after the other (m).
+    sizes, start : ndarray of shape (R,), int
+        Vertices of each ring and where it starts in ``flat``.
+    owner : ndarray of shape (R,), int
+        Surface of each ring (sorted; the first ring of a surface is its outer ring).
+    n_surfaces : int
+
+    Returns
+    -------
+    rings : ndarray of shapely LinearRing, shape (R,)
+    first : ndarray of shape (S,), int
+        First ring of each surface.
+    polys : ndarray of shapely Polygon, shape (S,)
+    """
+    closed_idx = np.insert(np.arange(len(flat)), np.cumsum(sizes), start)
     closed_ring = np.repeat(np.arange(len(sizes)), sizes + 1)
     lr = shapely.linearrings(flat[closed_idx], indices=closed_ring)
     n_rings = np.bincount(owner, minlength=n_surfaces)
-    first = np.r_[0, np.cumsum(n_rings)[:-1]]
+    first = np.concatenate(([0], np.cumsum(n_rings)[:-1]))
     simple = np.flatnonzero(n_rings == 1)
     polys = np.empty(n_surfaces, dtype=object)
     polys[simple] = shapely.polygons(lr[first[simple]])
     for k in np.flatnonzero(n_rings > 1):
         polys[k] = shapely.polygons(lr[first[k]], lr[first[k] + 1:first[k] + n_rings[k]])
-    return origin, normal, flat, lr, first, polys
+    return lr, first, polys
 
 
 def surface_tilt(surfaces, limit: float = 20.0) -> np.ndarray:
@@ -409,7 +495,8 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     uk, counts = np.unique(key, return_counts=True)
     if (counts > 1).any():
         errors.append(f"{int((counts > 1).sum())} edges used twice in the same direction (flipped or non-manifold)")
-    missing = ~np.isin(b * n + a, uk)
+    at = np.minimum(np.searchsorted(uk, b * n + a), len(uk) - 1)  # uk is sorted: the same test as np.isin
+    missing = uk[at] != b * n + a
     if missing.any():
         errors.append(f"not closed: {int(missing.sum())} edges without an opposite edge")
     if errors:
@@ -431,7 +518,7 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     bad = int((np.bincount(fans) > 1).sum())
     if bad:
         errors.append(f"{bad} non-manifold vertices (the surfaces around them make several fans)")
-    volume = solid_volume(solid)
+    volume = _volume(xyz, ring, nxt, owner, sizes, start, len(surfaces))
     if not volume > 0:
         errors.append(f"surfaces face inward (signed volume {volume:.3f} m³)")
     return errors
