@@ -417,7 +417,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         log.warning("building %s: no roof faces (%s)", building_id, exc)
         roof.status = "no_faces"
         return roof
-    roof.faces = [lift_to_plane(p, fit.planes[i]) for p, i in zip(polys, pids)]
+    roof.faces = list(lift_to_plane(np.array(polys, dtype=object), fit.planes[list(pids)])) if polys else []
     roof.face_plane = list(pids)
     try:
         steps, spairs = step_edges(polys, pids, fit.planes, step_height=opt.step_height,
