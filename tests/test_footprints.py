@@ -86,6 +86,29 @@ def test_footprints_without_usable_points_get_a_status_and_a_fallback():
     assert np.allclose(shapely.get_coordinates(lod12, include_z=True)[:, 2], 4.5)
 
 
+def test_unclassified_points_standing_in_a_built_footprint_join_its_building():
+    xyz, cls, det, truth = _row()
+    # a chimney the detection left unclassified on house 1, a low wall (1 m) and a tree's crown over house 2,
+    # and an unclassified pole beyond the footprints (the street)
+    chimney = _grid(2.0, 2.5, 4.0, 4.5, 9.2)
+    low = _grid(7.0, 7.5, 1.0, 1.5, 1.0)
+    crown = _grid(9.0, 10.0, 6.0, 7.0, 13.0)
+    pole = _grid(-3.0, -2.75, 5.0, 5.25, 6.0)
+    xyz = np.vstack([xyz, chimney, low, crown, pole])
+    U = ASPRS.UNCLASSIFIED
+    cls = np.concatenate([cls, np.full(len(chimney) + len(low), U), np.full(len(crown), V),
+                          np.full(len(pole), U)]).astype(np.uint8)
+    det = np.concatenate([det, np.zeros(len(xyz) - len(det))]).astype(np.int32)
+    hag = np.where(cls == G, 0.0, xyz[:, 2])
+    res = assign_footprints(xyz, cls, det, FOOTPRINTS, FootprintOptions(min_points=20), hag=hag)
+    n = len(truth)
+    assert np.array_equal(res.building_id[:n], truth)
+    assert (res.building_id[n:n + len(chimney)] == 1).all()
+    assert (res.building_id[n + len(chimney):] == 0).all()  # the low wall, the crown, the pole
+    off = assign_footprints(xyz, cls, det, FOOTPRINTS, FootprintOptions(min_points=20, unclassified=False), hag=hag)
+    assert (off.building_id[n:] == 0).all() and res.status == off.status
+
+
 def test_traced_outlines_are_clipped_off_the_neighbouring_footprint():
     from rooftrace.contour.outline import RoofOutline
 

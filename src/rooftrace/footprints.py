@@ -4,11 +4,14 @@ A footprint (BGT/BAG ``pand``, a cadastre parcel building) is where the walls
 meet the ground; the roof seen by the laser may stick out beyond it (eaves,
 overhangs of 0.2–1 m).  Each footprint becomes one building made of
 
-* the building points (class 6 of the detection) inside it, and
+* the building points (class 6 of the detection) inside it,
 * the building points in a band of ``overhang`` metres around it that belong
   to a detected building which also has points inside the footprint (so a
   neighbouring building without footprint is not taken in); a band point near
-  several footprints goes to the nearest one.
+  several footprints goes to the nearest one, and
+* the points inside it that the detection left unclassified and that stand
+  ``min_height`` above the ground (chimneys, parapets, roof clutter too rough
+  or too small for its roof test), when it has building points.
 
 A detected building spanning several footprints (a terraced row) is thereby
 split along the footprints: a point inside footprint A goes to A, a point in
@@ -94,7 +97,16 @@ class FootprintOptions:
     min_height : float, default 2.0
         A non-building point must stand this high (m) above the ground to
         count for a ``"few_points"`` fallback when no building point is
-        there (a low shed or a missed roof still gives a LoD 1.2 block).
+        there (a low shed or a missed roof still gives a LoD 1.2 block),
+        or to join an ``"ok"`` footprint's points (``unclassified``).
+    unclassified : bool, default True
+        Inside an ``"ok"`` footprint, points the detection left unclassified
+        (neither building, ground, vegetation nor noise) standing
+        ``min_height`` above the ground belong to its building too: the
+        footprint says a building stands there, and on AHN3 Delft two
+        thirds of them are the provider's building points (chimneys,
+        parapets and roof clutter too rough or too small for the
+        detection's roof test), which the roof must model.
     """
 
     section = "footprints"
@@ -102,6 +114,7 @@ class FootprintOptions:
     overhang: float = 1.5
     min_points: int | None = None
     min_height: float = 2.0
+    unclassified: bool = True
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -338,11 +351,15 @@ def assign_footprints(
                           f"{options.min_height:g} m above the ground")
             fallback.append(np.zeros(0, np.int64))
             building_id[own] = 0
+    if high is not None and options.unclassified:
+        ok = np.array([s == "ok" for s in status] + [False])  # index -1: in no footprint
+        extra = np.flatnonzero(high & (classification == ASPRS.UNCLASSIFIED) & ok[all_owner])
+        building_id[extra] = (all_owner[extra] + 1).astype(np.int32)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
-                                       "min_height": options.min_height})
+                                       "min_height": options.min_height, "unclassified": options.unclassified})
 
 
 def _nearest_zone(footprint, neighbours, extent, step: float = 0.1):

@@ -125,3 +125,20 @@ def test_overlapping_parts_finds_slivers_and_not_shared_walls():
     assert overlapping_parts([left, bent], tolerance=0.01) == []  # val3dity's --overlap_tol
     assert overlapping_parts([left, above]) == [] and overlapping_parts([right, above]) == []
     assert overlapping_parts([left]) == []
+
+
+def test_overlapping_parts_finds_a_vertex_on_the_neighbours_straight_wall():
+    from rooftrace.model import horizontal_plane
+    from rooftrace.model.validity import overlapping_parts, t_junctions
+
+    # a party wall off the axes, one part with an extra vertex on it, collinear on the 1 mm grid: no area
+    # overlaps in rounded coordinates, but a reader's floating-point coordinates put a 1e-10 m² sliver on one
+    # side (val3dity's error 601)
+    wall = [(3.0, 0.0), (5.0, 8.0)]
+    mid = (4.0, 4.0)
+    left = prism_solid([(shapely.Polygon([(0, 0), *wall[:1], mid, wall[1], (0, 8)]), horizontal_plane(6.0))], 0.0)
+    right = prism_solid([(shapely.Polygon([wall[0], (10, 0), (10, 8), wall[1]]), horizontal_plane(9.0))], 0.0)
+    shared = prism_solid([(shapely.Polygon([wall[0], (10, 0), (10, 8), wall[1], mid]), horizontal_plane(9.0))], 0.0)
+    assert t_junctions(shapely.box(0, 0, 5, 8), shapely.box(5, 0, 10, 8)) == 0
+    assert overlapping_parts([left, right]) == [(0, 1)]
+    assert overlapping_parts([left, shared]) == []

@@ -332,3 +332,64 @@ def test_points_in_boxes_are_the_str_tree_pairs():
     ptr, pts = points_in_boxes(xy[:, 0], xy[:, 1], np.argsort(xy[:, 0], kind="stable"), shapely.bounds(arcs))
     assert np.array_equal(pts, pi[o]) and np.array_equal(ptr, np.r_[0, np.cumsum(np.bincount(ri, minlength=60))])
     assert np.diff(ptr)[5:8].min() >= 2  # the arcs' own end points are in their boxes
+
+
+@pytest.mark.parametrize("k", [1, 8, 40])
+def test_nearest_labels_are_the_kd_tree_query(k):
+    """The compiled nearest-point search of the face raster gives each cell the labels, in order, that
+    ``cKDTree.query`` gives it, also where ties (duplicated points, a lattice queried at its cell
+    centres) and far cells (outside the points) could order them otherwise."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.faces import _nearest
+
+    rng = np.random.default_rng(6)
+    lattice = np.mgrid[0:30, 0:20].reshape(2, -1).T * 0.5
+    scattered = np.round(rng.uniform(0, 15, (1500, 2)), 2)
+    xy = np.concatenate([lattice, scattered, scattered[:300]]) + [85000.0, 447000.0]  # RD offsets, duplicates
+    lab = rng.integers(0, 4, len(xy))
+    cells = np.concatenate([np.mgrid[-10:70, -10:50].reshape(2, -1).T * 0.25 + 0.125,  # lattice ties, far cells
+                            rng.uniform(-5, 20, (2000, 2))]) + [85000.0, 447000.0]
+    got = lab[_nearest(xy, lab, cells, k)]
+    want = lab[cKDTree(xy).query(cells, k=k)[1].reshape(len(cells), k)]
+    assert np.array_equal(got, want)
+
+
+def test_arcs_meeting_inside_are_found_among_all_pairs():
+    """Only pairs with an arc the noding split or dissolved are tested; the verdicts are those of every pair
+    tested: crossings, a T, an overlap, a duplicate and a self-crossing arc beside arcs meeting at ends."""
+    from rooftrace.roof.faces import _meets_only_at_ends
+
+    rng = np.random.default_rng(7)
+    corners = rng.uniform(0, 10, (30, 2))
+    arcs = [shapely.LineString(corners[[a, a + 1]]) for a in range(0, 28, 2)]  # loose segments, some crossing
+    arcs += [shapely.LineString([(20, 0), (22, 1), (24, 0)]), shapely.LineString([(24, 0), (26, 2)]),  # end to end
+             shapely.LineString([(22, 1), (22, 5)]),  # a T on the first one's vertex: meets it inside
+             shapely.LineString([(30, 0), (34, 0)]), shapely.LineString([(32, 0), (36, 0)]),  # overlap
+             shapely.LineString([(40, 0), (44, 4)]), shapely.LineString([(40, 0), (44, 4)]),  # duplicate
+             shapely.LineString([(50, 0), (54, 4), (54, 0), (50, 4)])]  # crosses itself
+    arcs = np.array(arcs, dtype=object)
+    ok = shapely.is_simple(arcs)
+    for i in range(len(arcs)):
+        for j in range(i + 1, len(arcs)):
+            ends = [shapely.MultiPoint([arcs[n].coords[0], arcs[n].coords[-1]]) for n in (i, j)]
+            if not shapely.difference(shapely.intersection(arcs[i], arcs[j]), shapely.intersection(*ends)).is_empty:
+                ok[i] = ok[j] = False
+    got = _meets_only_at_ends(arcs)
+    assert np.array_equal(got, ok)
+    assert not got[14:].all() and got[15] and not got[16]  # the T's stem meets the first arc inside
+
+
+def test_nearest_labels_far_from_the_points_are_the_kd_tree_query():
+    """Cells far from every labelled point (an outline part without planes) are left to the k-d tree,
+    not searched ring by ring across empty buckets."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.roof.faces import _nearest
+
+    rng = np.random.default_rng(8)
+    xy = rng.uniform(0, 5, (400, 2))
+    lab = rng.integers(0, 3, len(xy))
+    cells = np.concatenate([rng.uniform(0, 5, (200, 2)), rng.uniform(200, 300, (300, 2))])
+    got = lab[_nearest(xy, lab, cells, 8)]
+    assert np.array_equal(got, lab[cKDTree(xy).query(cells, k=8)[1]])

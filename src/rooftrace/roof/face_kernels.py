@@ -6,7 +6,9 @@ the fewest violations of the intersection lines near it, then (with
 (cells, k, k) arrays of candidate pairs, a third of the face partition on
 Delft; here one pass per cell does the integer bookkeeping.  The float
 work (distances of cells to lines, plane heights) stays in numpy, in
-:mod:`~rooftrace.roof.faces`.
+:mod:`~rooftrace.roof.faces`.  The k nearest labelled points of every
+cell (a million cells on a large roof) come from a bucket search that
+leaves only the cells with ties to ``cKDTree``.
 
 The kernels of :mod:`rooftrace.roof.faces`.
 """
@@ -16,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["cell_lines", "cell_choice", "simplify_arcs", "points_in_boxes"]
+__all__ = ["cell_lines", "cell_choice", "simplify_arcs", "points_in_boxes", "nearest_points"]
 
 
 @njit(cache=True)
@@ -234,3 +236,94 @@ def points_in_boxes(x, y, order, boxes):  # pragma: no cover - compiled
                 w += 1
         out[ptr[r]:ptr[r + 1]].sort()
     return ptr, out
+
+
+@njit(cache=True)
+def nearest_points(px, py, lab, qx, qy, k, bucket, max_ring=4):  # pragma: no cover - compiled
+    """The ``k`` labelled points nearest each query point, nearest first, and where that order is not certain.
+
+    The points are bucketed on a square grid of ``bucket`` (m); each query
+    scans rings of buckets outwards until no unscanned point can be nearer
+    than its ``k + 1``-th, at most ``max_ring`` rings (a query farther from
+    the points is flagged, a k-d tree finds those in logarithmic time).
+    Distances are compared squared, as
+    ``dx * dx + dy * dy`` (the sum ``cKDTree`` forms in 2D).  A query is
+    flagged ``unsure`` where the order could depend on how ties are broken:
+    its ``k``-th and ``k + 1``-th distances within a relative 1e-9, or two
+    consecutive ones of different labels within it; those are left to
+    ``cKDTree.query``.
+
+    Returns
+    -------
+    idx : ndarray of shape (M, k), int64
+    unsure : ndarray of shape (M,), bool
+    """
+    n, m = len(px), len(qx)
+    idx = np.zeros((m, k), dtype=np.int64)
+    unsure = np.zeros(m, dtype=np.bool_)
+    xmin, ymin = px.min(), py.min()
+    ncol = int((px.max() - xmin) / bucket) + 1
+    nrow = int((py.max() - ymin) / bucket) + 1
+    key = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        key[p] = int((py[p] - ymin) / bucket) * ncol + int((px[p] - xmin) / bucket)
+    order = np.argsort(key, kind="mergesort")
+    start = np.zeros(nrow * ncol + 1, dtype=np.int64)
+    for p in range(n):
+        start[key[p] + 1] += 1
+    for b in range(nrow * ncol):
+        start[b + 1] += start[b]
+    kk = min(k + 1, n)
+    bd = np.empty(kk, dtype=np.float64)
+    bi = np.empty(kk, dtype=np.int64)
+    for q in range(m):
+        x, y = qx[q], qy[q]
+        cj = int(np.floor((x - xmin) / bucket))
+        ci = int(np.floor((y - ymin) / bucket))
+        found = 0
+        r = 0
+        while True:
+            for i in range(ci - r, ci + r + 1):
+                if i < 0 or i >= nrow:
+                    continue
+                edge_row = i == ci - r or i == ci + r
+                j = cj - r
+                while j <= cj + r:
+                    if 0 <= j < ncol:
+                        b = i * ncol + j
+                        for t in range(start[b], start[b + 1]):
+                            p = order[t]
+                            dx, dy = x - px[p], y - py[p]
+                            d = dx * dx + dy * dy
+                            if found < kk or d < bd[kk - 1]:
+                                s = found if found < kk else kk - 1
+                                while s > 0 and bd[s - 1] > d:
+                                    bd[s] = bd[s - 1]
+                                    bi[s] = bi[s - 1]
+                                    s -= 1
+                                bd[s] = d
+                                bi[s] = p
+                                if found < kk:
+                                    found += 1
+                    # inside the ring only its first and last columns are new
+                    j += 1 if edge_row or j == cj + r else 2 * r
+            # every unscanned point lies outside the scanned square of buckets
+            gap = min(x - (xmin + (cj - r) * bucket), xmin + (cj + r + 1) * bucket - x,
+                      y - (ymin + (ci - r) * bucket), ymin + (ci + r + 1) * bucket - y)
+            done = ci - r <= 0 and cj - r <= 0 and ci + r >= nrow - 1 and cj + r >= ncol - 1
+            if done or (found == kk and gap > 0 and bd[kk - 1] * (1 + 1e-9) < gap * gap):
+                break
+            r += 1
+            if r > max_ring:
+                break
+        if r > max_ring:
+            unsure[q] = True
+            continue
+        for s in range(k):
+            idx[q, s] = bi[s]
+        if kk > k and bd[k] - bd[k - 1] <= 1e-9 * bd[k]:
+            unsure[q] = True
+        for s in range(k - 1):
+            if bd[s + 1] - bd[s] <= 1e-9 * bd[s + 1] and lab[bi[s]] != lab[bi[s + 1]]:
+                unsure[q] = True
+    return idx, unsure

@@ -29,17 +29,17 @@ Z from its plane.
 from __future__ import annotations
 
 import logging
+from collections import Counter
+from itertools import chain
 
 import numpy as np
 import shapely
-from rasterio import features
-from rasterio.transform import Affine
 from scipy import ndimage
 from scipy.spatial import cKDTree
-from shapely.geometry import LineString, Polygon
+from shapely.geometry import LineString
 
 from rooftrace.graph import components
-from rooftrace.roof.face_kernels import cell_choice, cell_lines, points_in_boxes, simplify_arcs
+from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points, points_in_boxes, simplify_arcs
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
@@ -60,41 +60,80 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.hypot(d[:, 0], d[:, 1])
 
 
-def _polygon(rings: list) -> Polygon:
-    """The polygon of GeoJSON-like rings (as ``shapely.geometry.shape`` builds it, without its per-vertex loop)."""
-    rings = [np.asarray(r, dtype=np.float64) for r in rings]
-    return Polygon(rings[0], rings[1:])
+def _polygons(shapes) -> tuple[list, list]:
+    """The polygons and values of ``rasterio.features.shapes``' GeoJSON-like output, built in one call.
+
+    As ``shapely.geometry.shape`` builds each (first ring the shell, the
+    others holes), without a Python loop over vertices or polygons.
+    """
+    rings, of, ids = [], [], []
+    for geom, value in shapes:
+        rings.extend(geom["coordinates"])
+        of.extend([len(ids)] * len(geom["coordinates"]))
+        ids.append(int(value))
+    if not ids:
+        return [], []
+    n = np.fromiter((len(r) for r in rings), dtype=np.int64, count=len(rings))
+    xy = np.array(list(chain.from_iterable(rings)), dtype=np.float64).reshape(-1, 2)
+    return list(shapely.polygons(shapely.linearrings(xy, indices=np.repeat(np.arange(len(rings)), n)), indices=of)), ids
+
+
+def _nearest(xy: np.ndarray, lab: np.ndarray, C: np.ndarray, k: int) -> np.ndarray:
+    """Indices (M, k) of the ``k`` points ``xy`` nearest each cell centre ``C``, nearest first.
+
+    The labels ``lab[idx]`` are those of ``cKDTree(xy).query(C, k)``, cell
+    for cell: the compiled bucket search
+    (:func:`rooftrace.roof.face_kernels.nearest_points`, several times
+    faster on a raster's million cells) leaves to the k-d tree the cells
+    where a tie could order points of different labels otherwise.
+    """
+    if not len(C) or not len(xy):
+        return np.zeros((len(C), k), dtype=np.int64)
+    # buckets about as wide as the (k + 1)-th neighbour's distance: most cells find theirs in 3 x 3 buckets
+    extent = np.ptp(xy, axis=0)
+    density = len(xy) / max(float(extent[0] * extent[1]), 1e-6)
+    bucket = max(float(np.sqrt((k + 1) / (np.pi * density))), 1e-3 * max(float(extent.max()), 1e-3))
+    idx, unsure = nearest_points(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), lab,
+                                 np.ascontiguousarray(C[:, 0]), np.ascontiguousarray(C[:, 1]), k, bucket)
+    if unsure.any():
+        idx[unsure] = cKDTree(xy).query(C[unsure], k=k)[1].reshape(-1, k)
+    return idx
 
 
 def _absorb_slivers(polys: list, ids: list, min_area: float):
     """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary."""
-    polys, ids = list(polys), list(ids)
-    while len(polys) >= 2:
-        geoms = np.array(polys, dtype=object)
-        areas = shapely.area(geoms)
-        small = np.flatnonzero(areas < min_area)
+    geoms = np.array(polys, dtype=object)
+    ids = list(ids)
+    if len(geoms) < 2:
+        return list(geoms), ids
+    # areas, boxes and boundaries are kept per face and renewed only for the merged one (a roof has hundreds of
+    # faces and as many merges); the list order is the index order of the faces still alive
+    alive = np.ones(len(geoms), dtype=bool)
+    areas = shapely.area(geoms)
+    box = shapely.bounds(geoms)
+    edges = shapely.boundary(geoms)
+    while alive.sum() >= 2:
+        small = np.flatnonzero(alive & (areas < min_area))
         if not len(small):
             break
         i = int(small[np.argmin(areas[small])])
-        # only faces whose boxes touch this one's can share boundary with it (a roof has hundreds of faces)
-        box = shapely.bounds(geoms)
-        near = np.flatnonzero((box[:, 0] <= box[i, 2]) & (box[:, 2] >= box[i, 0]) & (box[:, 1] <= box[i, 3])
+        # only faces whose boxes touch this one's can share boundary with it
+        near = np.flatnonzero(alive & (box[:, 0] <= box[i, 2]) & (box[:, 2] >= box[i, 0]) & (box[:, 1] <= box[i, 3])
                               & (box[:, 3] >= box[i, 1]))
         near = near[near != i]
-        shared = shapely.length(shapely.intersection(shapely.boundary(geoms[i]), shapely.boundary(geoms[near])))
-        if not len(near) or shared.max() <= 0:
+        if not len(near) or (shared := shapely.length(shapely.intersection(edges[i], edges[near]))).max() <= 0:
             # Isolated island: keep it (it is still part of the tiling).
             if areas[i] < 1e-9:
-                del polys[i], ids[i]
+                alive[i] = False
                 continue
             break
         j = int(near[np.argmax(shared)])
-        merged = shapely.union(polys[j], polys[i])
+        merged = shapely.union(geoms[j], geoms[i])
         if merged.geom_type != "Polygon":
             merged = merged.buffer(0)
-        polys[j] = merged
-        del polys[i], ids[i]
-    return polys, ids
+        geoms[j], areas[j], box[j], edges[j] = merged, merged.area, merged.bounds, merged.boundary
+        alive[i] = False
+    return list(geoms[alive]), [pid for pid, on in zip(ids, alive) if on]
 
 
 def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.ndarray, planes: np.ndarray,
@@ -202,8 +241,14 @@ def _meets_only_at_ends(arcs: np.ndarray) -> np.ndarray:
                                               rtol=0, atol=1e-9 * len(arcs)):
         return np.ones(len(arcs), dtype=bool)  # noding changed nothing: no arc meets another inside
     ok = shapely.is_simple(arcs)
+    # an arc that meets another anywhere but at ends of both is split there by the noding (or, overlapping it,
+    # dissolved): only pairs with an arc that did not come through the noding whole and alone need the test
+    whole = Counter(shapely.to_wkb(noded).tolist())
+    mine = shapely.to_wkb(arcs).tolist()
+    alone = Counter(mine)
+    changed = np.array([whole[w] != 1 or alone[w] != 1 for w in mine], dtype=bool)
     i, j = shapely.STRtree(arcs).query(arcs, predicate="intersects")
-    keep = i < j
+    keep = (i < j) & (changed[i] | changed[j])
     i, j = i[keep], j[keep]
     ends = shapely.multipoints(np.stack([shapely.get_point(arcs, 0), shapely.get_point(arcs, -1)], axis=1))
     extra = shapely.difference(shapely.intersection(arcs[i], arcs[j]), shapely.intersection(ends[i], ends[j]))
@@ -221,16 +266,29 @@ def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.n
     its left.
     """
     V, at = shapely.get_coordinates(arcs, return_index=True)
-    same = np.r_[at[1:] == at[:-1], False]
-    edge = {(*V[k], *V[k + 1]): (at[k], 0) for k in np.flatnonzero(same)}
-    edge.update({(*V[k + 1], *V[k]): (at[k], 1) for k in np.flatnonzero(same)})
+    k = np.flatnonzero(np.r_[at[1:] == at[:-1], False])
     c, i = shapely.get_coordinates(shapely.get_exterior_ring(shapely.orient_polygons(faces)), return_index=True)
     start = np.r_[0, np.flatnonzero(i[1:] != i[:-1]) + 1]
+    # vertices as integers (equal coordinates, equal number; + 0.0 makes -0.0 equal to 0.0 bytewise, as in a
+    # comparison), then each directed edge as one integer: the arc edges along and against their arc, and the
+    # faces' first edges
+    ends = np.concatenate([V[k], V[k + 1], c[start], c[start + 1]]) + 0.0
+    _, vid = np.unique(ends.view(np.dtype((np.void, 16))).ravel(), return_inverse=True)
+    n, m = len(k), len(start)
+    a, b, fa, fb = np.split(vid.ravel().astype(np.int64), [n, 2 * n, 2 * n + m])
+    nv = np.int64(len(ends))
+    key = np.concatenate([a * nv + b, b * nv + a])
+    arc = np.concatenate([at[k], at[k]])
+    side = np.repeat([0, 1], n)
+    # an edge listed twice takes its last listing (along before against, arcs in order)
+    order = np.argsort(key, kind="stable")
+    last = np.r_[key[order][1:] != key[order][:-1], True]
+    key, order = key[order][last], order[last]
+    want = fa * nv + fb
+    pos = np.minimum(np.searchsorted(key, want), len(key) - 1)
     out = np.full(len(faces), -3, dtype=np.int64)  # -3: no arc found
-    for f, k in enumerate(start):
-        hit = edge.get((*c[k], *c[k + 1]))
-        if hit is not None:
-            out[f] = sides[hit[0], hit[1]]
+    hit = key[pos] == want if len(key) else np.zeros(m, dtype=bool)
+    out[hit] = sides[arc[order[pos[hit]]], side[order[pos[hit]]]]
     return out
 
 
@@ -426,10 +484,7 @@ def partition_outline(
     # (wider than the simplification tolerance, which can move region edges)
     inside = shapely.contains_xy(outline.buffer((simplify + 2) * cell), C_all[:, 0], C_all[:, 1])
     C = C_all[inside]
-    kk = int(min(k, len(P)))
-    _, idx = cKDTree(P[:, :2]).query(C, k=kk)
-    idx = idx.reshape(len(C), kk)
-    cand = lab[idx]
+    cand = lab[_nearest(P[:, :2], lab, C, int(min(k, len(P))))]
     choice = cand[:, 0].copy()
     # Only cells whose neighbours disagree need a decision.
     rows = np.flatnonzero((cand != cand[:, :1]).any(axis=1))
@@ -470,11 +525,12 @@ def partition_outline(
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
+    # rasterio (GDAL) only here: importing it costs every command's start-up a tenth of a second
+    from rasterio import features
+    from rasterio.transform import Affine
+
     transform = Affine(cell, 0, x0, 0, -cell, y1)
-    regions, ids = [], []
-    for geom, value in features.shapes(grid, transform=transform, connectivity=4):
-        regions.append(_polygon(geom["coordinates"]))
-        ids.append(int(value))
+    regions, ids = _polygons(features.shapes(grid, transform=transform, connectivity=4))
     if max_dz is None or boundaries == "free":
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     elif boundaries == "each":
@@ -490,17 +546,20 @@ def partition_outline(
         near = mixed[row, col]
         regions = _regularised(regions, ids, P[near], lab[near], planes, tolerance=simplify * cell,
                                floor=min(0.75, simplify) * cell, max_dz=max_dz)
-    polys, pids = [], []
-    for reg, pid in zip(regions, ids):
-        if pid < 0:
-            continue
-        part = shapely.intersection(shapely.make_valid(reg), outline)
-        for g in getattr(part, "geoms", [part]):
-            if isinstance(g, Polygon) and not g.is_empty and g.area > 0:
-                polys.append(g)
-                pids.append(pid)
+    # each plane's regions cut by the outline, their polygons kept
+    labelled = np.asarray(ids) >= 0
+    parts, of = shapely.get_parts(shapely.intersection(shapely.make_valid(np.asarray(regions, dtype=object)[labelled]),
+                                                       outline), return_index=True)
+    keep = (shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)
+    keep[keep] = shapely.area(parts[keep]) > 0
+    polys, pids = list(parts[keep]), np.asarray(ids)[labelled][of[keep]].tolist()
     polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
     return polys, pids
+
+
+def _area_sum(faces) -> float:
+    """Total area of the faces, summed in order as ``sum(p.area for p in faces)`` (the tiling checks compare it)."""
+    return sum(shapely.area(np.asarray(faces, dtype=object)).tolist())
 
 
 def merge_close_vertices(polys: list, outline, eps: float) -> list:
@@ -520,8 +579,9 @@ def merge_close_vertices(polys: list, outline, eps: float) -> list:
     """
     if eps <= 0 or not polys:
         return polys
-    coords = [shapely.get_coordinates(p) for p in polys]
-    xy, inv = np.unique(np.vstack(coords), axis=0, return_inverse=True)
+    faces = np.array(polys, dtype=object)
+    allxy, owner = shapely.get_coordinates(faces, return_index=True)
+    xy, inv = np.unique(allxy, axis=0, return_inverse=True)
     ring = shapely.boundary(outline)
     off = shapely.distance(ring, shapely.points(xy))
     # vertices a hair inside the outline go onto it (else the wall there is a hair long)
@@ -545,25 +605,22 @@ def merge_close_vertices(polys: list, outline, eps: float) -> list:
     np.minimum.at(best, label, rank)
     target = np.where(fixed, np.arange(len(xy)), order[best[label]])  # the outline's own vertices stay
     inv = inv.ravel()
-    starts = np.cumsum([0] + [len(c) for c in coords])
-    area = sum(p.area for p in polys)
+    area = _area_sum(faces)
     held = np.zeros(len(xy), bool)
     # a face the moves would make invalid keeps its vertices (and so do its neighbours, which share them)
     for _ in range(8):
         at = np.where(held[:, None], xy, pos)[np.where(held, np.arange(len(xy)), target)][inv]
         try:
-            moved = [shapely.remove_repeated_points(shapely.transform(p, lambda _, a=at[starts[k]:starts[k + 1]]: a))
-                     for k, p in enumerate(polys)]
+            moved = shapely.remove_repeated_points(shapely.transform(faces, lambda _, to=at: to))
         except shapely.errors.GEOSException:
             break
-        bad = [k for k, p in enumerate(moved) if not (p.geom_type == "Polygon" and not p.is_empty and p.is_valid)]
-        if not bad:
-            if (abs(sum(p.area for p in moved) - area) <= 1e-6 * max(area, 1.0)
+        bad = ~((shapely.get_type_id(moved) == 3) & ~shapely.is_empty(moved) & shapely.is_valid(moved))
+        if not bad.any():
+            if (abs(_area_sum(moved) - area) <= 1e-6 * max(area, 1.0)
                     and abs(shapely.union_all(moved).area - area) <= 1e-6 * max(area, 1.0)):
-                return moved
+                return list(moved)
             break
-        for k in bad:
-            held[inv[starts[k]:starts[k + 1]]] = True
+        held[inv[bad[owner]]] = True
     log.debug("merging close face vertices undone (would break the tiling)")
     return polys
 
@@ -589,7 +646,11 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
     boundary = outline.boundary
 
     def _snap(coords):
-        xy = coords[:, :2]
+        # every vertex of every face at once, in slices: the (vertices, lines) arrays stay small
+        return np.concatenate([_snap_some(coords[k:k + 4096, :2]) for k in range(0, len(coords), 4096)]
+                              + [np.zeros((0, 2))])
+
+    def _snap_some(xy):
         out = xy.copy()
         de = np.hypot(xy[:, None, 0] - ends[None, :, 0], xy[:, None, 1] - ends[None, :, 1])
         je = np.argmin(de, axis=1)
@@ -608,10 +669,10 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
         return out
 
     try:
-        snapped = [shapely.remove_repeated_points(shapely.transform(p, _snap)) for p in polys]
-        area = sum(p.area for p in polys)
-        ok = (all(p.is_valid and p.geom_type == "Polygon" for p in snapped)
-              and abs(sum(p.area for p in snapped) - area) <= 1e-6 * max(area, 1.0)
+        snapped = list(shapely.remove_repeated_points(shapely.transform(np.array(polys, dtype=object), _snap)))
+        area = _area_sum(polys)
+        ok = (bool(shapely.is_valid(snapped).all() and (shapely.get_type_id(snapped) == 3).all())
+              and abs(_area_sum(snapped) - area) <= 1e-6 * max(area, 1.0)
               and abs(shapely.union_all(snapped).area - area) <= 1e-6 * max(area, 1.0))
     except shapely.errors.GEOSException:
         ok = False
@@ -622,12 +683,24 @@ def snap_to_lines(polys: list, lines: list, outline, tol: float) -> list:
 
 
 def lift_to_plane(geom, plane: np.ndarray):
-    """Give a plan geometry the Z of a plane ``(a, b, c, d)`` at every vertex."""
+    """Give a plan geometry the Z of a plane ``(a, b, c, d)`` at every vertex.
 
-    def _z(coords):
-        return np.column_stack([coords[:, :2], plane_height(plane[None, :], coords[:, :2])[:, 0]])
+    ``geom`` may also be an array of K geometries with ``plane`` of shape
+    (K, 4), one plane each (one call for a roof's faces).
+    """
+    plane = np.asarray(plane, dtype=np.float64)
+    geom = shapely.force_3d(geom)
+    if plane.ndim == 2:
+        _, owner = shapely.get_coordinates(geom, include_z=True, return_index=True)
 
-    return shapely.transform(shapely.force_3d(geom), _z, include_z=True)
+        def _z(coords):
+            return np.column_stack([coords[:, :2], plane_height(plane[owner], coords[:, :2])])
+    else:
+
+        def _z(coords):
+            return np.column_stack([coords[:, :2], plane_height(plane[None, :], coords[:, :2])[:, 0]])
+
+    return shapely.transform(geom, _z, include_z=True)
 
 
 def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height: float, min_length: float,
@@ -657,36 +730,44 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     lines, pairs = [], []
     if len(polys) < 2:
         return lines, pairs
-    tree = shapely.STRtree(polys)
-    done = set()
-    for i, j in zip(*tree.query(polys, predicate="intersects")):
-        a, b = plane_ids[i], plane_ids[j]
-        if i >= j or a == b or (i, j) in done:
-            continue
-        done.add((i, j))
-        shared = shapely.intersection(polys[i].boundary, polys[j].boundary)
-        segs = [g for g in getattr(shared, "geoms", [shared]) if isinstance(g, LineString) and not g.is_empty]
-        if not segs:
-            continue
-        merged = shapely.line_merge(shapely.MultiLineString(segs))
-        for g in getattr(merged, "geoms", [merged]):
-            if g.length < min_length:
+    faces = np.array(polys, dtype=object)
+    plane_ids = np.asarray(plane_ids)
+    i, j = shapely.STRtree(faces).query(faces, predicate="intersects")
+    keep = (i < j) & (plane_ids[i] != plane_ids[j])
+    i, j = i[keep], j[keep]
+    # the shared boundaries of all touching pairs in one call, each pair's line pieces merged
+    rims = shapely.boundary(faces)
+    parts, of = shapely.get_parts(shapely.intersection(rims[i], rims[j]), return_index=True)
+    line = np.isin(shapely.get_type_id(parts), (1, 2)) & ~shapely.is_empty(parts)
+    parts, of = parts[line], of[line]
+    if not len(parts):
+        return lines, pairs
+    pair, of = np.unique(of, return_inverse=True)
+    merged, of = shapely.get_parts(shapely.line_merge(shapely.multilinestrings(parts, indices=of)), return_index=True)
+    length = shapely.length(merged)
+    long = length >= min_length
+    merged, of, length = merged[long], pair[of[long]], length[long]
+    # A shared boundary can be partly a step and partly a crease (a dormer's
+    # cheeks and its top): keep the runs where the planes are apart, judged
+    # on a densified copy of the boundary.
+    dense, at = shapely.get_coordinates(shapely.segmentize(merged, np.maximum(length / 200, 0.05)), return_index=True)
+    start = np.r_[0, np.cumsum(np.bincount(at, minlength=len(merged)))]
+    for m, k in enumerate(of):
+        a, b = plane_ids[i[k]], plane_ids[j[k]]
+        xy = dense[start[m]:start[m + 1]]
+        za = plane_height(planes[a][None, :], xy)[:, 0]
+        zb = plane_height(planes[b][None, :], xy)[:, 0]
+        jump = np.abs(za - zb) > step_height
+        edges = np.flatnonzero(np.diff(np.r_[0, jump.astype(np.int8), 0]))
+        for r0, r1 in zip(edges[::2], edges[1::2]):
+            if r1 - r0 < 2:
                 continue
-            # A shared boundary can be partly a step and partly a crease (a
-            # dormer's cheeks and its top): keep the runs where the planes
-            # are apart, judged on a densified copy of the boundary.
-            xy = np.asarray(shapely.segmentize(g, max(g.length / 200, 0.05)).coords)[:, :2]
-            za = plane_height(planes[a][None, :], xy)[:, 0]
-            zb = plane_height(planes[b][None, :], xy)[:, 0]
-            jump = np.abs(za - zb) > step_height
-            edges = np.flatnonzero(np.diff(np.r_[0, jump.astype(np.int8), 0]))
-            for r0, r1 in zip(edges[::2], edges[1::2]):
-                if r1 - r0 < 2:
-                    continue
-                run = shapely.simplify(LineString(xy[r0:r1]), simplify)
-                if run.length < min_length:
-                    continue
-                up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
-                lines.append(lift_to_plane(run, planes[up]))
-                pairs.append((int(up), int(lo)))
+            run = shapely.simplify(LineString(xy[r0:r1]), simplify)
+            if run.length < min_length:
+                continue
+            up, lo = (a, b) if np.median(za[r0:r1] - zb[r0:r1]) > 0 else (b, a)
+            lines.append(run)
+            pairs.append((int(up), int(lo)))
+    if lines:
+        lines = list(lift_to_plane(np.array(lines, dtype=object), planes[[up for up, _ in pairs]]))
     return lines, pairs

@@ -104,48 +104,69 @@ def triple_point(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, min_det: float 
     return np.linalg.solve(A, -np.array([pa[3], pb[3], pc[3]]))
 
 
-def _inside_intervals(outline, x0, u, t0, t1):
-    """Parameter intervals of the plan line ``x0 + t u`` inside the outline."""
-    a = x0[:2] + (t0 - 1.0) * u[:2]
-    b = x0[:2] + (t1 + 1.0) * u[:2]
-    inter = shapely.intersection(LineString([a, b]), outline)
-    out = []
-    for g in getattr(inter, "geoms", [inter]):
-        if isinstance(g, LineString) and not g.is_empty and g.length > 0:
-            t = (np.asarray(g.coords)[:, :2] - x0[:2]) @ u[:2]
-            out.append((t.min(), t.max()))
+def _inside_intervals(outline, spans: list) -> list:
+    """Parameter intervals inside the outline of each plan line ``x0 + t u``, ``spans`` of ``(x0, u, t0, t1)``.
+
+    Each line is tried from ``t0 - 1`` to ``t1 + 1``; the lines are cut by
+    the outline in one call.
+    """
+    out = [[] for _ in spans]
+    if not spans:
+        return out
+    ends = np.array([[x0[:2] + (t0 - 1.0) * u[:2], x0[:2] + (t1 + 1.0) * u[:2]] for x0, u, t0, t1 in spans])
+    parts, of = shapely.get_parts(shapely.intersection(shapely.linestrings(ends), outline), return_index=True)
+    keep = (np.isin(shapely.get_type_id(parts), (1, 2)) & ~shapely.is_empty(parts))
+    keep[keep] = shapely.length(parts[keep]) > 0
+    for g, k in zip(parts[keep], of[keep]):
+        x0, u = spans[k][0], spans[k][1]
+        t = (np.asarray(g.coords)[:, :2] - x0[:2]) @ u[:2]
+        out[k].append((t.min(), t.max()))
     return out
 
 
-def _supported_run(tree, lab, a, b, x0, u, t0, t1, tol):
-    """Stretch of ``[t0, t1]`` with plane ``a`` on one side of the line and
-    ``b`` on the other (nearest labelled points at ``tol / 2``).
+def _supported_runs(tree, lab, lines: list, tol: float) -> list:
+    """Stretch of ``[t0, t1]`` of each line ``(a, b, x0, u, t0, t1)`` with
+    plane ``a`` on one side of the line and ``b`` on the other (nearest
+    labelled points at ``tol / 2``).
 
     From the first to the last supported sample when at least half of that
     stretch is supported, else the longest run (gaps up to ``tol / 2``
-    bridged); None when no sample is supported."""
+    bridged); None when no sample is supported.  The samples of all lines
+    are looked up in one query.
+    """
     step = tol / 4
-    ts = np.arange(t0, t1 + step / 2, step) if t1 > t0 else np.array([t0])
-    side = np.array([-u[1], u[0]]) * (tol / 2)
-    pts = x0[:2] + ts[:, None] * u[:2]
-    _, il = tree.query(pts + side)
-    _, ir = tree.query(pts - side)
-    ll, lr = lab[il], lab[ir]
-    ok = ((ll == a) & (lr == b)) | ((ll == b) & (lr == a))
-    if not ok.any():
-        return None
-    idx = np.flatnonzero(ok)
-    # Trim the unsupported ends; if the rest is mostly supported keep it
-    # whole (a dormer next to a ridge breaks the support locally) ...
-    if ok[idx[0] : idx[-1] + 1].mean() >= 0.5:
-        return float(ts[idx[0]]), float(ts[idx[-1]])
-    # ... else the longest run, splitting where supported samples are more
-    # than 2 steps apart.
-    breaks = np.flatnonzero(np.diff(idx) > 2)
-    starts = np.r_[idx[0], idx[breaks + 1]]
-    ends = np.r_[idx[breaks], idx[-1]]
-    k = int(np.argmax(ends - starts))
-    return float(ts[starts[k]]), float(ts[ends[k]])
+    samples, offsets = [], []
+    for _, _, x0, u, t0, t1 in lines:
+        ts = np.arange(t0, t1 + step / 2, step) if t1 > t0 else np.array([t0])
+        side = np.array([-u[1], u[0]]) * (tol / 2)
+        pts = x0[:2] + ts[:, None] * u[:2]
+        samples.append(ts)
+        offsets.append((pts + side, pts - side))
+    if not lines:
+        return []
+    _, il = tree.query(np.concatenate([o[0] for o in offsets]))
+    _, ir = tree.query(np.concatenate([o[1] for o in offsets]))
+    cut = np.cumsum([len(ts) for ts in samples])[:-1]
+    runs = []
+    for (a, b, *_), ts, ll, lr in zip(lines, samples, np.split(lab[il], cut), np.split(lab[ir], cut)):
+        ok = ((ll == a) & (lr == b)) | ((ll == b) & (lr == a))
+        if not ok.any():
+            runs.append(None)
+            continue
+        idx = np.flatnonzero(ok)
+        # Trim the unsupported ends; if the rest is mostly supported keep it
+        # whole (a dormer next to a ridge breaks the support locally) ...
+        if ok[idx[0] : idx[-1] + 1].mean() >= 0.5:
+            runs.append((float(ts[idx[0]]), float(ts[idx[-1]])))
+            continue
+        # ... else the longest run, splitting where supported samples are more
+        # than 2 steps apart.
+        breaks = np.flatnonzero(np.diff(idx) > 2)
+        starts = np.r_[idx[0], idx[breaks + 1]]
+        ends = np.r_[idx[breaks], idx[-1]]
+        k = int(np.argmax(ends - starts))
+        runs.append((float(ts[starts[k]]), float(ts[ends[k]])))
+    return runs
 
 
 def intersection_lines(
@@ -216,19 +237,21 @@ def intersection_lines(
     if xyz is not None and labels is not None and (labels >= 0).any():
         sel = labels >= 0
         tree, lab = cKDTree(np.asarray(xyz)[sel, :2]), np.asarray(labels)[sel]
-    for a, b, x0, u, t0, t1 in lines:
-        if tree is not None:
-            run = _supported_run(tree, lab, a, b, x0, u, t0, t1, line_tolerance)
+    if tree is not None:
+        kept = []
+        for (a, b, x0, u, _, _), run in zip(lines, _supported_runs(tree, lab, lines, line_tolerance)):
             if run is None or run[1] - run[0] < min_length / 2:
                 log.debug("line %d-%d rejected: planes not on both sides", a, b)
                 continue
-            t0, t1 = run
+            kept.append([a, b, x0, u, *run])
+        lines = kept
+    inside = _inside_intervals(outline, [(x0, u, t0 - snap, t1 + snap) for _, _, x0, u, t0, t1 in lines])
+    for (a, b, x0, u, t0, t1), intervals in zip(lines, inside):
         cands = []
         for c in (neighbours[a] | neighbours[b]) - {a, b}:
             p = triple_point(planes[a], planes[b], planes[c])
             if p is not None and np.all(np.isfinite(p)):
                 cands.append((p[:2] - x0[:2]) @ u[:2])
-        intervals = _inside_intervals(outline, x0, u, t0 - snap, t1 + snap)
         for lo, hi in intervals:
             cands.extend([lo, hi])
         cands = np.asarray(cands)
