@@ -86,6 +86,18 @@ def _select_smallest(cd, ci, m, kk):  # pragma: no cover - compiled
             break
 
 
+@njit(cache=True, inline="always")
+def _insert_sorted(bd, bi, p, d, index):  # pragma: no cover - compiled
+    """Put distance ``d`` of point ``index`` into slot ``p`` of the ascending
+    buffers, shifting the larger ones up (a stable insertion: ties keep their order)."""
+    while p > 0 and bd[p - 1] > d:
+        bd[p] = bd[p - 1]
+        bi[p] = bi[p - 1]
+        p -= 1
+    bd[p] = d
+    bi[p] = index
+
+
 @njit(cache=True)
 def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd, bi, cd, ci):  # pragma: no cover
     """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``; True on a tie.
@@ -116,13 +128,7 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
         _select_smallest(cd, ci, m, kk)
     cnt = min(m, kk)
     for s in range(cnt):
-        d, p = cd[s], s
-        while p > 0 and bd[p - 1] > d:
-            bd[p] = bd[p - 1]
-            bi[p] = bi[p - 1]
-            p -= 1
-        bd[p] = d
-        bi[p] = ci[s]
+        _insert_sorted(bd, bi, s, cd[s], ci[s])
     worst = bd[kk - 1] if cnt == kk else np.inf
     ring = 2
     while True:
@@ -169,12 +175,7 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
                             cnt += 1
                         else:
                             p = kk - 1
-                        while p > 0 and bd[p - 1] > d:
-                            bd[p] = bd[p - 1]
-                            bi[p] = bi[p - 1]
-                            p -= 1
-                        bd[p] = d
-                        bi[p] = perm[s]
+                        _insert_sorted(bd, bi, p, d, perm[s])
                         if cnt == kk:
                             worst = bd[kk - 1]
         ring += 1
