@@ -626,7 +626,12 @@ def t_junctions(a, b, grid: float = 1e-3) -> int:
     for one, other in ((a, b), (b, a)):
         xy = np.unique(np.round(shapely.get_coordinates(one) / grid), axis=0)
         theirs = np.round(shapely.get_coordinates(other) / grid)
+        if not len(theirs):
+            continue
         xy = xy[~np.isin(xy @ [1, 1j], theirs @ [1, 1j])]  # grid integers: exact as complex keys
+        # only vertices within the other's box can lie on its boundary (most of a plan is far from it)
+        lo, hi = theirs.min(axis=0) - 1, theirs.max(axis=0) + 1
+        xy = xy[((xy >= lo) & (xy <= hi)).all(axis=1)]
         if len(xy):
             count += int(np.sum(shapely.distance(shapely.points(xy * grid), other.boundary) < 0.5 * grid))
     return count
