@@ -15,7 +15,7 @@ from numba import njit
 
 from rooftrace.lidar._kernels import dense_cells
 
-__all__ = ["GridKnn"]
+__all__ = ["GridKnn", "insert_sorted"]
 
 # cKDTree.query spends most of a k = 60 query in its heap of neighbours.
 # Here the points sit in plan cells, sorted by height within a cell; a query
@@ -87,9 +87,11 @@ def _select_smallest(cd, ci, m, kk):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _insert_sorted(bd, bi, p, d, index):  # pragma: no cover - compiled
+def insert_sorted(bd, bi, p, d, index):  # pragma: no cover - compiled
     """Put distance ``d`` of point ``index`` into slot ``p`` of the ascending
-    buffers, shifting the larger ones up (a stable insertion: ties keep their order)."""
+    buffers ``bd`` / ``bi``, shifting the larger ones up (a stable insertion:
+    ties keep their order).  A k-nearest search keeps its best k with it
+    (``p`` = the count so far, or k - 1 once full).  Compiled, inlined."""
     while p > 0 and bd[p - 1] > d:
         bd[p] = bd[p - 1]
         bi[p] = bi[p - 1]
@@ -128,7 +130,7 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
         _select_smallest(cd, ci, m, kk)
     cnt = min(m, kk)
     for s in range(cnt):
-        _insert_sorted(bd, bi, s, cd[s], ci[s])
+        insert_sorted(bd, bi, s, cd[s], ci[s])
     worst = bd[kk - 1] if cnt == kk else np.inf
     ring = 2
     while True:
@@ -175,7 +177,7 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, bd,
                             cnt += 1
                         else:
                             p = kk - 1
-                        _insert_sorted(bd, bi, p, d, perm[s])
+                        insert_sorted(bd, bi, p, d, perm[s])
                         if cnt == kk:
                             worst = bd[kk - 1]
         ring += 1

@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from rooftrace.lidar.neighbours import insert_sorted
+
 __all__ = ["cell_lines", "cell_choice", "simplify_arcs", "points_in_boxes", "nearest_points"]
 
 
@@ -296,13 +298,7 @@ def nearest_points(px, py, lab, qx, qy, k, bucket, max_ring=4):  # pragma: no co
                             dx, dy = x - px[p], y - py[p]
                             d = dx * dx + dy * dy
                             if found < kk or d < bd[kk - 1]:
-                                s = found if found < kk else kk - 1
-                                while s > 0 and bd[s - 1] > d:
-                                    bd[s] = bd[s - 1]
-                                    bi[s] = bi[s - 1]
-                                    s -= 1
-                                bd[s] = d
-                                bi[s] = p
+                                insert_sorted(bd, bi, found if found < kk else kk - 1, d, p)
                                 if found < kk:
                                     found += 1
                     # inside the ring only its first and last columns are new
