@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group",
+__all__ = ["column_max", "column_min", "count_within", "dense_cells", "dense_unique", "lowest_per_group", "lowest_point_per_group",
            "nearest_within", "normal_links", "pair_pull", "rotate_to_smallest", "sort_by_bucket", "unique_pairs"]
 
 
@@ -62,6 +62,21 @@ def lowest_per_group(z: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndar
         if best[g] < 0 or z[i] < z[best[g]]:
             best[g] = i
     return best
+
+
+def column_min(a: np.ndarray) -> np.ndarray:
+    """``a.min(axis=0)`` of an (N, C) array, one column at a time.
+
+    numpy reduces a few columns along axis 0 row by row: 20-50 times
+    slower (22 ms for a million points' x and y).  A minimum is exact, so
+    the values are the same.
+    """
+    return np.array([a[:, j].min() for j in range(a.shape[1])], dtype=a.dtype)
+
+
+def column_max(a: np.ndarray) -> np.ndarray:
+    """``a.max(axis=0)`` of an (N, C) array, one column at a time (see :func:`column_min`)."""
+    return np.array([a[:, j].max() for j in range(a.shape[1])], dtype=a.dtype)
 
 
 def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,7 +158,7 @@ def dense_cells(ij: np.ndarray) -> np.ndarray:
     ``np.unique(ij, axis=0, return_inverse=True)[1]``: the grids of the
     outlier filter, the ground blocks and the spacing estimates.
     """
-    ij = ij - ij.min(axis=0)
+    ij = ij - column_min(ij)
     return dense_unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])[1]
 
 
@@ -341,8 +356,8 @@ def _plan_grid(xy: np.ndarray, radius: float) -> tuple:
     c are ``order[start[c]:start[c + 1]]`` (ascending), ``xs``, ``ys`` their
     coordinates in that order, so that a scan of a cell reads them in sequence.
     """
-    lo = xy.min(axis=0)
-    span = xy.max(axis=0) - lo
+    lo = column_min(xy)
+    span = column_max(xy) - lo
     side = max(float(radius), float(np.sqrt(span[0] * span[1] / (4.0 * len(xy)))), 1e-6)
     nx, ny = int(span[0] // side) + 1, int(span[1] // side) + 1
     ij = np.minimum(np.floor((xy - lo) / side).astype(np.int64), [nx - 1, ny - 1])

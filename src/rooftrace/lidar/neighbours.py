@@ -13,7 +13,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from rooftrace.lidar._kernels import dense_cells
+from rooftrace.lidar._kernels import column_max, column_min, dense_cells
 
 __all__ = ["GridKnn", "insert_sorted"]
 
@@ -314,8 +314,8 @@ class GridKnn:
         if not n > k >= 1:
             raise ValueError(f"GridKnn needs more than k = {k} >= 1 points, got {n}")
         self.k = int(k)
-        lo = self.xyz[:, :2].min(axis=0)
-        span = self.xyz[:, :2].max(axis=0) - lo
+        lo = column_min(self.xyz[:, :2])
+        span = column_max(self.xyz[:, :2]) - lo
         ij = np.floor((self.xyz[:, :2] - lo) / 2.0).astype(np.int64)
         occupied = int(dense_cells(ij).max()) + 1
         # cells about twice the k-th neighbour's distance: the 3 x 3 cells around a point
