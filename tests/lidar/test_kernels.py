@@ -5,6 +5,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rooftrace.lidar._kernels import (
+    column_max,
+    column_min,
+    cross_pairs,
     dense_unique,
     lowest_per_group,
     lowest_point_per_group,
@@ -177,3 +180,22 @@ def test_nearest_within_is_the_bounded_kdtree_query(dims):
     # a tie is two points at one distance, the nearest
     d = np.linalg.norm(data[j[tie]] - queries[tie], axis=1)
     assert np.allclose(d, dist[tie])
+
+
+def test_cross_pairs_is_the_numpy_mask():
+    rng = np.random.default_rng(6)
+    labels = rng.integers(-1, 20, 3000)
+    pairs = rng.integers(0, 3000, (20000, 2))
+    first, second = rng.random(20) < 0.5, rng.random(20) < 0.7
+    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    ok = (la >= 0) & (lb >= 0) & (la != lb)
+    ok[ok] &= first[la[ok]] & second[lb[ok]]
+    assert np.array_equal(cross_pairs(labels, pairs, first, second), ok)
+
+
+def test_column_bounds_are_numpys():
+    rng = np.random.default_rng(7)
+    for a in (rng.normal(size=(1000, 3)), rng.integers(-50, 50, (300, 2)), rng.normal(size=(1, 2))):
+        for ours, ref in ((column_min(a), a.min(axis=0)), (column_max(a), a.max(axis=0)),
+                          (column_min(a[:, :2]), a[:, :2].min(axis=0))):
+            assert np.array_equal(ours, ref) and ours.dtype == ref.dtype
