@@ -10,6 +10,7 @@ from rooftrace.lidar._kernels import (
     cross_pairs,
     dense_unique,
     lowest_per_group,
+    sector_nearest,
     lowest_point_per_group,
     pair_pull,
     sort_by_bucket,
@@ -199,3 +200,22 @@ def test_column_bounds_are_numpys():
         for ours, ref in ((column_min(a), a.min(axis=0)), (column_max(a), a.max(axis=0)),
                           (column_min(a[:, :2]), a[:, :2].min(axis=0))):
             assert np.array_equal(ours, ref) and ours.dtype == ref.dtype
+
+
+@pytest.mark.parametrize("n_sectors", [8, 6])
+def test_sector_nearest_is_the_brute_force(n_sectors):
+    rng = np.random.default_rng(8)
+    # points on a 5 cm lattice: equal distances, directions on the axes and diagonals, pairs at exactly the radius
+    xy = rng.integers(0, 200, (1500, 2)) * 0.05 + 1000.0
+    rows = np.arange(0, 1500, 7)
+    radius = 0.5
+    got = sector_nearest(xy, rows, radius, n_sectors)
+    width = 2 * np.pi / n_sectors
+    for r, i in enumerate(rows):
+        d = xy - xy[i]
+        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+        k = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / width).astype(int), n_sectors - 1)
+        for s in range(n_sectors):
+            cand = np.flatnonzero((d2 <= radius * radius) & (d2 > 0) & (k == s))
+            want = cand[np.lexsort((cand, d2[cand]))[0]] if len(cand) else -1
+            assert got[r, s] == want

@@ -316,36 +316,54 @@ def _cell_of(px, py, x0, y0, side, nx, ny):  # pragma: no cover
     return cx, cy
 
 
+#: rows per thread's share of :func:`_sector_scan`
+_SECTOR_SHARE = 256
+
+
 @njit(cache=True, parallel=True)
 def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n_sectors, out):  # pragma: no cover
     """Nearest point per angular sector of each row within ``radius``; ties go to the lower index.
 
-    ``xs``, ``ys`` are the coordinates in cell order (``order``), read in sequence.
+    ``xs``, ``ys`` are the coordinates in cell order (``order``), read in
+    sequence.  The cells may be smaller than ``radius``: those wholly
+    beyond it are skipped (the result does not depend on the cells).
     """
     r2 = radius * radius
     width = 2.0 * np.pi / n_sectors
-    for r in numba.prange(len(rows)):
-        i = rows[r]
-        px, py = xy[i, 0], xy[i, 1]
-        cx, cy = _cell_of(px, py, x0, y0, side, nx, ny)
-        best = np.full(n_sectors, np.inf)
-        for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
-            for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
-                c = gx * ny + gy
-                for s in range(start[c], start[c + 1]):
-                    dx = xs[s] - px
-                    dy = ys[s] - py
-                    d = dx * dx + dy * dy
-                    if d > r2 or d == 0.0:
-                        continue
-                    j = order[s]
-                    k = _octant(dx, dy) if n_sectors == 8 else -1
-                    if k < 0:
-                        a = np.arctan2(dy, dx) + np.pi
-                        k = min(int(a / width), n_sectors - 1)
-                    if d < best[k] or (d == best[k] and j < out[r, k]):
-                        best[k] = d
-                        out[r, k] = j
+    reach = int(np.ceil(radius / side))
+    margin = 1e-9 * side  # a point may sit an ulp outside its cell
+    for share in numba.prange((len(rows) + _SECTOR_SHARE - 1) // _SECTOR_SHARE):
+        best = np.empty(n_sectors)
+        for r in range(share * _SECTOR_SHARE, min(len(rows), (share + 1) * _SECTOR_SHARE)):
+            best[:] = np.inf
+            i = rows[r]
+            px, py = xy[i, 0], xy[i, 1]
+            cx, cy = _cell_of(px, py, x0, y0, side, nx, ny)
+            for gx in range(max(cx - reach, 0), min(cx + reach, nx - 1) + 1):
+                for gy in range(max(cy - reach, 0), min(cy + reach, ny - 1) + 1):
+                    # cells on the grid's border also hold the points clipped into them
+                    if 0 < gx < nx - 1 and 0 < gy < ny - 1:
+                        bx = x0 + gx * side
+                        by = y0 + gy * side
+                        ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
+                        ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
+                        if ddx * ddx + ddy * ddy > r2:
+                            continue
+                    c = gx * ny + gy
+                    for s in range(start[c], start[c + 1]):
+                        dx = xs[s] - px
+                        dy = ys[s] - py
+                        d = dx * dx + dy * dy
+                        if d > r2 or d == 0.0:
+                            continue
+                        j = order[s]
+                        k = _octant(dx, dy) if n_sectors == 8 else -1
+                        if k < 0:
+                            a = np.arctan2(dy, dx) + np.pi
+                            k = min(int(a / width), n_sectors - 1)
+                        if d < best[k] or (d == best[k] and j < out[r, k]):
+                            best[k] = d
+                            out[r, k] = j
 
 
 def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: int = 8) -> np.ndarray:
@@ -374,7 +392,9 @@ def sector_nearest(xy: np.ndarray, rows: np.ndarray, radius: float, n_sectors: i
     out = np.full((len(rows), n_sectors), -1, np.int64)
     if len(xy) < 2 or len(rows) == 0:
         return out
-    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, float(radius))
+    # cells of half the radius: the 5 x 5 cells around a point, less the
+    # corners beyond the radius, cover less than the 3 x 3 of a radius's width
+    order, xs, ys, start, nx, ny, x0, y0, side = _plan_grid(xy, 0.5 * float(radius))
     _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, float(radius), int(n_sectors), out)
     return out
 
