@@ -11,6 +11,8 @@ from rooftrace.lidar._kernels import (
     dense_unique,
     lowest_per_group,
     sector_nearest,
+    union_pairs,
+    unique_pairs,
     lowest_point_per_group,
     pair_pull,
     sort_by_bucket,
@@ -219,3 +221,13 @@ def test_sector_nearest_is_the_brute_force(n_sectors):
             cand = np.flatnonzero((d2 <= radius * radius) & (d2 > 0) & (k == s))
             want = cand[np.lexsort((cand, d2[cand]))[0]] if len(cand) else -1
             assert got[r, s] == want
+
+
+def test_unique_and_union_pairs_are_np_unique():
+    rng = np.random.default_rng(9)
+    for n, m in ((50, 3000), (2000, 300), (10**6, 500)):  # dense rows, sparse, the sorting path
+        p, q = rng.integers(0, n, (m, 2)), rng.integers(0, n, (m // 3, 2))
+        ref = np.unique(np.concatenate([p, q]), axis=0)
+        assert np.array_equal(unique_pairs(np.concatenate([p, q])[:, 0], np.concatenate([p, q])[:, 1], n), ref)
+        assert np.array_equal(union_pairs(p, q, n), ref)
+        assert np.array_equal(union_pairs(p, np.empty((0, 2), np.int64), n), np.unique(p, axis=0))

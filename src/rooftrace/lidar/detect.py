@@ -63,7 +63,7 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.lidar._kernels import column_max, column_min, unique_pairs
+from rooftrace.lidar._kernels import column_max, column_min, union_pairs
 from rooftrace.lidar.buildings import assemble_buildings, group_widths, split_patches
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
@@ -323,8 +323,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             across = sector_pairs(xyz[clean_idx, :2] - shift[:2], where[above[high]], reach, so.link_sectors,
                                   normals=feats[high, 4:7], max_angle=so.sector_max_angle,
                                   smooth=feats[high, 7] <= so.sector_max_residual * sigma_h)
-            both = np.concatenate([pairs, across])
-            pairs = unique_pairs(both[:, 0], both[:, 1], len(high))
+            pairs = union_pairs(pairs, across, len(high))
         normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)
