@@ -10,12 +10,13 @@ from rooftrace.lidar._kernels import (
     cross_pairs,
     dense_unique,
     lowest_per_group,
+    lowest_point_per_group,
+    pair_mask,
+    pair_pull,
     sector_nearest,
+    sort_by_bucket,
     union_pairs,
     unique_pairs,
-    lowest_point_per_group,
-    pair_pull,
-    sort_by_bucket,
 )
 from rooftrace.lidar.neighbours import GridKnn
 
@@ -194,6 +195,9 @@ def test_cross_pairs_is_the_numpy_mask():
     ok = (la >= 0) & (lb >= 0) & (la != lb)
     ok[ok] &= first[la[ok]] & second[lb[ok]]
     assert np.array_equal(cross_pairs(labels, pairs, first, second), ok)
+    flags = labels > 5
+    assert np.array_equal(pair_mask(flags, pairs, True), flags[pairs[:, 0]] & flags[pairs[:, 1]])
+    assert np.array_equal(pair_mask(flags, pairs, False), flags[pairs[:, 0]] | flags[pairs[:, 1]])
 
 
 def test_column_bounds_are_numpys():

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["column_max", "column_min", "count_within", "cross_pairs", "dense_cells", "dense_unique",
-           "lowest_per_group", "lowest_point_per_group", "nearest_within", "normal_links", "pair_pull",
+           "lowest_per_group", "lowest_point_per_group", "nearest_within", "normal_links", "pair_mask", "pair_pull",
            "rotate_to_smallest", "sort_by_bucket", "union_pairs", "unique_pairs"]
 
 
@@ -81,7 +81,8 @@ def column_max(a: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def cross_pairs(labels: np.ndarray, pairs: np.ndarray, first: np.ndarray, second: np.ndarray) -> np.ndarray:  # pragma: no cover
+def cross_pairs(labels: np.ndarray, pairs: np.ndarray, first: np.ndarray,
+                second: np.ndarray) -> np.ndarray:  # pragma: no cover
     """Which pairs join a ``first`` cluster to another, ``second`` one.
 
     One pass over the pairs instead of numpy's label gathers and masks
@@ -107,6 +108,31 @@ def cross_pairs(labels: np.ndarray, pairs: np.ndarray, first: np.ndarray, second
         a = labels[pairs[r, 0]]
         b = labels[pairs[r, 1]]
         keep[r] = a >= 0 and b >= 0 and a != b and first[a] and second[b]
+    return keep
+
+
+@njit(cache=True)
+def pair_mask(flags: np.ndarray, pairs: np.ndarray, both: bool) -> np.ndarray:  # pragma: no cover
+    """``flags[pairs[:, 0]] & flags[pairs[:, 1]]`` (``both``) or ``|`` (not ``both``), in one pass.
+
+    Parameters
+    ----------
+    flags : ndarray of shape (N,), bool
+        A flag per point.
+    pairs : ndarray of shape (M, 2), int
+        Point pairs.
+    both : bool
+        Both ends flagged, or at least one.
+
+    Returns
+    -------
+    ndarray of shape (M,), bool
+    """
+    keep = np.empty(len(pairs), np.bool_)
+    for r in range(len(pairs)):
+        a = flags[pairs[r, 0]]
+        b = flags[pairs[r, 1]]
+        keep[r] = (a and b) if both else (a or b)
     return keep
 
 
@@ -139,7 +165,10 @@ def dense_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 @njit(cache=True)
 def _sorted_rows(start, col, out, u):  # pragma: no cover - compiled
-    """Each row ``r``'s values ``col[start[r]:start[r + 1]]`` sorted, the distinct ones written as (r, value) from ``out[u]`` on; the new u."""
+    """Each row r's values ``col[start[r]:start[r + 1]]`` sorted, the distinct ones written as (r, value).
+
+    They go to ``out[u]`` on; returns the new u.
+    """
     for r in range(len(start) - 1):
         lo, hi = start[r], start[r + 1]
         if hi - lo > 48:

@@ -76,7 +76,8 @@ def insert_sorted(bd, bi, p, d, index):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _block_candidates(px, py, pz, cx, cy, start, perm, xs, ys, zs, x0, y0, side, nx, ny, bound, cd, ci):  # pragma: no cover
+def _block_candidates(px, py, pz, cx, cy, start, perm, xs, ys, zs, x0, y0, side, nx, ny, bound, cd,
+                      ci):  # pragma: no cover
     """Squared distances (and points) of the 3 x 3 cells around cell (cx, cy) below ``bound``, into ``cd``, ``ci``.
 
     Returns their count.  ``bound`` inf: every point of the cells.
@@ -168,7 +169,8 @@ def _smallest_sorted(cd, ci, m, bound, kk, hist, bd, bi):  # pragma: no cover - 
 
 
 @njit(cache=True)
-def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, guess, bd, bi, cd, ci, hist):  # pragma: no cover
+def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, guess, bd, bi, cd, ci,
+             hist):  # pragma: no cover
     """The k + 1 nearest points of point i into ``bd`` (squared distances, ascending), ``bi``.
 
     Returns (tie, count): True when two of the k + 1 nearest distances

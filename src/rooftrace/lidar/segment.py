@@ -47,6 +47,7 @@ from rooftrace.lidar._kernels import (
     dense_unique,
     lowest_point_per_group,
     normal_links,
+    pair_mask,
     sector_nearest,
     unique_pairs,
 )
@@ -482,7 +483,7 @@ def join_strips(labels: np.ndarray, pairs: np.ndarray, z: np.ndarray, strips: np
     """
     members = np.asarray(members, bool).copy()
     on_strip = np.asarray(strips, bool)[labels]
-    near = pairs[on_strip[pairs[:, 0]] | on_strip[pairs[:, 1]]]
+    near = pairs[pair_mask(on_strip, pairs, False)]
     both = np.concatenate([near, near[:, ::-1]])
     below = both[z[both[:, 0]] <= z[both[:, 1]] + max_drop]
     while True:
