@@ -11,7 +11,7 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["column_max", "column_min", "count_within", "cross_pairs", "dense_cells", "dense_unique",
+__all__ = ["cell_gap2", "column_max", "column_min", "count_within", "cross_pairs", "dense_cells", "dense_unique",
            "lowest_per_group", "lowest_point_per_group", "nearest_within", "normal_links", "pair_mask", "pair_pull",
            "rotate_to_smallest", "sort_by_bucket", "union_pairs", "unique_pairs"]
 
@@ -192,11 +192,7 @@ def _sorted_rows(start, col, out, u):  # pragma: no cover - compiled
 @njit(cache=True)
 def _unique_rows_of_pairs(a, b, n):  # pragma: no cover - compiled
     """The distinct (a, b) of :func:`unique_pairs`: a counting sort on ``a``, then each (short) row sorted."""
-    start = np.zeros(n + 1, np.int64)
-    for e in range(len(a)):
-        start[a[e] + 1] += 1
-    for r in range(n):
-        start[r + 1] += start[r]
+    start = _key_starts(a, n)
     # each b straight into its row (the rows are sorted next, so their order in it does not matter)
     fill = start[:-1].copy()
     col = np.empty(len(a), np.int64)
@@ -396,6 +392,17 @@ def _cell_of(px, py, x0, y0, side, nx, ny):  # pragma: no cover
     return cx, cy
 
 
+@njit(cache=True, inline="always")
+def cell_gap2(px, py, gx, gy, x0, y0, side, margin):  # pragma: no cover - compiled
+    """Squared plan distance from (px, py) to grid cell (gx, gy), less ``margin`` per axis (a point may sit an ulp
+    outside its cell): a cell this far or farther holds nothing nearer.  Compiled, inlined."""
+    bx = x0 + gx * side
+    by = y0 + gy * side
+    ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
+    ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
+    return ddx * ddx + ddy * ddy
+
+
 #: rows per thread's share of :func:`_sector_scan`
 _SECTOR_SHARE = 256
 
@@ -422,13 +429,8 @@ def _sector_scan(xy, order, xs, ys, start, nx, ny, x0, y0, side, rows, radius, n
             for gx in range(max(cx - reach, 0), min(cx + reach, nx - 1) + 1):
                 for gy in range(max(cy - reach, 0), min(cy + reach, ny - 1) + 1):
                     # cells on the grid's border also hold the points clipped into them
-                    if 0 < gx < nx - 1 and 0 < gy < ny - 1:
-                        bx = x0 + gx * side
-                        by = y0 + gy * side
-                        ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
-                        ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
-                        if ddx * ddx + ddy * ddy > r2:
-                            continue
+                    if 0 < gx < nx - 1 and 0 < gy < ny - 1 and cell_gap2(px, py, gx, gy, x0, y0, side, margin) > r2:
+                        continue
                     c = gx * ny + gy
                     for s in range(start[c], start[c + 1]):
                         dx = xs[s] - px
@@ -497,13 +499,20 @@ def _plan_grid(xy: np.ndarray, radius: float) -> tuple:
 
 
 @njit(cache=True)
-def _counting_order(key, n_keys):  # pragma: no cover - compiled
-    """``np.argsort(key, kind="stable")`` of keys in [0, n_keys) and where each key starts in it, by counting."""
+def _key_starts(key, n_keys):  # pragma: no cover - compiled
+    """Where each key of [0, n_keys) starts in ``key`` sorted (n_keys + 1 offsets), by counting."""
     start = np.zeros(n_keys + 1, np.int64)
     for i in range(len(key)):
         start[key[i] + 1] += 1
     for c in range(n_keys):
         start[c + 1] += start[c]
+    return start
+
+
+@njit(cache=True)
+def _counting_order(key, n_keys):  # pragma: no cover - compiled
+    """``np.argsort(key, kind="stable")`` of keys in [0, n_keys) and where each key starts in it, by counting."""
+    start = _key_starts(key, n_keys)
     fill = start[:-1].copy()
     order = np.empty(len(key), np.int64)
     for i in range(len(key)):

@@ -13,7 +13,7 @@ import numba
 import numpy as np
 from numba import njit
 
-from rooftrace.lidar._kernels import column_max, column_min, dense_cells
+from rooftrace.lidar._kernels import cell_gap2, column_max, column_min, dense_cells
 
 __all__ = ["GridKnn", "insert_sorted"]
 
@@ -89,13 +89,9 @@ def _block_candidates(px, py, pz, cx, cy, start, perm, xs, ys, zs, x0, y0, side,
     for gx in range(max(cx - 1, 0), min(cx + 1, nx - 1) + 1):
         for gy in range(max(cy - 1, 0), min(cy + 1, ny - 1) + 1):
             # cells on the grid's border also hold the points clipped into them
-            if finite and 0 < gx < nx - 1 and 0 < gy < ny - 1:
-                bx = x0 + gx * side
-                by = y0 + gy * side
-                ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
-                ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
-                if ddx * ddx + ddy * ddy >= bound:
-                    continue
+            if finite and 0 < gx < nx - 1 and 0 < gy < ny - 1 and cell_gap2(px, py, gx, gy, x0, y0, side,
+                                                                          margin) >= bound:
+                continue
             c = gx * ny + gy
             a, b = start[c], start[c + 1]
             if finite and a < b:
@@ -212,13 +208,8 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, gue
             for gy in range(max(cy - ring, 0), min(cy + ring, ny - 1) + 1):
                 if not side_x and gy != cy - ring and gy != cy + ring:
                     continue  # inside the ring: visited already
-                if 0 < gx < nx - 1 and 0 < gy < ny - 1:
-                    bx = x0 + gx * side
-                    by = y0 + gy * side
-                    ddx = max(max(bx - px, px - (bx + side)) - margin, 0.0)
-                    ddy = max(max(by - py, py - (by + side)) - margin, 0.0)
-                    if ddx * ddx + ddy * ddy >= worst:
-                        continue
+                if 0 < gx < nx - 1 and 0 < gy < ny - 1 and cell_gap2(px, py, gx, gy, x0, y0, side, margin) >= worst:
+                    continue
                 c = gx * ny + gy
                 a, b = start[c], start[c + 1]
                 if a < b and worst < np.inf:
