@@ -260,13 +260,29 @@ def _cut(footprints: list, cells: list, snap: float) -> list[tuple[Any, list]]:
     return out
 
 
+def _inside(poly, xyz: np.ndarray) -> np.ndarray:
+    """Which of the points lie inside ``poly`` (prepared): only those in its box are tested.
+
+    ``contains_xy`` costs per point tested, and a level of a large roof holds a small share of the
+    building's points; outside the box nothing is inside, so the mask is the same.
+    """
+    inside = np.zeros(len(xyz), dtype=bool)
+    if not len(xyz):
+        return inside
+    x0, y0, x1, y1 = poly.bounds
+    x, y = xyz[:, 0], xyz[:, 1]
+    box = np.flatnonzero((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
+    inside[box] = shapely.contains_xy(poly, x[box], y[box])
+    return inside
+
+
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
           options: ModelOptions, lods: tuple[str, ...] = LODS) -> tuple[PartModel, dict[str, str]]:
     """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing."""
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
     shapely.prepare(footprint)
-    inside = shapely.contains_xy(footprint, xyz[:, 0], xyz[:, 1]) if len(xyz) else np.zeros(0, bool)
+    inside = _inside(footprint, xyz)
     z = xyz[inside, 2]
     part.attributes["n_points"] = int(len(z))
     if not len(z):
@@ -295,7 +311,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             for members in _levels(cells, options.level_step):
                 poly = shapely.union_all([cells[i][0] for i in members])
                 shapely.prepare(poly)
-                zl = xyz[shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]), 2]
+                zl = xyz[_inside(poly, xyz), 2]
                 hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
                 levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
             part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)

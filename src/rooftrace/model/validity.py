@@ -210,7 +210,8 @@ def surface_triangles(polys: np.ndarray, flat: np.ndarray, surf: np.ndarray) -> 
     tris, of = shapely.get_parts(shapely.constrained_delaunay_triangles(polys), return_index=True)
     if not len(tris):
         return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    xy = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
+    # triangles have no holes: their coordinates are their exterior rings' (no ring objects made)
+    xy = shapely.get_coordinates(tris).reshape(-1, 4, 2)[:, :3]
     # back to the vertex each corner is: the triangulation copies the vertices it is given, so
     # (surface, x, y) finds it bit for bit
     table = _rows(np.column_stack([surf.astype(np.float64), flat]))
