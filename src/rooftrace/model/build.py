@@ -41,7 +41,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
-from rooftrace.model.validity import overlapping_parts, solid_errors, solid_plan, solid_volume
+from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
 
 __all__ = ["ModelOptions", "build_model", "ground_height"]
 
@@ -366,17 +366,24 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
     vertex.  ``parts`` are changed in place.
     """
     tol = 0.9 * options.snap  # above the half diagonal of a lattice cell, below a step
+    extents: dict[int, tuple[Solid, PartExtent]] = {}  # by id of the solid: measured once, again only when rebuilt
+
+    def extent(solid: Solid) -> PartExtent:
+        if id(solid) not in extents:
+            extents[id(solid)] = (solid, PartExtent.of(solid, grid=options.grid))  # the solid kept: ids stay its own
+        return extents[id(solid)][1]
+
     for lod in LODS:
         bases = {k: cut[k] for k in range(len(parts))}
         for attempt in range(rounds + 1):
             have = [k for k, p in enumerate(parts) if lod in p.lods]
-            pairs = overlapping_parts([parts[k].lods[lod] for k in have], grid=options.grid)
+            pairs = overlapping_extents([extent(parts[k].lods[lod]) for k in have], grid=options.grid)
             if not pairs:
                 break
             if attempt == rounds:
                 log.warning("LoD %s: parts %s still overlap", lod, [(have[a] + 1, have[b] + 1) for a, b in pairs])
                 break
-            plans = {have[i]: solid_plan(parts[have[i]].lods[lod], grid=options.grid) for pair in pairs for i in pair}
+            plans = {have[i]: extent(parts[have[i]].lods[lod]).plan for pair in pairs for i in pair}
             extra: dict[int, list] = {}
             for a, b in pairs:
                 for i, j in ((have[a], have[b]), (have[b], have[a])):

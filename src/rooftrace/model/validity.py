@@ -39,7 +39,8 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 
 __all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_normals", "surface_triangles",
-           "triangle_tilt", "surface_tilt", "overlapping_parts", "t_junctions", "solid_plan", "surface_polygons"]
+           "triangle_tilt", "surface_tilt", "overlapping_parts", "PartExtent",
+           "overlapping_extents", "t_junctions", "solid_plan", "surface_polygons"]
 
 
 def _ring_table(surfaces):
@@ -573,23 +574,66 @@ def overlapping_parts(solids, *, tolerance: float = 0.0, grid: float = 1e-3) -> 
     >>> overlapping_parts([a, b]), overlapping_parts([a, b, c]), overlapping_parts([a, c], tolerance=0.01)
     ([], [(0, 2), (1, 2)], [])
     """
-    plans, low, high = [], [], []
-    for solid in solids:
+    return overlapping_extents([PartExtent.of(solid, tolerance=tolerance, grid=grid) for solid in solids],
+                               tolerance=tolerance, grid=grid)
+
+
+class PartExtent:
+    """What :func:`overlapping_parts` measures of one solid: its plan and height range, shrunk by ``tolerance``.
+
+    Made once per solid, it serves every test of that solid against its
+    neighbours (a building's parts are tested again after each rebuild of
+    one of them).  ``vertices`` and ``boundary`` (for the T-junction test)
+    are made on first use.
+
+    Attributes
+    ----------
+    plan : shapely Polygon or MultiPolygon
+    low, high : float
+        Height range (m).
+    grid : float
+    """
+
+    def __init__(self, plan, low: float, high: float, grid: float):
+        self.plan, self.low, self.high, self.grid = plan, low, high, grid
+        self._vertices = self._boundary = None
+
+    @classmethod
+    def of(cls, solid, *, tolerance: float = 0.0, grid: float = 1e-3) -> PartExtent:
+        """The extent of a 2.5D ``solid`` (see :func:`overlapping_parts` for the arguments)."""
         plan = solid_plan(solid, grid=grid)
-        z = np.concatenate([np.asarray(r)[:, 2] for s in solid.surfaces for r in s.rings])
-        plans.append(plan.buffer(-tolerance, join_style="mitre") if tolerance > 0 else plan)
-        low.append(np.round(z.min() / grid) * grid + tolerance)
-        high.append(np.round(z.max() / grid) * grid - tolerance)
-    plans = np.array(plans, dtype=object)
+        z = _ring_table(solid.surfaces)[0][:, 2]
+        return cls(plan.buffer(-tolerance, join_style="mitre") if tolerance > 0 else plan,
+                   np.round(z.min() / grid) * grid + tolerance, np.round(z.max() / grid) * grid - tolerance, grid)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """The plan's distinct vertices in grid units (rows sorted)."""
+        if self._vertices is None:
+            self._vertices = np.unique(np.round(shapely.get_coordinates(self.plan) / self.grid), axis=0)
+        return self._vertices
+
+    @property
+    def boundary(self):
+        if self._boundary is None:
+            self._boundary = self.plan.boundary
+        return self._boundary
+
+
+def overlapping_extents(extents: list[PartExtent], *, tolerance: float = 0.0,
+                        grid: float = 1e-3) -> list[tuple[int, int]]:
+    """:func:`overlapping_parts` of solids given by their :class:`PartExtent` (made with the same arguments)."""
+    plans = np.array([e.plan for e in extents], dtype=object)
     i, j = shapely.STRtree(plans).query(plans, predicate="intersects")
     keep = i < j
     i, j = i[keep], j[keep]
     # interiors meet (touching along a party wall does not count), or the shared wall has a T-junction
     inner = shapely.relate_pattern(plans[i], plans[j], "T********")
     if tolerance <= 0:
-        inner |= np.array([t_junctions(plans[a], plans[b], grid) > 0 for a, b in zip(i.tolist(), j.tolist())], bool)
+        inner |= np.array([_t_junctions(extents[a], extents[b]) > 0 for a, b in zip(i.tolist(), j.tolist())], bool)
     pairs = zip(i[inner].tolist(), j[inner].tolist())
-    return sorted((a, b) for a, b in pairs if min(high[a], high[b]) > max(low[a], low[b]))
+    return sorted((a, b) for a, b in pairs if min(extents[a].high, extents[b].high) > max(extents[a].low,
+                                                                                          extents[b].low))
 
 
 def t_junctions(a, b, grid: float = 1e-3) -> int:
@@ -623,12 +667,17 @@ def t_junctions(a, b, grid: float = 1e-3) -> int:
     >>> t_junctions(left, right), t_junctions(left, kinked)
     (0, 1)
     """
-    count = 0
+    return _t_junctions(PartExtent(a, 0.0, 0.0, grid), PartExtent(b, 0.0, 0.0, grid))
+
+
+def _t_junctions(a: PartExtent, b: PartExtent) -> int:
+    """:func:`t_junctions` of two extents' plans (their vertices and boundaries made once per extent)."""
+    count, grid = 0, a.grid
     for one, other in ((a, b), (b, a)):
-        xy = np.unique(np.round(shapely.get_coordinates(one) / grid), axis=0)
-        theirs = np.round(shapely.get_coordinates(other) / grid)
+        theirs = other.vertices  # distinct: the same membership and box as all of them
         if not len(theirs):
             continue
+        xy = one.vertices
         xy = xy[~np.isin(xy @ [1, 1j], theirs @ [1, 1j])]  # grid integers: exact as complex keys
         # only vertices within the other's box can lie on its boundary (most of a plan is far from it)
         lo, hi = theirs.min(axis=0) - 1, theirs.max(axis=0) + 1
