@@ -615,8 +615,10 @@ class PartExtent:
 
     @property
     def boundary(self):
+        """The plan's boundary, prepared."""
         if self._boundary is None:
             self._boundary = self.plan.boundary
+            shapely.prepare(self._boundary)
         return self._boundary
 
 
@@ -683,5 +685,9 @@ def _t_junctions(a: PartExtent, b: PartExtent) -> int:
         lo, hi = theirs.min(axis=0) - 1, theirs.max(axis=0) + 1
         xy = xy[((xy >= lo) & (xy <= hi)).all(axis=1)]
         if len(xy):
-            count += int(np.sum(shapely.distance(shapely.points(xy * grid), other.boundary) < 0.5 * grid))
+            # the exact distance only for the vertices within a grid step (an indexed test of the
+            # prepared boundary): those further off are not within half a step either
+            points = shapely.points(xy * grid)
+            near = shapely.dwithin(points, other.boundary, grid)
+            count += int(np.sum(shapely.distance(points[near], other.boundary) < 0.5 * grid))
     return count
