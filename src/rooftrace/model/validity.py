@@ -476,13 +476,24 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
     xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
+    span = keys.max(axis=0) + 1
     # vertex numbers serve only to tell vertices apart: any numbering of the distinct rows will do
-    _, first, vid = np.unique(_rows(keys), return_index=True, return_inverse=True)
+    # (one integer per row when they fit: much faster than rows)
+    packed = float(span[0]) * float(span[1]) * float(span[2]) < 2.0**62
+    if packed:
+        code = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+        codes, first, vid = np.unique(code, return_index=True, return_inverse=True)
+    else:
+        _, first, vid = np.unique(_rows(keys), return_index=True, return_inverse=True)
     unique, vid = keys[first], vid.ravel()
     if snap_tolerance > 0:
         # val3dity compares decoded floats (``d < tol``): a pair exactly one tolerance apart may
         # merge or not there, so it counts as merged here
-        pairs = cKDTree(unique * grid).query_pairs(snap_tolerance * (1 + 1e-6), output_type="ndarray")
+        reach = snap_tolerance * (1 + 1e-6)
+        if packed and grid * (1 + 1e-9) <= reach < grid * np.sqrt(2.0) * (1 - 1e-9):
+            pairs = _grid_neighbours(unique, codes, span)  # within one step and under a diagonal: axis neighbours
+        else:
+            pairs = cKDTree(unique * grid).query_pairs(reach, output_type="ndarray")
         if len(pairs):
             vid = components(len(unique), pairs)[vid].astype(np.int64)
     errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity,
@@ -524,6 +535,18 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     if not volume > 0:
         errors.append(f"surfaces face inward (signed volume {volume:.3f} m³)")
     return errors
+
+
+def _grid_neighbours(unique: np.ndarray, codes: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """Pairs of rows of ``unique`` (distinct grid vertices, ``codes`` their sorted packed values) one step apart
+    along one axis: the pairs a k-d tree finds within a radius of one step (and under a diagonal's)."""
+    out = []
+    for axis, step in enumerate((span[1] * span[2], span[2], 1)):
+        has = np.flatnonzero(unique[:, axis] + 1 < span[axis])  # its neighbour's code would be another row's
+        at = np.minimum(np.searchsorted(codes, codes[has] + step), len(codes) - 1)
+        found = codes[at] == codes[has] + step
+        out.append(np.column_stack([has[found], at[found]]))
+    return np.vstack(out)
 
 
 def is_valid_solid(solid, **kwargs) -> bool:
