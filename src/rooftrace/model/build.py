@@ -192,7 +192,7 @@ def _with_face_corners(footprint, cells: list):
     (val3dity: repeated points).  As a footprint vertex it rounds as the
     faces' corner does.  The footprint's shape is unchanged.
     """
-    corners = shapely.multipoints(np.vstack([shapely.get_coordinates(c) for c, _ in cells]))
+    corners = shapely.multipoints(shapely.get_coordinates(np.array([c for c, _ in cells], dtype=object)))
     snapped = shapely.snap(footprint, corners, 1e-7)
     return snapped if snapped.is_valid and abs(snapped.area - footprint.area) <= 1e-9 * footprint.area else footprint
 

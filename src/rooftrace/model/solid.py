@@ -727,9 +727,14 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True]) if len(wall_of) else np.zeros(0, np.int64)
     after[ends] = np.r_[0, ends[:-1] + 1]
     upright = wall_v == wall_v[after]
-    edge_key = np.column_stack([wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]])
-    keys, uses = np.unique(edge_key, axis=0, return_counts=True) if len(edge_key) else (edge_key, np.zeros(0, int))
-    saddle_v = np.unique(keys[uses > 2, 0])
+    edge_v, edge_z = wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]
+    saddle_v = np.zeros(0, dtype=np.int64)
+    if len(edge_v):
+        # one integer per (vertex, lower height): a vertical edge's uses counted without unique rows
+        z0 = edge_z.min()
+        zspan = int(edge_z.max() - z0) + 1
+        codes, uses = np.unique(edge_v * zspan + (edge_z - z0), return_counts=True)
+        saddle_v = np.unique(codes[uses > 2] // zspan)
     if len(saddle_v):
         at = saddle_v[np.lexsort((xy[saddle_v, 1], xy[saddle_v, 0]))].tolist()  # in (x, y) order
         highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]
