@@ -197,14 +197,18 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     np.cumsum(np.bincount(key, minlength=nx * ny), out=cell_ptr[1:])
     # the kernel works on the points in cell order (a cell's points are
     # contiguous in memory, not scattered over the building); it visits them
-    # in the same order as before, so every sum is the same
+    # in the same order as before, so every sum is the same.  Each edge is
+    # stored once, at its lower end point, with the other end's coordinates
+    # and its length beside it (read in order, not gathered)
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
-    adj_ptr, adj_idx = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
+    adj_ptr, adj_edge = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
+    sorted_xy = np.ascontiguousarray(xy[order], dtype=np.float64)
+    far_end = sorted_xy[rank[edges[adj_edge, 1]]]
     ps = np.empty(n)
-    ps[order] = _ps_avg(np.ascontiguousarray(xy[order], dtype=np.float64), float(radius),
-                        np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr, adj_idx, rank[edges[:, 1]],
-                        lengths)
+    ps[order] = _ps_avg(sorted_xy, float(radius), np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr,
+                        np.ascontiguousarray(far_end[:, 0]), np.ascontiguousarray(far_end[:, 1]),
+                        np.ascontiguousarray(lengths[adj_edge], dtype=np.float64))
     bad = ~np.isfinite(ps)
     if bad.any():
         touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
@@ -231,33 +235,72 @@ def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
-    # points in cell order (cell_ptr indexes xy directly); each edge is stored
-    # once, at its lower end point; it counts for point i when both end
-    # points are in i's ball (the other end tested where the edge is met: one
-    # pass over the ball, in the same order as marking it first did)
+def _lengths_in_ball(i, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball,
+                     out):  # pragma: no cover
+    # the lengths of the edges wholly inside point i's ball, in the order the sum takes them: the
+    # ball's points by cell (cx, then cy) and within a cell by rank, each point's edges in turn.  The
+    # three cells of a column are consecutive in rank, so a column is one range.  Both tests write
+    # unconditionally and advance the count by the test (no branch to mispredict).
+    xi, yi = xy[i, 0], xy[i, 1]
+    m = 0
+    lo, hi = max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)
+    for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
+        for j in range(cell_ptr[cx * ny + lo], cell_ptr[cx * ny + hi]):
+            dx = xy[j, 0] - xi
+            dy = xy[j, 1] - yi
+            ball[m] = j
+            m += dx * dx + dy * dy <= r2
+    count = 0
+    for k in range(m):
+        j = ball[k]
+        for q in range(adj_ptr[j], adj_ptr[j + 1]):
+            ex = far_x[q] - xi
+            ey = far_y[q] - yi
+            out[count] = adj_length[q]
+            count += ex * ex + ey * ey <= r2
+    return count
+
+
+@njit(cache=True)
+def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length):  # pragma: no cover
+    # points in cell order (cell_ptr indexes xy directly).  Each point's mean
+    # is one sequential sum, as it always was (another order changes ps_avg by
+    # 1e-15, which flipped a building's outline); four points' sums run side
+    # by side so that their additions overlap instead of waiting on each other
     n = len(xy)
     r2 = radius * radius
     out = np.empty(n, dtype=np.float64)
-    for i in range(n):
-        xi, yi = xy[i, 0], xy[i, 1]
-        total = 0.0
-        count = 0
-        for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
-            for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
-                c = cx * ny + cy
-                for j in range(cell_ptr[c], cell_ptr[c + 1]):
-                    dx = xy[j, 0] - xi
-                    dy = xy[j, 1] - yi
-                    if dx * dx + dy * dy > r2:
-                        continue
-                    for q in range(adj_ptr[j], adj_ptr[j + 1]):
-                        e = adj_edge[q]
-                        h = edge_hi[e]
-                        ex = xy[h, 0] - xi
-                        ey = xy[h, 1] - yi
-                        if ex * ex + ey * ey <= r2:
-                            total += lengths[e]
-                            count += 1
-        out[i] = total / count if count > 0 else np.nan
+    ball = np.empty(n, dtype=np.int64)
+    ne = len(adj_length)
+    v0, v1, v2, v3 = np.empty(ne), np.empty(ne), np.empty(ne), np.empty(ne)
+    for i0 in range(0, n - 3, 4):
+        c0 = _lengths_in_ball(i0, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v0)
+        c1 = _lengths_in_ball(i0 + 1, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v1)
+        c2 = _lengths_in_ball(i0 + 2, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v2)
+        c3 = _lengths_in_ball(i0 + 3, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v3)
+        t0, t1, t2, t3 = 0.0, 0.0, 0.0, 0.0
+        both = min(min(c0, c1), min(c2, c3))
+        for k in range(both):
+            t0 += v0[k]
+            t1 += v1[k]
+            t2 += v2[k]
+            t3 += v3[k]
+        for k in range(both, c0):
+            t0 += v0[k]
+        for k in range(both, c1):
+            t1 += v1[k]
+        for k in range(both, c2):
+            t2 += v2[k]
+        for k in range(both, c3):
+            t3 += v3[k]
+        out[i0] = t0 / c0 if c0 > 0 else np.nan
+        out[i0 + 1] = t1 / c1 if c1 > 0 else np.nan
+        out[i0 + 2] = t2 / c2 if c2 > 0 else np.nan
+        out[i0 + 3] = t3 / c3 if c3 > 0 else np.nan
+    for i in range(n - n % 4, n):
+        c0 = _lengths_in_ball(i, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v0)
+        t0 = 0.0
+        for k in range(c0):
+            t0 += v0[k]
+        out[i] = t0 / c0 if c0 > 0 else np.nan
     return out
