@@ -138,6 +138,35 @@ def test_point_spacing_sums_in_the_scan_order(rng):
         assert got[i] == total / count
 
 
+def _triangle_set(triangles):
+    t = np.sort(np.asarray(triangles), axis=1)
+    return t[np.lexsort(t.T[::-1])]
+
+
+def test_delaunay_mesh_is_qhulls_mesh_whichever_library_made_it(rng):
+    from scipy.spatial import Delaunay
+
+    from rooftrace.contour.spacing import _certified_triangle_mesh, delaunay_mesh
+
+    scattered = rng.uniform(0, 40, (2000, 2))  # in a building's local frame: Triangle's mesh, certified
+    grid = np.mgrid[0:10:0.5, 0:6:0.5].reshape(2, -1).T.astype(float)  # four points on every circle
+    far = scattered + [85_000.0, 446_000.0]  # national-grid coordinates: Qhull's round-off decides
+    assert _certified_triangle_mesh(scattered) is not None
+    assert _certified_triangle_mesh(grid) is None
+    assert _certified_triangle_mesh(far) is None
+    for xy in (scattered, grid, far):
+        edges, lengths, triangles, neighbours = delaunay_mesh(xy)
+        assert np.array_equal(_triangle_set(triangles), _triangle_set(Delaunay(xy).simplices))
+        a, b, c = (xy[triangles[:, k]] for k in range(3))
+        assert ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] > 0).all()  # counter-clockwise
+        # the neighbour opposite corner k shares the other two corners
+        t, k = np.nonzero(neighbours >= 0)
+        for ti, ki in zip(t[:200], k[:200]):
+            u = neighbours[ti, ki]
+            assert {triangles[ti, (ki + 1) % 3], triangles[ti, (ki + 2) % 3]} <= set(triangles[u])
+        assert len(edges) == len(lengths) and (edges[:, 0] < edges[:, 1]).all()
+
+
 def test_degenerate_input_raises_geometry_error():
     with pytest.raises(GeometryError, match="too_few_points"):
         alpha_shape(np.zeros((2, 2)))
