@@ -78,7 +78,8 @@ def test_lift_to_roof_takes_the_nearest_roof_point_ties_to_the_lower_index():
     flagged = below_roof(xyz, 1.2)
     pairs = cKDTree(xyz[:, :2]).query_pairs(1.2, output_type="ndarray")
     d = np.hypot(*(xyz[pairs[:, 0], :2] - xyz[pairs[:, 1], :2]).T)
-    src, dst, dist = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]]), np.tile(d, 2)
+    src, dst = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
+    dist = np.tile(d, 2)
     use = flagged[src] & ~flagged[dst]
     order = np.lexsort((dst[use], dist[use], src[use]))
     s, t = src[use][order], dst[use][order]
