@@ -165,6 +165,12 @@ def test_delaunay_mesh_is_qhulls_mesh_whichever_library_made_it(rng):
             u = neighbours[ti, ki]
             assert {triangles[ti, (ki + 1) % 3], triangles[ti, (ki + 2) % 3]} <= set(triangles[u])
         assert len(edges) == len(lengths) and (edges[:, 0] < edges[:, 1]).all()
+    # Triangle is not asked where it could crash (it did on 18 copies of one point): Qhull decides
+    for degenerate in (np.tile([2.0, 3.0], (18, 1)), np.column_stack([np.arange(9.0), 2.0 * np.arange(9.0)])):
+        assert _certified_triangle_mesh(degenerate) is None
+        with pytest.raises(GeometryError):
+            delaunay_mesh(degenerate)
+    assert _certified_triangle_mesh(np.concatenate([scattered, scattered[:3]])) is None  # a point twice
 
 
 def test_degenerate_input_raises_geometry_error():

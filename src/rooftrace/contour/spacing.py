@@ -122,6 +122,8 @@ def _certified_triangle_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | 
     Qhull.  Each triangle's corners come in Triangle's order, not Qhull's,
     which only the order of sums over a triangle's corners sees.
     """
+    if not _distinct_off_one_line(xy):
+        return None  # Triangle crashes on some such sets (18 copies of one point); Qhull says why
     out = _triangle.triangulate({"vertices": np.ascontiguousarray(xy)}, "Qzn")
     if "triangles" not in out or len(out["triangles"]) == 0:
         return None
@@ -133,6 +135,16 @@ def _certified_triangle_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | 
     if not _certified(xy, triangles, neighbours, extent2, _QHULL_MARGIN):
         return None
     return triangles, neighbours
+
+
+def _distinct_off_one_line(xy: np.ndarray) -> bool:
+    """No point twice, and some point off the line through the first and the farthest from it."""
+    ordered = xy[np.lexsort((xy[:, 1], xy[:, 0]))]
+    if (ordered[1:] == ordered[:-1]).all(axis=1).any():
+        return False
+    d = xy - xy[0]
+    far = d[np.argmax(np.einsum("ij,ij->i", d, d))]
+    return bool((far[0] * d[:, 1] - far[1] * d[:, 0] != 0).any())
 
 
 @njit(cache=True)
