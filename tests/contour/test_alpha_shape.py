@@ -109,6 +109,70 @@ def test_point_spacing_matches_brute_force(rng):
         assert got[i] == pytest.approx(lengths[sel].mean())
 
 
+def test_point_spacing_sums_in_the_scan_order(rng):
+    # ps_avg is one sequential sum per point, in the order of a scan of the 3 x 3 cells (by cell, then by
+    # point order within a cell, then each point's edges): another order moves it by 1e-15, which once
+    # changed an outline.  The compiled kernel (four sums side by side) must give these sums bit for bit,
+    # for a point count that is not a multiple of four too.
+    xy = rng.uniform(0, 8, (151, 2))
+    edges, lengths = delaunay_edges(xy)
+    radius = 2.0
+    got = point_spacing(xy, edges, lengths, radius=radius)
+    cell = np.floor((xy - xy.min(axis=0)) / radius).astype(int)
+    by_cell = {}
+    for j in np.argsort(cell[:, 0] * 1000 + cell[:, 1], kind="stable"):
+        by_cell.setdefault(tuple(cell[j]), []).append(j)
+    low = edges[:, 0]  # each edge is met at its first end point, in edge order
+    for i in range(len(xy)):
+        total, count = 0.0, 0
+        for cx in range(cell[i, 0] - 1, cell[i, 0] + 2):
+            for cy in range(cell[i, 1] - 1, cell[i, 1] + 2):
+                for j in by_cell.get((cx, cy), []):
+                    if (xy[j, 0] - xy[i, 0]) ** 2 + (xy[j, 1] - xy[i, 1]) ** 2 > radius**2:
+                        continue
+                    for e in np.flatnonzero(low == j):
+                        h = edges[e, 1]
+                        if (xy[h, 0] - xy[i, 0]) ** 2 + (xy[h, 1] - xy[i, 1]) ** 2 <= radius**2:
+                            total += lengths[e]
+                            count += 1
+        assert got[i] == total / count
+
+
+def _triangle_set(triangles):
+    t = np.sort(np.asarray(triangles), axis=1)
+    return t[np.lexsort(t.T[::-1])]
+
+
+def test_delaunay_mesh_is_qhulls_mesh_whichever_library_made_it(rng):
+    from scipy.spatial import Delaunay
+
+    from rooftrace.contour.spacing import _certified_triangle_mesh, delaunay_mesh
+
+    scattered = rng.uniform(0, 40, (2000, 2))  # in a building's local frame: Triangle's mesh, certified
+    grid = np.mgrid[0:10:0.5, 0:6:0.5].reshape(2, -1).T.astype(float)  # four points on every circle
+    far = scattered + [85_000.0, 446_000.0]  # national-grid coordinates: Qhull's round-off decides
+    assert _certified_triangle_mesh(scattered) is not None
+    assert _certified_triangle_mesh(grid) is None
+    assert _certified_triangle_mesh(far) is None
+    for xy in (scattered, grid, far):
+        edges, lengths, triangles, neighbours = delaunay_mesh(xy)
+        assert np.array_equal(_triangle_set(triangles), _triangle_set(Delaunay(xy).simplices))
+        a, b, c = (xy[triangles[:, k]] for k in range(3))
+        assert ((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] > 0).all()  # counter-clockwise
+        # the neighbour opposite corner k shares the other two corners
+        t, k = np.nonzero(neighbours >= 0)
+        for ti, ki in zip(t[:200], k[:200]):
+            u = neighbours[ti, ki]
+            assert {triangles[ti, (ki + 1) % 3], triangles[ti, (ki + 2) % 3]} <= set(triangles[u])
+        assert len(edges) == len(lengths) and (edges[:, 0] < edges[:, 1]).all()
+    # Triangle is not asked where it could crash (it did on 18 copies of one point): Qhull decides
+    for degenerate in (np.tile([2.0, 3.0], (18, 1)), np.column_stack([np.arange(9.0), 2.0 * np.arange(9.0)])):
+        assert _certified_triangle_mesh(degenerate) is None
+        with pytest.raises(GeometryError):
+            delaunay_mesh(degenerate)
+    assert _certified_triangle_mesh(np.concatenate([scattered, scattered[:3]])) is None  # a point twice
+
+
 def test_degenerate_input_raises_geometry_error():
     with pytest.raises(GeometryError, match="too_few_points"):
         alpha_shape(np.zeros((2, 2)))

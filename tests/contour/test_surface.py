@@ -62,3 +62,30 @@ def test_degenerate_inputs():
         below_roof(np.zeros((3, 3)), 0.0)
     with pytest.raises(ValueError):
         SurfaceOptions(max_slope=90)
+
+
+def test_lift_to_roof_takes_the_nearest_roof_point_ties_to_the_lower_index():
+    # the sort the compiled pass replaced: both directions of every pair, nearest roof point first,
+    # ties to the lower index; points on a 0.5 m lattice tie often
+    from scipy.spatial import cKDTree
+
+    from rooftrace.contour.surface import below_roof, lift_to_roof
+
+    rng = np.random.default_rng(5)
+    g = np.mgrid[0:20:0.5, 0:12:0.5].reshape(2, -1).T
+    z = np.where(rng.random(len(g)) < 0.2, rng.uniform(0, 8, len(g)), 10.0 + 0.1 * g[:, 0])
+    xyz = np.column_stack([g, z])
+    flagged = below_roof(xyz, 1.2)
+    pairs = cKDTree(xyz[:, :2]).query_pairs(1.2, output_type="ndarray")
+    d = np.hypot(*(xyz[pairs[:, 0], :2] - xyz[pairs[:, 1], :2]).T)
+    src, dst = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
+    dist = np.tile(d, 2)
+    use = flagged[src] & ~flagged[dst]
+    order = np.lexsort((dst[use], dist[use], src[use]))
+    s, t = src[use][order], dst[use][order]
+    first = np.ones(len(s), bool)
+    first[1:] = s[1:] != s[:-1]
+    want = xyz.copy()
+    want[s[first], 2] = xyz[t[first], 2]
+    assert flagged.sum() > 50
+    assert np.array_equal(lift_to_roof(xyz, 1.2), want)

@@ -108,3 +108,19 @@ def test_l_hip_centre_is_one_junction():
     assert len(near) == 4
     assert np.ptp(near, axis=0).max() < 1e-9
     assert np.linalg.norm(near[0] - centre) < 0.15
+
+
+def test_adjacency_medians_are_numpys_median_of_each_pair():
+    from rooftrace.roof.adjacency import _medians
+
+    rng = np.random.default_rng(3)
+    sizes = rng.integers(1, 12, 400)  # odd and even counts
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    values = np.round(rng.normal(0, 1, len(group)), 2)  # ties
+    values[rng.choice(len(values), 5, replace=False)] = np.nan
+    values[rng.choice(len(values), 20, replace=False)] = -0.0
+    shuffle = rng.permutation(len(values))  # a group's values need not be together
+    got = _medians(values[shuffle], group[shuffle], len(sizes))
+    with np.errstate(invalid="ignore"):
+        want = np.array([np.median(values[group == g]) for g in range(len(sizes))])
+    assert np.array_equal(got, want, equal_nan=True)

@@ -250,13 +250,18 @@ def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float
     moves scored are never made.
     """
     idx = np.concatenate([t.idx for t in touched])
-    bounds = np.zeros(len(touched) + 1, np.int64)
-    np.cumsum([len(t.idx) for t in touched], out=bounds[1:])
+    # each segment's end, rss, parameters and noise gathered in Python lists: numpy's cumsum of a
+    # list cost more than the compiled scoring itself (about 200 moves are scored per ring)
+    ends, rss, n_params, noise2 = [0], [], [], []
+    for t in touched:
+        ends.append(ends[-1] + len(t.idx))
+        rss.append(t.rss)
+        n_params.append(t.n_params)
+        noise2.append(t.noise2)
     a, b = touched[0], touched[-1]
     gain, kind, near_a, p1, d1, rss1 = _score_move(
-        xy, sigma0, trim, idx, bounds, np.array([t.rss for t in touched]),
-        np.array([t.n_params for t in touched], np.int64), np.array([t.noise2 for t in touched]),
-        a.point, a.direction, b.point, b.direction)
+        xy, sigma0, trim, idx, np.array(ends, np.int64), np.array(rss), np.array(n_params, np.int64),
+        np.array(noise2), a.point, a.direction, b.point, b.direction)
     if not gain > 0:
         return gain, None
     if kind == 0:  # one wall through all of them
@@ -264,7 +269,7 @@ def _best_move(xy: np.ndarray, touched: tuple, sigma0, trim: int) -> tuple[float
     if kind == 1:  # one wall through a and b, the run's points counted against it
         merged = _fit(xy, idx, sigma0, trim)
         return gain, [Line(merged.idx, p1, d1, rss1, span=merged.span, noise2=merged.noise2)]
-    run_idx = idx[bounds[1]:bounds[-2]]  # two walls meeting at a corner: the run's points go to the nearer
+    run_idx = idx[ends[1]:ends[-2]]  # two walls meeting at a corner: the run's points go to the nearer
     return gain, [_fit(xy, np.concatenate([a.idx, run_idx[near_a]]), sigma0, trim),
                   _fit(xy, np.concatenate([run_idx[~near_a], b.idx]), sigma0, trim)]
 

@@ -12,6 +12,7 @@ a ball, and listing the ball pairs with a KD-tree took gigabytes on AHN roofs.
 from __future__ import annotations
 
 import numpy as np
+import triangle as _triangle
 from numba import njit
 from scipy.spatial import Delaunay, QhullError
 
@@ -64,27 +65,17 @@ def delaunay_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) < 3:
         raise GeometryError("too_few_points")
-    try:
-        tri = Delaunay(xy)
-    except QhullError:
-        raise GeometryError("collinear") from None
-    simplices = tri.simplices
-    if len(simplices) == 0:
-        raise GeometryError("collinear")
-    triangles = simplices.astype(np.int64)
-    neighbours = tri.neighbors.astype(np.int64)
-    a, b, c = xy[triangles[:, 0]], xy[triangles[:, 1]], xy[triangles[:, 2]]
-    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
-    # swapping corners 1 and 2 swaps the edges opposite them, so the neighbours swap too
-    triangles[cw] = triangles[cw][:, [0, 2, 1]]
-    neighbours[cw] = neighbours[cw][:, [0, 2, 1]]
+    mesh = _certified_triangle_mesh(xy)
+    if mesh is None:
+        triangles, neighbours = _qhull_mesh(xy)
+    else:
+        triangles, neighbours = mesh
     # each edge once: from the triangle with the lower index, or the only one (hull); the edge
     # between two corners is opposite the third, whose neighbour shares it
-    nb = tri.neighbors
-    own = np.arange(len(nb))[:, None]
-    first = (nb < 0) | (nb > own)
-    e = np.concatenate([simplices[first[:, 2]][:, [0, 1]], simplices[first[:, 0]][:, [1, 2]],
-                        simplices[first[:, 1]][:, [2, 0]]])
+    own = np.arange(len(neighbours))[:, None]
+    first = (neighbours < 0) | (neighbours > own)
+    e = np.concatenate([triangles[first[:, 2]][:, [0, 1]], triangles[first[:, 0]][:, [1, 2]],
+                        triangles[first[:, 1]][:, [2, 0]]])
     e = np.sort(e, axis=1).astype(np.int64)
     n = np.int64(len(xy))
     key = np.sort(e[:, 0] * n + e[:, 1])  # 1D keys: much faster than sorting rows
@@ -93,6 +84,106 @@ def delaunay_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     e = np.column_stack([key // n, key % n])
     lengths = np.linalg.norm(xy[e[:, 1]] - xy[e[:, 0]], axis=1)
     return e, lengths, triangles, neighbours
+
+
+def _qhull_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Qhull's triangles (counter-clockwise) and their neighbours."""
+    try:
+        tri = Delaunay(xy)
+    except QhullError:
+        raise GeometryError("collinear") from None
+    if len(tri.simplices) == 0:
+        raise GeometryError("collinear")
+    triangles = tri.simplices.astype(np.int64)
+    neighbours = tri.neighbors.astype(np.int64)
+    a, b, c = xy[triangles[:, 0]], xy[triangles[:, 1]], xy[triangles[:, 2]]
+    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    # swapping corners 1 and 2 swaps the edges opposite them, so the neighbours swap too
+    triangles[cw] = triangles[cw][:, [0, 2, 1]]
+    neighbours[cw] = neighbours[cw][:, [0, 2, 1]]
+    return triangles, neighbours
+
+
+#: how far (in units of Qhull's round-off, :func:`_certified`) every quadrilateral of Triangle's mesh must be
+#: from four points on a circle for Qhull to be sure to give the same triangles.  Building meshes shifted
+#: by 10-400 km (where Qhull's round-off is large) differed from Triangle's up to about 11 such units and
+#: never beyond; the buildings of Delft in the outline's frame are 19,000 or more units from a tie.
+_QHULL_MARGIN = 1000.0
+
+
+def _certified_triangle_mesh(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Shewchuk's Triangle's Delaunay mesh when it is certainly the one Qhull gives; None otherwise.
+
+    Triangle (exact predicates, divide and conquer) triangulates a building
+    five to ten times faster than Qhull.  Where no four points are nearly on
+    one circle the Delaunay triangulation is unique, and Qhull finds it too;
+    where some are (grids, ties, points closer than Qhull's round-off) Qhull
+    may choose another diagonal or leave a point out, so the caller asks
+    Qhull.  Each triangle's corners come in Triangle's order, not Qhull's,
+    which only the order of sums over a triangle's corners sees.
+    """
+    if not _distinct_off_one_line(xy):
+        return None  # Triangle crashes on some such sets (18 copies of one point); Qhull says why
+    out = _triangle.triangulate({"vertices": np.ascontiguousarray(xy)}, "Qzn")
+    if "triangles" not in out or len(out["triangles"]) == 0:
+        return None
+    triangles = np.ascontiguousarray(out["triangles"], dtype=np.int64)
+    neighbours = np.ascontiguousarray(out["neighbors"], dtype=np.int64)
+    if not (np.bincount(triangles.ravel(), minlength=len(xy)) > 0).all():
+        return None  # a point left out (a duplicate)
+    extent2 = float(np.abs(xy).max()) ** 2
+    if not _certified(xy, triangles, neighbours, extent2, _QHULL_MARGIN):
+        return None
+    return triangles, neighbours
+
+
+def _distinct_off_one_line(xy: np.ndarray) -> bool:
+    """No point twice, and some point off the line through the first and the farthest from it."""
+    ordered = xy[np.lexsort((xy[:, 1], xy[:, 0]))]
+    if (ordered[1:] == ordered[:-1]).all(axis=1).any():
+        return False
+    d = xy - xy[0]
+    far = d[np.argmax(np.einsum("ij,ij->i", d, d))]
+    return bool((far[0] * d[:, 1] - far[1] * d[:, 0] != 0).any())
+
+
+@njit(cache=True)
+def _certified(xy, triangles, neighbours, extent2, margin):  # pragma: no cover - compiled
+    # Every edge between two triangles: the far corner d of the neighbour must lie outside the
+    # triangle's circumcircle by more than ``margin`` times Qhull's round-off.  Qhull lifts the points
+    # to (x, y, x² + y²), so its error in the in-circle test, relative to the test's magnitude (the
+    # permanent), is about eps * extent² / l², l the quadrilateral's size.  A triangle's corners must
+    # be off one line by as much (a sliver on the hull).
+    eps = 2.220446049250313e-16
+    for t in range(len(triangles)):
+        a0, a1, a2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ax, ay = xy[a0, 0], xy[a0, 1]
+        bx, by = xy[a1, 0], xy[a1, 1]
+        cx, cy = xy[a2, 0], xy[a2, 1]
+        cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        ab2 = (bx - ax) ** 2 + (by - ay) ** 2
+        ac2 = (cx - ax) ** 2 + (cy - ay) ** 2
+        if not cross > margin * eps * extent2 * np.sqrt(ab2 * ac2) / max(ab2, ac2):
+            return False
+        for k in range(3):
+            u = neighbours[t, k]
+            if u < t:  # the hull, or an edge met from the other side already
+                continue
+            d = -1
+            for kk in range(3):
+                if neighbours[u, kk] == t:
+                    d = triangles[u, kk]
+            if d < 0:
+                return False
+            px, py = xy[d, 0], xy[d, 1]
+            adx, ady, bdx, bdy, cdx, cdy = ax - px, ay - py, bx - px, by - py, cx - px, cy - py
+            al, bl, cl = adx * adx + ady * ady, bdx * bdx + bdy * bdy, cdx * cdx + cdy * cdy
+            det = (al * (bdx * cdy - cdx * bdy) + bl * (cdx * ady - adx * cdy) + cl * (adx * bdy - bdx * ady))
+            permanent = (al * (abs(bdx * cdy) + abs(cdx * bdy)) + bl * (abs(cdx * ady) + abs(adx * cdy))
+                         + cl * (abs(adx * bdy) + abs(bdx * ady)))
+            if not -det > margin * eps * extent2 / ((al + bl + cl) / 3.0) * permanent:
+                return False
+    return True
 
 
 class PlanMesh:
@@ -197,14 +288,18 @@ def point_spacing(xy: np.ndarray, edges: np.ndarray, lengths: np.ndarray, radius
     np.cumsum(np.bincount(key, minlength=nx * ny), out=cell_ptr[1:])
     # the kernel works on the points in cell order (a cell's points are
     # contiguous in memory, not scattered over the building); it visits them
-    # in the same order as before, so every sum is the same
+    # in the same order as before, so every sum is the same.  Each edge is
+    # stored once, at its lower end point, with the other end's coordinates
+    # and its length beside it (read in order, not gathered)
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)
-    adj_ptr, adj_idx = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
+    adj_ptr, adj_edge = _csr(rank[edges[:, 0]], np.arange(len(edges)), n)
+    sorted_xy = np.ascontiguousarray(xy[order], dtype=np.float64)
+    far_end = sorted_xy[rank[edges[adj_edge, 1]]]
     ps = np.empty(n)
-    ps[order] = _ps_avg(np.ascontiguousarray(xy[order], dtype=np.float64), float(radius),
-                        np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr, adj_idx, rank[edges[:, 1]],
-                        lengths)
+    ps[order] = _ps_avg(sorted_xy, float(radius), np.ascontiguousarray(cell[order]), nx, ny, cell_ptr, adj_ptr,
+                        np.ascontiguousarray(far_end[:, 0]), np.ascontiguousarray(far_end[:, 1]),
+                        np.ascontiguousarray(lengths[adj_edge], dtype=np.float64))
     bad = ~np.isfinite(ps)
     if bad.any():
         touch = np.bincount(edges.ravel(), np.repeat(lengths, 2), n) / np.maximum(np.bincount(edges.ravel(), minlength=n), 1)
@@ -231,33 +326,72 @@ def _bucket(rows, cols, ptr):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, adj_edge, edge_hi, lengths):  # pragma: no cover
-    # points in cell order (cell_ptr indexes xy directly); each edge is stored
-    # once, at its lower end point; it counts for point i when both end
-    # points are in i's ball (the other end tested where the edge is met: one
-    # pass over the ball, in the same order as marking it first did)
+def _lengths_in_ball(i, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball,
+                     out):  # pragma: no cover
+    # the lengths of the edges wholly inside point i's ball, in the order the sum takes them: the
+    # ball's points by cell (cx, then cy) and within a cell by rank, each point's edges in turn.  The
+    # three cells of a column are consecutive in rank, so a column is one range.  Both tests write
+    # unconditionally and advance the count by the test (no branch to mispredict).
+    xi, yi = xy[i, 0], xy[i, 1]
+    m = 0
+    lo, hi = max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)
+    for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
+        for j in range(cell_ptr[cx * ny + lo], cell_ptr[cx * ny + hi]):
+            dx = xy[j, 0] - xi
+            dy = xy[j, 1] - yi
+            ball[m] = j
+            m += dx * dx + dy * dy <= r2
+    count = 0
+    for k in range(m):
+        j = ball[k]
+        for q in range(adj_ptr[j], adj_ptr[j + 1]):
+            ex = far_x[q] - xi
+            ey = far_y[q] - yi
+            out[count] = adj_length[q]
+            count += ex * ex + ey * ey <= r2
+    return count
+
+
+@njit(cache=True)
+def _ps_avg(xy, radius, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length):  # pragma: no cover
+    # points in cell order (cell_ptr indexes xy directly).  Each point's mean
+    # is one sequential sum, as it always was (another order changes ps_avg by
+    # 1e-15, which flipped a building's outline); four points' sums run side
+    # by side so that their additions overlap instead of waiting on each other
     n = len(xy)
     r2 = radius * radius
     out = np.empty(n, dtype=np.float64)
-    for i in range(n):
-        xi, yi = xy[i, 0], xy[i, 1]
-        total = 0.0
-        count = 0
-        for cx in range(max(cell[i, 0] - 1, 0), min(cell[i, 0] + 2, nx)):
-            for cy in range(max(cell[i, 1] - 1, 0), min(cell[i, 1] + 2, ny)):
-                c = cx * ny + cy
-                for j in range(cell_ptr[c], cell_ptr[c + 1]):
-                    dx = xy[j, 0] - xi
-                    dy = xy[j, 1] - yi
-                    if dx * dx + dy * dy > r2:
-                        continue
-                    for q in range(adj_ptr[j], adj_ptr[j + 1]):
-                        e = adj_edge[q]
-                        h = edge_hi[e]
-                        ex = xy[h, 0] - xi
-                        ey = xy[h, 1] - yi
-                        if ex * ex + ey * ey <= r2:
-                            total += lengths[e]
-                            count += 1
-        out[i] = total / count if count > 0 else np.nan
+    ball = np.empty(n, dtype=np.int64)
+    ne = len(adj_length)
+    v0, v1, v2, v3 = np.empty(ne), np.empty(ne), np.empty(ne), np.empty(ne)
+    for i0 in range(0, n - 3, 4):
+        c0 = _lengths_in_ball(i0, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v0)
+        c1 = _lengths_in_ball(i0 + 1, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v1)
+        c2 = _lengths_in_ball(i0 + 2, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v2)
+        c3 = _lengths_in_ball(i0 + 3, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v3)
+        t0, t1, t2, t3 = 0.0, 0.0, 0.0, 0.0
+        both = min(min(c0, c1), min(c2, c3))
+        for k in range(both):
+            t0 += v0[k]
+            t1 += v1[k]
+            t2 += v2[k]
+            t3 += v3[k]
+        for k in range(both, c0):
+            t0 += v0[k]
+        for k in range(both, c1):
+            t1 += v1[k]
+        for k in range(both, c2):
+            t2 += v2[k]
+        for k in range(both, c3):
+            t3 += v3[k]
+        out[i0] = t0 / c0 if c0 > 0 else np.nan
+        out[i0 + 1] = t1 / c1 if c1 > 0 else np.nan
+        out[i0 + 2] = t2 / c2 if c2 > 0 else np.nan
+        out[i0 + 3] = t3 / c3 if c3 > 0 else np.nan
+    for i in range(n - n % 4, n):
+        c0 = _lengths_in_ball(i, xy, r2, cell, nx, ny, cell_ptr, adj_ptr, far_x, far_y, adj_length, ball, v0)
+        t0 = 0.0
+        for k in range(c0):
+            t0 += v0[k]
+        out[i] = t0 / c0 if c0 > 0 else np.nan
     return out

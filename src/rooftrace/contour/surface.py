@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 __all__ = ["SurfaceOptions", "below_roof", "lift_to_roof", "outline_points"]
@@ -123,18 +124,26 @@ def lift_to_roof(xyz: np.ndarray, radius: float, *, max_slope: float = 60.0, tol
     """
     xyz = np.array(xyz, dtype=np.float64)
     flagged, i, j, d = _below(xyz, radius, max_slope, tolerance)
-    # both directions of every pair: (flagged point, roof point, distance)
-    src = np.concatenate([i, j])
-    dst = np.concatenate([j, i])
-    dist = np.concatenate([d, d])
-    use = flagged[src] & ~flagged[dst]
-    src, dst, dist = src[use], dst[use], dist[use]
-    order = np.lexsort((dst, dist, src))  # nearest first; ties to the lower index, for determinism
-    src, dst = src[order], dst[order]
-    first = np.ones(len(src), bool)
-    first[1:] = src[1:] != src[:-1]
-    xyz[src[first], 2] = xyz[dst[first], 2]
+    # nearest roof point first, ties to the lower index (deterministic), over both directions of every pair
+    roof = _nearest_unflagged(flagged, i, j, d)
+    has = roof >= 0
+    xyz[has, 2] = xyz[roof[has], 2]
     return xyz
+
+
+@njit(cache=True)
+def _nearest_unflagged(flagged, i, j, d):  # pragma: no cover - compiled
+    # for every flagged point the nearest unflagged one it is paired with (-1: none); the pairs come
+    # by the million on a large roof, and the sort of both directions of every pair took longer
+    best = np.full(len(flagged), np.inf)
+    roof = np.full(len(flagged), -1, np.int64)
+    for k in range(len(i)):
+        a, b, dk = i[k], j[k], d[k]
+        for src, dst in ((a, b), (b, a)):
+            if flagged[src] and not flagged[dst] and (dk < best[src] or (dk == best[src] and dst < roof[src])):
+                best[src] = dk
+                roof[src] = dst
+    return roof
 
 
 def _below(xyz: np.ndarray, radius: float, max_slope: float, tolerance: float):
@@ -147,13 +156,25 @@ def _below(xyz: np.ndarray, radius: float, max_slope: float, tolerance: float):
     pairs = cKDTree(xyz[:, :2]).query_pairs(radius, output_type="ndarray")
     if len(pairs) == 0:
         return flagged, empty, empty, np.zeros(0)
-    i, j = pairs[:, 0], pairs[:, 1]
-    d = np.hypot(*(xyz[i, :2] - xyz[j, :2]).T)
-    allowance = tolerance + d * np.tan(np.radians(max_slope))
-    dz = xyz[j, 2] - xyz[i, 2]
-    flagged[i[dz > allowance]] = True
-    flagged[j[-dz > allowance]] = True
+    i, j = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
+    d = _flag_below(xyz, i, j, tolerance, float(np.tan(np.radians(max_slope))), flagged)
     return flagged, i, j, d
+
+
+@njit(cache=True)
+def _flag_below(xyz, i, j, tolerance, slope, flagged):  # pragma: no cover - compiled
+    # the plan distance of every pair (hypot, as numpy's) and the flags, in one pass over the pairs
+    d = np.empty(len(i))
+    for k in range(len(i)):
+        a, b = i[k], j[k]
+        d[k] = np.hypot(xyz[a, 0] - xyz[b, 0], xyz[a, 1] - xyz[b, 1])
+        allowance = tolerance + d[k] * slope
+        dz = xyz[b, 2] - xyz[a, 2]
+        if dz > allowance:
+            flagged[a] = True
+        if -dz > allowance:
+            flagged[b] = True
+    return d
 
 
 def outline_points(xyz: np.ndarray, options: SurfaceOptions | None = None,
