@@ -85,3 +85,31 @@ def test_a_roof_scanned_in_lines_is_linear_only_at_small_sizes(rng):
     assert np.median(lin[inner]) < 0.7  # the N-point neighbourhood is a plane
     fixed, lin_fixed = eigen_features(pts, 40, return_linearity=True)
     assert np.array_equal(lin_fixed, fixed[:, 0])
+
+
+def test_normals_are_numbas_eigh_to_the_bit(rng):
+    import numba
+
+    from rooftrace.lidar.features import _eigh3, _eigh_workspace
+
+    @numba.njit
+    def both(s):
+        ws = _eigh_workspace()
+        ours, ref = np.empty((len(s), 12)), np.empty((len(s), 12))
+        for i in range(len(s)):
+            a, b, c, d, e, f = s[i]
+            _eigh3(a, b, c, d, e, f, ws)
+            ours[i, :9], ours[i, 9:] = ws[2], ws[3]
+            w, v = np.linalg.eigh(np.array([[a, d, e], [d, b, f], [e, f, c]]))
+            ref[i, :9], ref[i, 9:] = v.T.ravel(), w
+        return ours, ref
+
+    p = rng.normal(0, [1, 1, 0.02], (3000, 12, 3))
+    p[:500, :, 2] = 0.0  # flat: a zero eigenvalue
+    p[500:600] = p[500:600, :1]  # one point repeated: all zero
+    p[600:700, :, 1] = p[600:700, :, 0]  # a line in plan
+    p = p - p.mean(axis=1, keepdims=True)
+    s = np.stack([(p[..., 0] ** 2).sum(1), (p[..., 1] ** 2).sum(1), (p[..., 2] ** 2).sum(1),
+                  (p[..., 0] * p[..., 1]).sum(1), (p[..., 0] * p[..., 2]).sum(1), (p[..., 1] * p[..., 2]).sum(1)], 1)
+    ours, ref = both(s)
+    assert np.array_equal(ours, ref)

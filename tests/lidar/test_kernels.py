@@ -5,11 +5,18 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rooftrace.lidar._kernels import (
+    column_max,
+    column_min,
+    cross_pairs,
     dense_unique,
     lowest_per_group,
     lowest_point_per_group,
+    pair_mask,
     pair_pull,
+    sector_nearest,
     sort_by_bucket,
+    union_pairs,
+    unique_pairs,
 )
 from rooftrace.lidar.neighbours import GridKnn
 
@@ -177,3 +184,54 @@ def test_nearest_within_is_the_bounded_kdtree_query(dims):
     # a tie is two points at one distance, the nearest
     d = np.linalg.norm(data[j[tie]] - queries[tie], axis=1)
     assert np.allclose(d, dist[tie])
+
+
+def test_cross_pairs_is_the_numpy_mask():
+    rng = np.random.default_rng(6)
+    labels = rng.integers(-1, 20, 3000)
+    pairs = rng.integers(0, 3000, (20000, 2))
+    first, second = rng.random(20) < 0.5, rng.random(20) < 0.7
+    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
+    ok = (la >= 0) & (lb >= 0) & (la != lb)
+    ok[ok] &= first[la[ok]] & second[lb[ok]]
+    assert np.array_equal(cross_pairs(labels, pairs, first, second), ok)
+    flags = labels > 5
+    assert np.array_equal(pair_mask(flags, pairs, True), flags[pairs[:, 0]] & flags[pairs[:, 1]])
+    assert np.array_equal(pair_mask(flags, pairs, False), flags[pairs[:, 0]] | flags[pairs[:, 1]])
+
+
+def test_column_bounds_are_numpys():
+    rng = np.random.default_rng(7)
+    for a in (rng.normal(size=(1000, 3)), rng.integers(-50, 50, (300, 2)), rng.normal(size=(1, 2))):
+        for ours, ref in ((column_min(a), a.min(axis=0)), (column_max(a), a.max(axis=0)),
+                          (column_min(a[:, :2]), a[:, :2].min(axis=0))):
+            assert np.array_equal(ours, ref) and ours.dtype == ref.dtype
+
+
+@pytest.mark.parametrize("n_sectors", [8, 6])
+def test_sector_nearest_is_the_brute_force(n_sectors):
+    rng = np.random.default_rng(8)
+    # points on a 5 cm lattice: equal distances, directions on the axes and diagonals, pairs at exactly the radius
+    xy = rng.integers(0, 200, (1500, 2)) * 0.05 + 1000.0
+    rows = np.arange(0, 1500, 7)
+    radius = 0.5
+    got = sector_nearest(xy, rows, radius, n_sectors)
+    width = 2 * np.pi / n_sectors
+    for r, i in enumerate(rows):
+        d = xy - xy[i]
+        d2 = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]
+        k = np.minimum(((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / width).astype(int), n_sectors - 1)
+        for s in range(n_sectors):
+            cand = np.flatnonzero((d2 <= radius * radius) & (d2 > 0) & (k == s))
+            want = cand[np.lexsort((cand, d2[cand]))[0]] if len(cand) else -1
+            assert got[r, s] == want
+
+
+def test_unique_and_union_pairs_are_np_unique():
+    rng = np.random.default_rng(9)
+    for n, m in ((50, 3000), (2000, 300), (10**6, 500)):  # dense rows, sparse, the sorting path
+        p, q = rng.integers(0, n, (m, 2)), rng.integers(0, n, (m // 3, 2))
+        ref = np.unique(np.concatenate([p, q]), axis=0)
+        assert np.array_equal(unique_pairs(np.concatenate([p, q])[:, 0], np.concatenate([p, q])[:, 1], n), ref)
+        assert np.array_equal(union_pairs(p, q, n), ref)
+        assert np.array_equal(union_pairs(p, np.empty((0, 2), np.int64), n), np.unique(p, axis=0))

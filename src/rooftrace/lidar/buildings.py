@@ -26,7 +26,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.lidar._kernels import nearest_within
+from rooftrace.lidar._kernels import nearest_within, pair_mask
 from rooftrace.lidar.classify import ClassifyOptions, interior_points, local_penetration, penetration
 from rooftrace.lidar.segment import SegmentOptions, link_pairs, merge_touching
 
@@ -332,7 +332,7 @@ def assemble_buildings(
         interior = None
         if co.penetration_edge is not None:
             on_building = building_level[levels]
-            inside = pairs[on_building[pairs[:, 0]] & on_building[pairs[:, 1]]]
+            inside = pairs[pair_mask(on_building, pairs, True)]
             interior = interior_points(pts[high, :2], levels, inside, link_distance, co.penetration_edge)
         pen = penetration(group_high, returns[high], interior, len(gsize))
         keep &= ~(pen > co.max_penetration * co.building_penetration)

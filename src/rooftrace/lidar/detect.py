@@ -63,7 +63,7 @@ from threadpoolctl import threadpool_limits
 
 from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.errors import GeometryError, InputError
-from rooftrace.lidar._kernels import unique_pairs
+from rooftrace.lidar._kernels import column_max, column_min, union_pairs
 from rooftrace.lidar.buildings import assemble_buildings, group_widths, split_patches
 from rooftrace.lidar.classify import ClassifyOptions, cluster_means, cluster_medians, separate_buildings
 from rooftrace.lidar.derived import DerivedParams
@@ -168,7 +168,7 @@ def _check_cloud(cloud: PointCloud) -> None:
         raise InputError(
             f"{where}: CRS {cloud.crs.name} is geographic (degrees); reproject to a projected CRS in metres"
         )
-    span = np.ptp(cloud.xyz[:, :2], axis=0)
+    span = column_max(cloud.xyz[:, :2]) - column_min(cloud.xyz[:, :2])
     if not (span > 0).all():
         raise InputError(f"{where}: all points lie on one line; detection needs an area")
 
@@ -241,8 +241,9 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
     n = len(xyz)
     cls = np.full(n, ASPRS.UNCLASSIFIED, np.uint8)
     params: dict[str, Any] = {}
-    origin = tuple(float(v) for v in xyz[:, :2].min(axis=0)) if fixed.origin is None else fixed.origin
-    extent = (tuple(float(v) for v in (*xyz[:, :2].min(axis=0), *xyz[:, :2].max(axis=0)))
+    lo, hi = column_min(xyz[:, :2]), column_max(xyz[:, :2])
+    origin = tuple(float(v) for v in lo) if fixed.origin is None else fixed.origin
+    extent = (tuple(float(v) for v in (*lo, *hi))
               if fixed.extent is None else fixed.extent)
     # local frames are shifted by this fixed corner only (not by the
     # data's own minimum), so a tile rounds exactly like the whole cloud
@@ -322,8 +323,7 @@ def _detect(cloud: PointCloud, opt: DetectOptions, reporter: Reporter | None, fi
             across = sector_pairs(xyz[clean_idx, :2] - shift[:2], where[above[high]], reach, so.link_sectors,
                                   normals=feats[high, 4:7], max_angle=so.sector_max_angle,
                                   smooth=feats[high, 7] <= so.sector_max_residual * sigma_h)
-            both = np.concatenate([pairs, across])
-            pairs = unique_pairs(both[:, 0], both[:, 1], len(high))
+            pairs = union_pairs(pairs, across, len(high))
         normals = feats[high, 4:7] if so.height_test == "normal" else None
         levels = region_growing(pts[high], link_d, link_h, so.max_slope, pairs=pairs, normals=normals,
                                 max_normal_angle=so.max_normal_angle)

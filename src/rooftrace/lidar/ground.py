@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rooftrace.errors import GeometryError
-from rooftrace.lidar._kernels import dense_cells, dense_unique, lowest_per_group
+from rooftrace.lidar._kernels import column_max, column_min, dense_cells, dense_unique, lowest_per_group
 from rooftrace.lidar.ground_tin import locate, serpentine_order, triangulate
 
 __all__ = ["GroundOptions", "progressive_tin", "tin_height", "grid_minimum_ground"]
@@ -269,7 +269,7 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
         raise GeometryError("ground filter: fewer than 3 points left after removing noise")
     cand_cell = opt.candidate_cell or max(1.0, 3.0 * mean_spacing)
     tol = opt.ground_tolerance or max(0.2, 5.0 * sigma_h)
-    anchor = xyz[idx_usable, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
+    anchor = column_min(xyz[idx_usable, :2]) if origin is None else np.asarray(origin, np.float64)
     # the TIN works in a frame near zero (small rounding).  Heights are left as they are: a
     # shift that depends on the data (the lowest z of a tile) would round
     # differently in a tile and in the whole cloud
@@ -281,7 +281,7 @@ def _progressive_tin(xyz, mean_spacing, sigma_h, options, exclude, origin, bound
     cxyz = pts[cand]
     seeds = np.unique(_lowest_per_cell(cxyz, np.zeros(2), opt.seed_cell))
     if bounds is None:
-        lo, hi = pts[:, :2].min(axis=0) - 1.0, pts[:, :2].max(axis=0) + 1.0
+        lo, hi = column_min(pts[:, :2]) - 1.0, column_max(pts[:, :2]) + 1.0
     else:
         lo = np.asarray(bounds[:2], np.float64) - anchor - 1.0
         hi = np.asarray(bounds[2:], np.float64) - anchor + 1.0
@@ -387,7 +387,7 @@ def grid_minimum_ground(xyz: np.ndarray, cell: float = 25.0, threshold: float = 
     [True, True, False]
     """
     xyz = np.asarray(xyz, dtype=np.float64)
-    key = _cell_keys(xyz[:, :2], xyz[:, :2].min(axis=0), cell)
+    key = _cell_keys(xyz[:, :2], column_min(xyz[:, :2]), cell)
     _, inv = np.unique(key, return_inverse=True)
     zmin = np.full(inv.max() + 1, np.inf)
     np.minimum.at(zmin, inv, xyz[:, 2])

@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from rooftrace.lidar._kernels import dense_cells, dense_unique
+from rooftrace.lidar._kernels import column_min, dense_cells, dense_unique
 
 __all__ = ["OutlierOptions", "histogram_outliers"]
 
@@ -93,7 +93,7 @@ def histogram_outliers(
     noise = np.zeros(n, bool)
     if n == 0 or not opt.enabled:
         return noise
-    anchor = xyz[:, :2].min(axis=0) if origin is None else np.asarray(origin, np.float64)
+    anchor = column_min(xyz[:, :2]) if origin is None else np.asarray(origin, np.float64)
     ij = np.floor((xyz[:, :2] - anchor) / opt.cell).astype(np.int64)
     cell = dense_cells(ij)  # shifted to start at 0: an explicit origin may lie inside the data
     ncell = cell.max() + 1

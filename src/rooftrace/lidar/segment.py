@@ -42,7 +42,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.lidar._kernels import dense_unique, lowest_point_per_group, normal_links, sector_nearest, unique_pairs
+from rooftrace.lidar._kernels import (
+    cross_pairs,
+    dense_unique,
+    lowest_point_per_group,
+    normal_links,
+    pair_mask,
+    sector_nearest,
+    unique_pairs,
+)
 from rooftrace.options import optional
 
 __all__ = ["SegmentOptions", "contact_share", "join_strips", "link_pairs", "region_growing", "merge_touching", "order_labels",
@@ -393,14 +401,6 @@ def region_growing(
     return order_labels(xyz, labels)
 
 
-def _between(labels: np.ndarray, pairs: np.ndarray, first: np.ndarray, second: np.ndarray) -> tuple:
-    """Clusters at both ends of each pair, and which pairs join a ``first`` cluster to another, ``second`` one."""
-    la, lb = labels[pairs[:, 0]], labels[pairs[:, 1]]
-    ok = (la >= 0) & (lb >= 0) & (la != lb)
-    ok[ok] &= first[la[ok]] & second[lb[ok]]
-    return la, lb, ok
-
-
 def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -> np.ndarray:
     """Merge clusters that touch in plan into groups (buildings).
 
@@ -419,8 +419,9 @@ def merge_touching(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray) -
         Group index per cluster (0..G-1 over members), -1 for non-members.
     """
     k = len(members)
-    la, lb, ok = _between(labels, pairs, members, members)
-    comp = components(k, unique_pairs(la[ok], lb[ok], k))
+    members = np.asarray(members, bool)
+    touching = pairs[cross_pairs(labels, pairs, members, members)]
+    comp = components(k, unique_pairs(labels[touching[:, 0]], labels[touching[:, 1]], k))
     group = np.full(k, -1, np.int64)
     _, group[members] = np.unique(comp[members], return_inverse=True)
     return group
@@ -445,7 +446,7 @@ def contact_share(labels: np.ndarray, pairs: np.ndarray, members: np.ndarray, ot
     """
     members, others = np.asarray(members, bool), np.asarray(others, bool)
     k = len(members)
-    _, _, ok = _between(labels, pairs, members, others)
+    ok = cross_pairs(labels, pairs, members, others)
     touched = np.zeros(len(labels), bool)
     touched[pairs[ok, 0]] = True
     size = np.bincount(labels[labels >= 0], minlength=k)
@@ -482,7 +483,7 @@ def join_strips(labels: np.ndarray, pairs: np.ndarray, z: np.ndarray, strips: np
     """
     members = np.asarray(members, bool).copy()
     on_strip = np.asarray(strips, bool)[labels]
-    near = pairs[on_strip[pairs[:, 0]] | on_strip[pairs[:, 1]]]
+    near = pairs[pair_mask(on_strip, pairs, False)]
     both = np.concatenate([near, near[:, ::-1]])
     below = both[z[both[:, 0]] <= z[both[:, 1]] + max_drop]
     while True:

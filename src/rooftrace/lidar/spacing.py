@@ -15,7 +15,7 @@ import logging
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from rooftrace.lidar._kernels import dense_cells, unique_pairs
+from rooftrace.lidar._kernels import column_max, column_min, dense_cells, unique_pairs
 
 __all__ = ["edge_spacing", "mean_spacing", "point_density", "height_precision", "spanning_neighbours"]
 
@@ -32,7 +32,7 @@ def _blocks(xy: np.ndarray, max_points: int) -> list[np.ndarray]:
     n = len(xy)
     if n <= max_points:
         return [np.arange(n)]
-    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    lo, hi = column_min(xy), column_max(xy)
     area = max(float(np.prod(hi - lo)), 1e-9)
     per_block = max_points // 4
     side = np.sqrt(area * per_block / n)
@@ -63,7 +63,7 @@ def _edge_lengths(xy: np.ndarray, max_points: int) -> np.ndarray:
     lengths = []
     for idx in _blocks(xy[:, :2], max_points):
         # Qhull loses points to round-off on large map coordinates: centre them
-        pts = _unique_rows(np.round(xy[idx, :2] - xy[idx, :2].min(axis=0), 4))
+        pts = _unique_rows(np.round(xy[idx, :2] - column_min(xy[idx, :2]), 4))
         if len(pts) < 3:
             continue
         try:
@@ -169,7 +169,7 @@ def point_density(xy: np.ndarray, cell: float = 2.0) -> float:
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) == 0:
         raise ValueError("point density of an empty cloud")
-    ij = np.floor((xy[:, :2] - xy[:, :2].min(axis=0)) / cell).astype(np.int64)
+    ij = np.floor((xy[:, :2] - column_min(xy[:, :2])) / cell).astype(np.int64)
     cells = int(dense_cells(ij).max()) + 1
     return float(len(xy) / (cells * cell * cell))
 
@@ -222,7 +222,7 @@ def height_precision(
     if min_points is None:
         # three points fit any plane: at least one degree of freedom left
         min_points = int(np.clip(round(0.4 * density * cell * cell), 4, 8))
-    lo = xyz.min(axis=0)
+    lo = column_min(xyz)
     ij = np.floor((xyz[:, :2] - lo[:2]) / cell).astype(np.int64)
     inv = dense_cells(ij)
     counts = np.bincount(inv)
@@ -294,7 +294,7 @@ def spanning_neighbours(xy: np.ndarray, density: float, *, width: float = 0.3, s
     n = len(xy)
     if n < 4 or not density > 0:
         return 3
-    local = xy - xy.min(axis=0)
+    local = xy - column_min(xy)
     q = np.arange(0, n, max(1, n // sample))
     _, idx = cKDTree(local).query(local[q], k=min(max_neighbours, n))
     p = local[idx] - local[q][:, None, :]
