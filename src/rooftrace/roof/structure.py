@@ -409,7 +409,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
-            boundaries=opt.face_boundaries, plane_sigma=fit.sigma,
+            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
