@@ -103,7 +103,9 @@ class RoofOptions:
     min_ridge_length : float
         Shortest ridge, hip, valley or step line kept (m).
     step_height : float
-        Smallest height jump (m) between neighbouring faces for a step edge.
+        Smallest height jump (m) between neighbouring faces for a step edge;
+        also the most a point on no plane may stand above a neighbouring
+        plane to count as its point in the face partition (a coping, a gutter).
     cell : float or None
         Raster cell (m) of the face partition; default ``s / 2``.  At a
         height step a cell of ``s / 2`` may hold points of both levels and
