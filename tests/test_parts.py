@@ -138,3 +138,13 @@ def test_bad_options():
         PartOptions(gutter_angle=45.0)
     with pytest.raises(ValueError, match="min_area"):
         PartOptions(min_area=-1.0)
+
+
+def test_unions_of_runs_are_union_all_of_each_run():
+    from rooftrace.parts import _union_each
+
+    rng = np.random.default_rng(3)
+    boxes = np.array([shapely.box(x, y, x + w, y + 1.0) for x, y, w in rng.uniform(0, 5, (40, 3))], dtype=object)
+    group = np.sort(rng.integers(0, 12, 40))
+    runs = [shapely.union_all(list(boxes[group == g])) for g in np.unique(group)]
+    assert [shapely.to_wkb(g) for g in _union_each(boxes, group)] == [shapely.to_wkb(g) for g in runs]

@@ -127,6 +127,22 @@ def _one_part(building_id: int, n: int, outline) -> BuildingParts:
     return BuildingParts(building_id, np.ones(n, np.int32), [outline] if outline is not None else [], [])
 
 
+def _union_each(geoms: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """``shapely.union_all`` of each run of equal ``group`` values (sorted) in ``geoms``, in one call.
+
+    The rows of a None-padded table are unioned one by one (``axis=1``;
+    None is skipped), each from the same geometries in the same order as
+    ``union_all`` of the run alone: the same GEOS union, the same result.
+    """
+    if not len(geoms):
+        return np.empty(0, dtype=object)
+    start = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    size = np.diff(np.r_[start, len(geoms)])
+    table = np.full((len(start), int(size.max())), None, dtype=object)
+    table[np.repeat(np.arange(len(start)), size), np.arange(len(geoms)) - np.repeat(start, size)] = geoms
+    return shapely.union_all(table, axis=1)
+
+
 def _face_links(faces: list, planes_of_face: np.ndarray, planes: np.ndarray, min_edge: float,
                 skip: np.ndarray | None = None):
     """Pairs of faces sharing an edge longer than ``min_edge``: (i, j, shared line, plane gap along it in m).
@@ -145,9 +161,10 @@ def _face_links(faces: list, planes_of_face: np.ndarray, planes: np.ndarray, min
     lines = np.isin(shapely.get_type_id(touch), (1, 5))  # LineString, MultiLineString
     touch, pair = touch[lines], pair[lines]
     cut = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]]).tolist() + [len(pair)]
+    # each pair's parts merged as union_all of them alone would, all pairs in one call
+    merged = shapely.line_merge(_union_each(touch, pair))
     out = []
-    for a, b in zip(cut[:-1], cut[1:]):
-        shared = shapely.line_merge(shapely.union_all(list(touch[a:b])))
+    for a, shared in zip(cut[:-1], merged):
         if shared.is_empty or shared.length < min_edge:
             continue
         i, j = left[pair[a]], right[pair[a]]
@@ -243,21 +260,23 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
     pieces = _merge_small(pieces, outline, options)
     if len(pieces) <= 1:
         return _one_part(building_id, len(xyz), outline)
-    kinds = sorted({k for i, j, k in cuts if _part_of(pieces, centre[i]) != _part_of(pieces, centre[j])})
+    at = _part_of(pieces, centre)
+    kinds = sorted({k for i, j, k in cuts if at[i] != at[j]})
     part_id = _points_to_parts(xyz[:, :2], pieces)
     return BuildingParts(building_id, part_id, pieces, kinds)
 
 
 def _group_polygons(faces: list, group: np.ndarray, outline) -> list:
     """One polygon per connected piece of each face group, together a partition of the outline."""
+    order = np.argsort(group, kind="stable")  # each group's faces in their order
     pieces = []
-    for g in np.unique(group):
-        merged = shapely.union_all([faces[k] for k in np.flatnonzero(group == g)], grid_size=None)
+    for merged in _union_each(np.array(faces, dtype=object)[order], group[order]):
         pieces += [p for p in shapely.get_parts(shapely.make_valid(merged)) if p.geom_type == "Polygon"]
     # an exact partition: earlier pieces win overlaps, the outline's leftovers go to the piece sharing most edge
+    pieces = sorted(pieces, key=lambda g: -g.area)
     out, taken = [], shapely.Polygon()
-    for p in sorted(pieces, key=lambda g: -g.area):
-        q = _largest(p.intersection(outline).difference(taken))
+    for clipped in shapely.intersection(np.array(pieces, dtype=object), outline):
+        q = _largest(clipped.difference(taken))
         if q is not None:
             out.append(q)
             taken = shapely.union_all([taken, q])
@@ -280,42 +299,47 @@ def _largest(geom):
 
 def _merge_small(pieces: list, outline, options: PartOptions) -> list:
     """Merge parts under ``min_area`` or owning under ``min_facade`` of the outline into their longest neighbour."""
-    pieces = list(pieces)
     ring = outline.boundary
-    # each piece's area, facade and boundary are measured once and again only when a merge changes it
-    # (measuring every piece on every merge was most of the step: O(P²) intersections)
-    boundaries = list(shapely.boundary(np.array(pieces, dtype=object))) if pieces else []
-    area = [p.area for p in pieces]
-    facade = shapely.length(shapely.intersection(np.array(boundaries, dtype=object), ring)).tolist()
-    box = [tuple(b) for b in shapely.bounds(np.array(boundaries, dtype=object)).tolist()]
-    while len(pieces) > 1:
-        small = np.flatnonzero((np.array(area) < options.min_area) | (np.array(facade) < options.min_facade))
+    # each piece's area, facade, boundary and box are measured once and again only when a merge changes it
+    # (measuring every piece on every merge was most of the step: O(P²) intersections); a merged piece is
+    # marked gone rather than deleted, so the pieces left keep their order (first minimum, first maximum)
+    pieces = np.array(pieces, dtype=object)
+    boundaries = shapely.boundary(pieces)
+    area = shapely.area(pieces)
+    facade = shapely.length(shapely.intersection(boundaries, ring))
+    box = shapely.bounds(boundaries)
+    alive = np.ones(len(pieces), dtype=bool)
+    while alive.sum() > 1:
+        small = np.flatnonzero(alive & ((area < options.min_area) | (facade < options.min_facade)))
         if not len(small):
             break
-        k = int(small[np.argmin(np.array(area)[small])])  # the smallest first: it may make its neighbour big enough
+        k = int(small[np.argmin(area[small])])  # the smallest first: it may make its neighbour big enough
         # only boundaries whose boxes meet k's can share a length with it
-        b = np.array(box)
-        near = np.flatnonzero((b[:, 0] <= box[k][2]) & (b[:, 2] >= box[k][0]) & (b[:, 1] <= box[k][3])
-                              & (b[:, 3] >= box[k][1]))
+        near = np.flatnonzero(alive & (box[:, 0] <= box[k, 2]) & (box[:, 2] >= box[k, 0]) & (box[:, 1] <= box[k, 3])
+                              & (box[:, 3] >= box[k, 1]))
         shared = np.zeros(len(pieces))
-        shared[near] = shapely.length(shapely.intersection(boundaries[k], np.array(boundaries, dtype=object)[near]))
+        shared[near] = shapely.length(shapely.intersection(boundaries[k], boundaries[near]))
         shared[k] = -1.0
+        shared[~alive] = -np.inf
         if shared.max() <= 0:
             break  # an island part touching nothing: nothing to merge it into
         j = int(np.argmax(shared))
         pieces[j] = _largest(shapely.union_all([pieces[j], pieces[k]])) or pieces[j]
         boundaries[j] = pieces[j].boundary
         area[j], facade[j] = pieces[j].area, boundaries[j].intersection(ring).length
-        box[j] = shapely.bounds(boundaries[j]).tolist()
-        for cache in (pieces, boundaries, area, facade, box):
-            del cache[k]
+        box[j] = shapely.bounds(boundaries[j])
+        alive[k] = False
     # stable order: by lowest (x, y) of the part's centroid, so ids do not depend on the face order
-    return sorted(pieces, key=lambda p: (round(p.centroid.x, 6), round(p.centroid.y, 6)))
+    return sorted(pieces[alive], key=lambda p: (round(p.centroid.x, 6), round(p.centroid.y, 6)))
 
 
-def _part_of(pieces: list, xy: np.ndarray) -> int:
-    hits = [k for k, p in enumerate(pieces) if shapely.intersects_xy(p, xy[0], xy[1])]
-    return hits[0] if hits else -1
+def _part_of(pieces: list, xy: np.ndarray) -> np.ndarray:
+    """Per point of ``xy`` (M, 2), the first piece holding it (boundary included), -1 for none."""
+    out = np.full(len(xy), -1, dtype=np.int64)
+    for k, p in enumerate(pieces):
+        free = np.flatnonzero(out < 0)
+        out[free[shapely.intersects_xy(p, xy[free, 0], xy[free, 1])]] = k
+    return out
 
 
 def _points_to_parts(xy: np.ndarray, pieces: list) -> np.ndarray:

@@ -142,3 +142,42 @@ def test_overlapping_parts_finds_a_vertex_on_the_neighbours_straight_wall():
     assert t_junctions(shapely.box(0, 0, 5, 8), shapely.box(5, 0, 10, 8)) == 0
     assert overlapping_parts([left, right]) == [(0, 1)]
     assert overlapping_parts([left, shared]) == []
+
+
+def test_snap_neighbours_are_the_k_d_trees_pairs():
+    """Within one grid step (and under a diagonal) the vertices merged are the axis neighbours a k-d tree finds."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.model.validity import _grid_neighbours
+
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        keys = np.unique(rng.integers(0, rng.integers(2, 9), size=(rng.integers(1, 150), 3)), axis=0)
+        span = keys.max(axis=0) + 1
+        code = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+        keys, code = keys[np.argsort(code)], np.sort(code)
+        tree = cKDTree(keys * 1e-3).query_pairs(1e-3 * (1 + 1e-6), output_type="ndarray")
+        assert {tuple(sorted(p)) for p in tree.tolist()} == {
+            tuple(sorted(p)) for p in _grid_neighbours(keys, code, span).tolist()}
+
+
+def test_a_vertex_one_step_from_another_is_merged_either_way():
+    solid = _box()
+    ring = solid.surfaces[0].rings[0]
+    ring[1, :2] = ring[0, :2] + [0.001, 0.0]  # one grid step from its neighbour: merged, a repeated vertex
+    assert any("consecutive duplicate" in e for e in solid_errors(solid))
+    # a larger snap tolerance takes the k-d tree's way: the same finding
+    assert any("consecutive duplicate" in e for e in solid_errors(solid, snap_tolerance=0.0015))
+
+
+def test_part_extents_measure_as_overlapping_parts():
+    from rooftrace.model import horizontal_plane
+    from rooftrace.model.validity import PartExtent, overlapping_extents, overlapping_parts
+
+    left = prism_solid([(shapely.box(0, 0, 5, 8), horizontal_plane(6.0))], 0.0)
+    right = prism_solid([(shapely.box(5, 0, 10, 8), horizontal_plane(9.0))], 0.0)
+    bent = prism_solid([(shapely.Polygon([(4.993, 4), (5, 0), (10, 0), (10, 8), (5, 8)]), horizontal_plane(9.0))], 0.0)
+    for solids in ([left, right], [left, right, bent], [bent, left]):
+        extents = [PartExtent.of(s) for s in solids]
+        assert overlapping_extents(extents) == overlapping_parts(solids)
+        assert overlapping_extents(extents) == overlapping_extents(extents)  # measured once, asked again

@@ -41,7 +41,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
-from rooftrace.model.validity import overlapping_parts, solid_errors, solid_plan, solid_volume
+from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
 
 __all__ = ["ModelOptions", "build_model", "ground_height"]
 
@@ -192,7 +192,7 @@ def _with_face_corners(footprint, cells: list):
     (val3dity: repeated points).  As a footprint vertex it rounds as the
     faces' corner does.  The footprint's shape is unchanged.
     """
-    corners = shapely.multipoints(np.vstack([shapely.get_coordinates(c) for c, _ in cells]))
+    corners = shapely.multipoints(shapely.get_coordinates(np.array([c for c, _ in cells], dtype=object)))
     snapped = shapely.snap(footprint, corners, 1e-7)
     return snapped if snapped.is_valid and abs(snapped.area - footprint.area) <= 1e-9 * footprint.area else footprint
 
@@ -260,13 +260,29 @@ def _cut(footprints: list, cells: list, snap: float) -> list[tuple[Any, list]]:
     return out
 
 
+def _inside(poly, xyz: np.ndarray) -> np.ndarray:
+    """Which of the points lie inside ``poly`` (prepared): only those in its box are tested.
+
+    ``contains_xy`` costs per point tested, and a level of a large roof holds a small share of the
+    building's points; outside the box nothing is inside, so the mask is the same.
+    """
+    inside = np.zeros(len(xyz), dtype=bool)
+    if not len(xyz):
+        return inside
+    x0, y0, x1, y1 = poly.bounds
+    x, y = xyz[:, 0], xyz[:, 1]
+    box = np.flatnonzero((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
+    inside[box] = shapely.contains_xy(poly, x[box], y[box])
+    return inside
+
+
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
           options: ModelOptions, lods: tuple[str, ...] = LODS) -> tuple[PartModel, dict[str, str]]:
     """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing."""
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
     shapely.prepare(footprint)
-    inside = shapely.contains_xy(footprint, xyz[:, 0], xyz[:, 1]) if len(xyz) else np.zeros(0, bool)
+    inside = _inside(footprint, xyz)
     z = xyz[inside, 2]
     part.attributes["n_points"] = int(len(z))
     if not len(z):
@@ -295,7 +311,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             for members in _levels(cells, options.level_step):
                 poly = shapely.union_all([cells[i][0] for i in members])
                 shapely.prepare(poly)
-                zl = xyz[shapely.contains_xy(poly, xyz[:, 0], xyz[:, 1]), 2]
+                zl = xyz[_inside(poly, xyz), 2]
                 hl = float(np.percentile(zl, options.roof_percentile)) if len(zl) >= 3 else h
                 levels.extend((g, horizontal_plane(hl)) for g in shapely.get_parts(poly) if g.area > 0)
             part.lods["1.3"] = _checked(prism_solid(levels, ground, **kw), options)
@@ -350,17 +366,24 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
     vertex.  ``parts`` are changed in place.
     """
     tol = 0.9 * options.snap  # above the half diagonal of a lattice cell, below a step
+    extents: dict[int, tuple[Solid, PartExtent]] = {}  # by id of the solid: measured once, again only when rebuilt
+
+    def extent(solid: Solid) -> PartExtent:
+        if id(solid) not in extents:
+            extents[id(solid)] = (solid, PartExtent.of(solid, grid=options.grid))  # the solid kept: ids stay its own
+        return extents[id(solid)][1]
+
     for lod in LODS:
         bases = {k: cut[k] for k in range(len(parts))}
         for attempt in range(rounds + 1):
             have = [k for k, p in enumerate(parts) if lod in p.lods]
-            pairs = overlapping_parts([parts[k].lods[lod] for k in have], grid=options.grid)
+            pairs = overlapping_extents([extent(parts[k].lods[lod]) for k in have], grid=options.grid)
             if not pairs:
                 break
             if attempt == rounds:
                 log.warning("LoD %s: parts %s still overlap", lod, [(have[a] + 1, have[b] + 1) for a, b in pairs])
                 break
-            plans = {have[i]: solid_plan(parts[have[i]].lods[lod], grid=options.grid) for pair in pairs for i in pair}
+            plans = {have[i]: extent(parts[have[i]].lods[lod]).plan for pair in pairs for i in pair}
             extra: dict[int, list] = {}
             for a, b in pairs:
                 for i, j in ((have[a], have[b]), (have[b], have[a])):

@@ -48,7 +48,9 @@ def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
     if not flat.any():
         return out
     polys = polys[flat]
-    planes = np.array([np.r_[n, -n @ c] for n, c in zip(normal[flat], centre[flat])])
+    normal, centre = normal[flat], centre[flat]
+    # the same dot product per surface as ever (a batched one may round differently), without np.r_
+    planes = np.column_stack([normal, np.array([-n @ c for n, c in zip(normal, centre)], dtype=np.float64)])
     shapely.prepare(polys)
     # a few hundred surfaces over up to 10^5 points: each surface tests the points in its box
     # (sorted by X, a slice) rather than each point querying a tree of the surfaces

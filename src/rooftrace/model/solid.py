@@ -198,6 +198,18 @@ def _dissolve(pieces: np.ndarray, snap: float):
     return whole if whole.is_valid else shapely.union_all(pieces, grid_size=snap)
 
 
+def _first_and_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For integer rows ``keys`` (N, 2): the first row of each distinct value, and each row's value (0..U-1)."""
+    lo = keys.min(axis=0) if len(keys) else np.zeros(2, np.int64)
+    span = keys.max(axis=0) - lo + 1 if len(keys) else np.ones(2, np.int64)
+    if float(span[0]) * float(span[1]) < 2.0**62:
+        _, first, inverse = np.unique((keys[:, 0] - lo[0]) * span[1] + (keys[:, 1] - lo[1]), return_index=True,
+                                      return_inverse=True)
+    else:
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return first, inverse.ravel()
+
+
 class _Rings:
     """Rings as indices into one table of integer grid vertices."""
 
@@ -232,8 +244,10 @@ class _Rings:
         open_ = np.ones(len(coords), bool)
         open_[np.cumsum(size + 1) - 1] = False
         keys = np.round(coords[open_, :2] / self.grid).astype(np.int64)
-        # vertices numbered in order of first appearance, as vertex() numbers them
-        uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        # vertices numbered in order of first appearance, as vertex() numbers them (whatever order
+        # np.unique sorts them in: one integer per (x, y) is much faster than rows)
+        first, inverse = _first_and_inverse(keys)
+        uniq = keys[first]
         by_first = np.argsort(first, kind="stable")
         rank = np.empty(len(first), dtype=np.int64)
         rank[by_first] = np.arange(len(first))
@@ -383,8 +397,13 @@ def _simple_with_all(faces: list, edges: list, points: list, xy: np.ndarray) -> 
     return shapely.is_valid(shapely.polygons(rings, indices=np.repeat(np.arange(len(faces)), n_rings)))
 
 
-def _insert(ring: list[int], between: dict[tuple[int, int], int]) -> list[int]:
-    """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``."""
+def _insert(ring: list[int], between: dict[tuple[int, int], int], ends: set[int] | None = None) -> list[int]:
+    """``ring`` with ``between[(p, q)]`` inserted between consecutive vertices ``p, q``.
+
+    ``ends``: the vertices of ``between``'s keys; a ring through none of them is copied as it is.
+    """
+    if ends is not None and ends.isdisjoint(ring):
+        return list(ring)
     out = []
     for k, p in enumerate(ring):
         out.append(p)
@@ -686,7 +705,8 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
             # on the lattice the point is up to half a step off the crossing, where the two
             # heights may differ by more than the tolerance: they are made one there
             crossings.add(crossing[(pp, qq)])
-        face_rings = [[_insert(r, crossing) for r in rings] for rings in face_rings]
+        ends = {v for key in crossing for v in key}
+        face_rings = [[_insert(r, crossing, ends) for r in rings] for rings in face_rings]
     else:
         raise GeometryError("two roof faces cross along their shared edge")
     if snapped.min() <= g:
@@ -707,9 +727,14 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ends = np.flatnonzero(np.r_[wall_of[1:] != wall_of[:-1], True]) if len(wall_of) else np.zeros(0, np.int64)
     after[ends] = np.r_[0, ends[:-1] + 1]
     upright = wall_v == wall_v[after]
-    edge_key = np.column_stack([wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]])
-    keys, uses = np.unique(edge_key, axis=0, return_counts=True) if len(edge_key) else (edge_key, np.zeros(0, int))
-    saddle_v = np.unique(keys[uses > 2, 0])
+    edge_v, edge_z = wall_v[upright], np.minimum(wall_z, wall_z[after])[upright]
+    saddle_v = np.zeros(0, dtype=np.int64)
+    if len(edge_v):
+        # one integer per (vertex, lower height): a vertical edge's uses counted without unique rows
+        z0 = edge_z.min()
+        zspan = int(edge_z.max() - z0) + 1
+        codes, uses = np.unique(edge_v * zspan + (edge_z - z0), return_counts=True)
+        saddle_v = np.unique(codes[uses > 2] // zspan)
     if len(saddle_v):
         at = saddle_v[np.lexsort((xy[saddle_v, 1], xy[saddle_v, 0]))].tolist()  # in (x, y) order
         highest = [int(f[p == v][np.argmax(snapped[p == v])]) for v in at]

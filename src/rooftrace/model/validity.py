@@ -39,7 +39,8 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 
 __all__ = ["solid_errors", "is_valid_solid", "solid_volume", "surface_normal", "surface_normals", "surface_triangles",
-           "triangle_tilt", "surface_tilt", "overlapping_parts", "t_junctions", "solid_plan", "surface_polygons"]
+           "triangle_tilt", "surface_tilt", "overlapping_parts", "PartExtent",
+           "overlapping_extents", "t_junctions", "solid_plan", "surface_polygons"]
 
 
 def _ring_table(surfaces):
@@ -210,7 +211,8 @@ def surface_triangles(polys: np.ndarray, flat: np.ndarray, surf: np.ndarray) -> 
     tris, of = shapely.get_parts(shapely.constrained_delaunay_triangles(polys), return_index=True)
     if not len(tris):
         return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    xy = shapely.get_coordinates(shapely.get_exterior_ring(tris)).reshape(-1, 4, 2)[:, :3]
+    # triangles have no holes: their coordinates are their exterior rings' (no ring objects made)
+    xy = shapely.get_coordinates(tris).reshape(-1, 4, 2)[:, :3]
     # back to the vertex each corner is: the triangulation copies the vertices it is given, so
     # (surface, x, y) finds it bit for bit
     table = _rows(np.column_stack([surf.astype(np.float64), flat]))
@@ -474,13 +476,24 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
         return [f"a solid needs at least 4 surfaces, this one has {len(surfaces)}"]
     xyz, ring, nxt, owner, sizes, start = _ring_table(solid.surfaces)
     keys = np.round((xyz - xyz.min(axis=0)) / grid).astype(np.int64)
+    span = keys.max(axis=0) + 1
     # vertex numbers serve only to tell vertices apart: any numbering of the distinct rows will do
-    _, first, vid = np.unique(_rows(keys), return_index=True, return_inverse=True)
+    # (one integer per row when they fit: much faster than rows)
+    packed = float(span[0]) * float(span[1]) * float(span[2]) < 2.0**62
+    if packed:
+        code = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+        codes, first, vid = np.unique(code, return_index=True, return_inverse=True)
+    else:
+        _, first, vid = np.unique(_rows(keys), return_index=True, return_inverse=True)
     unique, vid = keys[first], vid.ravel()
     if snap_tolerance > 0:
         # val3dity compares decoded floats (``d < tol``): a pair exactly one tolerance apart may
         # merge or not there, so it counts as merged here
-        pairs = cKDTree(unique * grid).query_pairs(snap_tolerance * (1 + 1e-6), output_type="ndarray")
+        reach = snap_tolerance * (1 + 1e-6)
+        if packed and grid * (1 + 1e-9) <= reach < grid * np.sqrt(2.0) * (1 - 1e-9):
+            pairs = _grid_neighbours(unique, codes, span)  # within one step and under a diagonal: axis neighbours
+        else:
+            pairs = cKDTree(unique * grid).query_pairs(reach, output_type="ndarray")
         if len(pairs):
             vid = components(len(unique), pairs)[vid].astype(np.int64)
     errors = _surface_errors(xyz, vid, ring, nxt, owner, sizes, start, len(surfaces), planarity,
@@ -522,6 +535,18 @@ def solid_errors(solid, *, planarity: float = 0.01, grid: float = 1e-3, snap_tol
     if not volume > 0:
         errors.append(f"surfaces face inward (signed volume {volume:.3f} m³)")
     return errors
+
+
+def _grid_neighbours(unique: np.ndarray, codes: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """Pairs of rows of ``unique`` (distinct grid vertices, ``codes`` their sorted packed values) one step apart
+    along one axis: the pairs a k-d tree finds within a radius of one step (and under a diagonal's)."""
+    out = []
+    for axis, step in enumerate((span[1] * span[2], span[2], 1)):
+        has = np.flatnonzero(unique[:, axis] + 1 < span[axis])  # its neighbour's code would be another row's
+        at = np.minimum(np.searchsorted(codes, codes[has] + step), len(codes) - 1)
+        found = codes[at] == codes[has] + step
+        out.append(np.column_stack([has[found], at[found]]))
+    return np.vstack(out)
 
 
 def is_valid_solid(solid, **kwargs) -> bool:
@@ -572,23 +597,68 @@ def overlapping_parts(solids, *, tolerance: float = 0.0, grid: float = 1e-3) -> 
     >>> overlapping_parts([a, b]), overlapping_parts([a, b, c]), overlapping_parts([a, c], tolerance=0.01)
     ([], [(0, 2), (1, 2)], [])
     """
-    plans, low, high = [], [], []
-    for solid in solids:
+    return overlapping_extents([PartExtent.of(solid, tolerance=tolerance, grid=grid) for solid in solids],
+                               tolerance=tolerance, grid=grid)
+
+
+class PartExtent:
+    """What :func:`overlapping_parts` measures of one solid: its plan and height range, shrunk by ``tolerance``.
+
+    Made once per solid, it serves every test of that solid against its
+    neighbours (a building's parts are tested again after each rebuild of
+    one of them).  ``vertices`` and ``boundary`` (for the T-junction test)
+    are made on first use.
+
+    Attributes
+    ----------
+    plan : shapely Polygon or MultiPolygon
+    low, high : float
+        Height range (m).
+    grid : float
+    """
+
+    def __init__(self, plan, low: float, high: float, grid: float):
+        self.plan, self.low, self.high, self.grid = plan, low, high, grid
+        self._vertices = self._boundary = None
+
+    @classmethod
+    def of(cls, solid, *, tolerance: float = 0.0, grid: float = 1e-3) -> PartExtent:
+        """The extent of a 2.5D ``solid`` (see :func:`overlapping_parts` for the arguments)."""
         plan = solid_plan(solid, grid=grid)
-        z = np.concatenate([np.asarray(r)[:, 2] for s in solid.surfaces for r in s.rings])
-        plans.append(plan.buffer(-tolerance, join_style="mitre") if tolerance > 0 else plan)
-        low.append(np.round(z.min() / grid) * grid + tolerance)
-        high.append(np.round(z.max() / grid) * grid - tolerance)
-    plans = np.array(plans, dtype=object)
+        z = _ring_table(solid.surfaces)[0][:, 2]
+        return cls(plan.buffer(-tolerance, join_style="mitre") if tolerance > 0 else plan,
+                   np.round(z.min() / grid) * grid + tolerance, np.round(z.max() / grid) * grid - tolerance, grid)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """The plan's distinct vertices in grid units (rows sorted)."""
+        if self._vertices is None:
+            self._vertices = np.unique(np.round(shapely.get_coordinates(self.plan) / self.grid), axis=0)
+        return self._vertices
+
+    @property
+    def boundary(self):
+        """The plan's boundary, prepared."""
+        if self._boundary is None:
+            self._boundary = self.plan.boundary
+            shapely.prepare(self._boundary)
+        return self._boundary
+
+
+def overlapping_extents(extents: list[PartExtent], *, tolerance: float = 0.0,
+                        grid: float = 1e-3) -> list[tuple[int, int]]:
+    """:func:`overlapping_parts` of solids given by their :class:`PartExtent` (made with the same arguments)."""
+    plans = np.array([e.plan for e in extents], dtype=object)
     i, j = shapely.STRtree(plans).query(plans, predicate="intersects")
     keep = i < j
     i, j = i[keep], j[keep]
     # interiors meet (touching along a party wall does not count), or the shared wall has a T-junction
     inner = shapely.relate_pattern(plans[i], plans[j], "T********")
     if tolerance <= 0:
-        inner |= np.array([t_junctions(plans[a], plans[b], grid) > 0 for a, b in zip(i.tolist(), j.tolist())], bool)
+        inner |= np.array([_t_junctions(extents[a], extents[b]) > 0 for a, b in zip(i.tolist(), j.tolist())], bool)
     pairs = zip(i[inner].tolist(), j[inner].tolist())
-    return sorted((a, b) for a, b in pairs if min(high[a], high[b]) > max(low[a], low[b]))
+    return sorted((a, b) for a, b in pairs if min(extents[a].high, extents[b].high) > max(extents[a].low,
+                                                                                          extents[b].low))
 
 
 def t_junctions(a, b, grid: float = 1e-3) -> int:
@@ -622,16 +692,25 @@ def t_junctions(a, b, grid: float = 1e-3) -> int:
     >>> t_junctions(left, right), t_junctions(left, kinked)
     (0, 1)
     """
-    count = 0
+    return _t_junctions(PartExtent(a, 0.0, 0.0, grid), PartExtent(b, 0.0, 0.0, grid))
+
+
+def _t_junctions(a: PartExtent, b: PartExtent) -> int:
+    """:func:`t_junctions` of two extents' plans (their vertices and boundaries made once per extent)."""
+    count, grid = 0, a.grid
     for one, other in ((a, b), (b, a)):
-        xy = np.unique(np.round(shapely.get_coordinates(one) / grid), axis=0)
-        theirs = np.round(shapely.get_coordinates(other) / grid)
+        theirs = other.vertices  # distinct: the same membership and box as all of them
         if not len(theirs):
             continue
+        xy = one.vertices
         xy = xy[~np.isin(xy @ [1, 1j], theirs @ [1, 1j])]  # grid integers: exact as complex keys
         # only vertices within the other's box can lie on its boundary (most of a plan is far from it)
         lo, hi = theirs.min(axis=0) - 1, theirs.max(axis=0) + 1
         xy = xy[((xy >= lo) & (xy <= hi)).all(axis=1)]
         if len(xy):
-            count += int(np.sum(shapely.distance(shapely.points(xy * grid), other.boundary) < 0.5 * grid))
+            # the exact distance only for the vertices within a grid step (an indexed test of the
+            # prepared boundary): those further off are not within half a step either
+            points = shapely.points(xy * grid)
+            near = shapely.dwithin(points, other.boundary, grid)
+            count += int(np.sum(shapely.distance(points[near], other.boundary) < 0.5 * grid))
     return count
