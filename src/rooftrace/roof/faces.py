@@ -297,13 +297,14 @@ def _attached(U: np.ndarray, P: np.ndarray, lab: np.ndarray, planes: np.ndarray,
               max_dz: float, rise: float) -> tuple[np.ndarray, np.ndarray]:
     """The points ``U`` on no plane that stand on one of their neighbours' planes, and that plane.
 
-    A point on no plane (a parapet's or a coping's top, a gutter, a
-    chimney) stands on the roof under it: of the planes of its ``k``
-    nearest labelled points ``P`` (labels ``lab``), the one it stands
-    least high above, not more than ``max_dz`` (m) under it.  At a height
-    step the upper level's parapet then pulls the face boundary out with it
-    instead of lying over the lower level's face.  Points under all those
-    planes (a wall, a lower balcony) are left out.
+    A point on no plane (a parapet's or a coping's top, a gutter) stands on
+    the roof under it: of the planes of its ``k`` nearest labelled points
+    ``P`` (labels ``lab``), the one it stands least high above, at most
+    ``rise`` (m) above and ``max_dz`` (m) under it.  At a height step the
+    upper level's coping then pulls the face boundary out with it instead of
+    lying over the lower level's face.  Points higher above all those planes
+    (a chimney: a flat block's business) or under them all (a wall between
+    two levels) are left out.
     """
     idx = cKDTree(P[:, :2]).query(U[:, :2], k=int(min(k, len(P))))[1].reshape(len(U), -1)
     cand = lab[idx]
