@@ -235,25 +235,32 @@ def test_ridges_run_straight_from_node_to_node():
     assert sum(f.area for f in polys) == pytest.approx(model.outline.area, rel=1e-9)
 
 
+def _misplaced_points_and_vertices(roof, xyz: np.ndarray, area: float, **kw) -> tuple[int, int]:
+    """The roof's faces by ``partition_outline(**kw)``, checked to tile an outline of ``area``: the labelled
+    points under a face more than 0.1 m off their own plane, and the faces' vertices."""
+    from rooftrace.roof.faces import partition_outline
+
+    lab = roof.labels >= 0
+    own = plane_height(roof.planes[roof.labels[lab]], xyz[lab, :2])
+    polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, cell=roof.spacing / 2,
+                                    line_tolerance=1.0, **kw)
+    assert sum(f.area for f in polys) == pytest.approx(area, rel=1e-9)
+    assert shapely.union_all(polys).area == pytest.approx(area, rel=1e-9)
+    at, f = shapely.STRtree(polys).query(shapely.points(xyz[lab, :2]), predicate="within")
+    z = plane_height(roof.planes[np.asarray(pids)[f]], xyz[lab][at, :2])
+    return int(np.count_nonzero(np.abs(z - own[at]) > 0.1)), sum(len(shapely.get_coordinates(p)) for p in polys)
+
+
 @pytest.mark.parametrize("model", [models.terraced(angle=17), models.gable_dormer()], ids=lambda m: m.name)
 def test_each_boundary_by_its_rule_holds_steps_with_fewer_vertices(model):
     """Steps held, ridges free: no more labelled points under a face more than 0.1 m off their plane
     than one held-back tolerance for the roof gives, with at most half its vertices."""
-    from rooftrace.roof.faces import partition_outline
 
     xyz, _ = models.sample_roof(model, 10, 0.03, seed=3)
     roof = roof_structure(xyz, model.outline)
-    lab = roof.labels >= 0
-    own = plane_height(roof.planes[roof.labels[lab]], xyz[lab, :2])
 
     def measure(boundaries):
-        polys, pids = partition_outline(roof.outline, xyz, roof.labels, roof.planes, cell=roof.spacing / 2,
-                                        line_tolerance=1.0, boundaries=boundaries)
-        assert sum(f.area for f in polys) == pytest.approx(model.outline.area, rel=1e-9)
-        assert shapely.union_all(polys).area == pytest.approx(model.outline.area, rel=1e-9)
-        at, f = shapely.STRtree(polys).query(shapely.points(xyz[lab, :2]), predicate="within")
-        z = plane_height(roof.planes[np.asarray(pids)[f]], xyz[lab][at, :2])
-        return np.count_nonzero(np.abs(z - own[at]) > 0.1), sum(len(shapely.get_coordinates(p)) for p in polys)
+        return _misplaced_points_and_vertices(roof, xyz, model.outline.area, boundaries=boundaries)
 
     (each, n_each), (held, n_held), (free, _) = measure("each"), measure("held"), measure("free")
     assert each <= held < free and n_each <= n_held / 2  # measured: terraced 1 / 3 / 15 points, 154 / 384 vertices
@@ -393,3 +400,32 @@ def test_nearest_labels_far_from_the_points_are_the_kd_tree_query():
     cells = np.concatenate([rng.uniform(0, 5, (200, 2)), rng.uniform(200, 300, (300, 2))])
     got = lab[_nearest(xy, lab, cells, 8)]
     assert np.array_equal(got, lab[cKDTree(xy).query(cells, k=8)[1]])
+
+
+def test_cells_along_steps_refined_put_fewer_points_under_the_other_level():
+    """At a height step a cell of half the point spacing can hold points of both levels; split in four
+    there, the faces put fewer labelled points under a face more than 0.1 m off their own plane, and
+    still tile the outline."""
+    model = models.terraced(angle=17)
+    counts = {False: 0, True: 0}
+    for seed in (1, 2, 3):
+        xyz, _ = models.sample_roof(model, 10, 0.03, seed=seed)
+        roof = roof_structure(xyz, model.outline)
+        for refine in counts:
+            counts[refine] += _misplaced_points_and_vertices(roof, xyz, model.outline.area, refine_steps=refine)[0]
+    assert counts[True] <= counts[False] / 2  # measured: 0 against 6 points
+
+
+def test_points_on_no_plane_stand_on_the_plane_just_under_them():
+    """A point on no plane joins the face partition with the plane of its neighbours it stands on (at
+    most ``rise`` above it, at most ``max_dz`` under it): a coping 0.3 m over the upper level, a gutter
+    on the lower one; a wall point between the levels, or a point under both, joins none."""
+    from rooftrace.roof.faces import _attached
+
+    planes = np.array([[0.0, 0.0, 1.0, -5.0], [0.0, 0.0, 1.0, -8.0]])  # lower level at 5 m, upper at 8 m
+    g = np.stack(np.meshgrid(np.arange(0.0, 4.0, 0.5), np.arange(0.0, 4.0, 0.5)), -1).reshape(-1, 2)
+    P = np.vstack([np.column_stack([g, np.full(len(g), 5.0)]), np.column_stack([g + [4.0, 0.0], np.full(len(g), 8.0)])])
+    lab = np.repeat([0, 1], len(g))
+    U = np.array([[4.0, 2.0, 8.3], [3.9, 2.0, 5.2], [4.0, 1.0, 6.5], [4.0, 3.0, 4.0]])
+    xyz, which = _attached(U, P, lab, planes, 8, 0.1, 0.5)
+    assert xyz.tolist() == U[:2].tolist() and which.tolist() == [1, 0]

@@ -191,7 +191,8 @@ def test_superstructures_get_faces_and_the_lod22_roof_fits_them():
     assert np.flatnonzero(roof.plane_detail)[0] in roof.face_plane
     assert all(np.flatnonzero(roof.plane_detail)[0] not in pair for pair in roof.ridge_planes)
     assert np.median(dz[None]) > 1.0 and np.median(dz[0.5]) < 0.05
-    assert rmse[0.5] < 0.12 < rmse[None]
+    # measured: 0.030 against 0.095 m (0.115 against 0.147 m before the points on no plane took part in the faces)
+    assert rmse[0.5] < 0.05 and rmse[0.5] < rmse[None] / 2
 
 
 def test_chimney_too_small_for_a_plane_becomes_a_flat_block():
@@ -215,4 +216,19 @@ def test_chimney_too_small_for_a_plane_becomes_a_flat_block():
         dz[points] = np.abs(xyz[chimney, 2] - roof_height_at(solids, xyz[chimney, :2]))
     assert roof.plane_detail.sum() == 1 and roof.slope_deg[roof.plane_detail][0] == 0.0
     assert roof.ridge_kind == ["ridge"]
-    assert np.median(dz[0]) > 0.8 and np.median(dz[4]) < 0.1
+    # without the block the chimney's points stand within ``rise`` of the other pitch's plane extended past the
+    # ridge and pull its face over them: 0.24 m off (a metre before the points on no plane took part in the faces)
+    assert np.median(dz[0]) > 0.2 and np.median(dz[4]) < 0.05
+
+
+def test_points_a_plane_holds_apart_from_the_rest_of_it_are_released():
+    """Two points on the extension of a flat roof's plane, 4 m beyond its points (a lower roof's clutter at the
+    same height), are not that roof: the block step takes them off the plane; the roof's points keep it."""
+    from rooftrace.roof.planes import fit_planes
+    from rooftrace.roof.superstructures import block_planes
+
+    g = np.stack(np.meshgrid(np.arange(0, 6, 0.3), np.arange(0, 6, 0.3)), -1).reshape(-1, 2)
+    xyz = np.vstack([np.column_stack([g, np.full(len(g), 5.0)]), [[10.0, 3.0, 5.0], [10.3, 3.0, 5.0]]])
+    lab = np.zeros(len(xyz), np.int64)
+    out, fit = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3)
+    assert (out[:-2] == 0).all() and out[-2:].tolist() == [-1, -1] and len(fit.planes) == 1

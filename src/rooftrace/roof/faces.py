@@ -16,7 +16,8 @@ label raster is turned into polygons (``rasterio.features.shapes``) and
 each shared boundary, from node to node, is simplified once by its own rule
 (``boundaries='each'``): a ridge or valley, where the two planes meet, goes
 straight between its nodes; a height step only as far as it moves no
-labelled point to under a face more than ``max_dz`` off its own plane.  The
+labelled point to under a face more than ``max_dz`` off its own plane (a
+cell holding points of both levels is first split in four, ``refine_steps``).  The
 simplified boundaries are polygonised, so neighbours
 keep identical edges.  (``'held'`` simplifies all boundaries together,
 ``shapely.coverage_simplify``, at one tolerance per roof held back by the
@@ -292,6 +293,68 @@ def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.n
     return out
 
 
+def _attached(U: np.ndarray, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, k: int,
+              max_dz: float, rise: float) -> tuple[np.ndarray, np.ndarray]:
+    """The points ``U`` on no plane that stand on one of their neighbours' planes, and that plane.
+
+    A point on no plane (a parapet's or a coping's top, a gutter) stands on
+    the roof under it: of the planes of its ``k`` nearest labelled points
+    ``P`` (labels ``lab``), the one it stands least high above, at most
+    ``rise`` (m) above and ``max_dz`` (m) under it.  At a height step the
+    upper level's coping then pulls the face boundary out with it instead of
+    lying over the lower level's face.  Points higher above all those planes
+    (a chimney: a flat block's business) or under them all (a wall between
+    two levels) are left out.
+    """
+    idx = cKDTree(P[:, :2]).query(U[:, :2], k=int(min(k, len(P))))[1].reshape(len(U), -1)
+    cand = lab[idx]
+    above = U[:, 2:3] - plane_height(planes[cand], U[:, None, :2])
+    above[(above < -max_dz) | (above > rise)] = np.inf
+    best = np.argmin(above, axis=1)
+    ok = np.isfinite(above[np.arange(len(U)), best])
+    return U[ok], cand[np.arange(len(U)), best][ok]
+
+
+def _steps_refined(grid: np.ndarray, x0: float, y1: float, cell: float, xy: np.ndarray, lab: np.ndarray,
+                   planes: np.ndarray, max_dz: float, plane_of) -> tuple[np.ndarray, float]:
+    """The label raster at half the cell, the cells that misplace a labelled point labelled anew.
+
+    At a height step the points of the two levels lie closer than the point
+    spacing in plan, so a cell of half the spacing can hold points of both,
+    and its centre's nearest point gives the other level's point to the
+    wrong face.  Each cell holding a labelled point (plan ``xy``, plane
+    ``lab``) whose plane is more than ``max_dz`` (m) off the cell's there is
+    split in four, and each quarter takes the plane of its centre
+    (``plane_of``, the rule of the coarse cells); every other quarter keeps
+    its cell's plane, so the finer raster adds vertices only where a point
+    asks for them.
+
+    Returns
+    -------
+    grid : ndarray of shape (2 ny, 2 nx), int32
+    cell : float
+        The refined raster's cell (m), ``cell / 2``.
+    """
+    ny, nx = grid.shape
+    col = np.floor((xy[:, 0] - x0) / cell).astype(np.int64)
+    row = np.floor((y1 - xy[:, 1]) / cell).astype(np.int64)
+    on = (col >= 0) & (col < nx) & (row >= 0) & (row < ny)
+    row, col, pts, own = row[on], col[on], xy[on], lab[on]
+    g = grid[row, col]
+    mixed = (g >= 0) & (g != own)
+    row, col, pts, own, g = row[mixed], col[mixed], pts[mixed], own[mixed], g[mixed]
+    apart = np.abs(plane_height(planes[g], pts) - plane_height(planes[own], pts)) > max_dz
+    fine = np.repeat(np.repeat(grid, 2, axis=0), 2, axis=1)
+    cells = np.unique(row[apart] * nx + col[apart])
+    if len(cells):
+        r = (2 * (cells // nx))[:, None] + np.array([0, 0, 1, 1])
+        c = (2 * (cells % nx))[:, None] + np.array([0, 1, 0, 1])
+        r, c = r.ravel(), c.ravel()
+        half = cell / 2
+        fine[r, c] = plane_of(np.column_stack([x0 + (c + 0.5) * half, y1 - (r + 0.5) * half]))
+    return fine, cell / 2
+
+
 def _arcs_simplified(regions: list, ids: list, grid: np.ndarray, x0: float, y1: float, cell: float,
                      P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *, tolerance: float, floor: float,
                      max_dz: float, plane_sigma: np.ndarray | None = None, few: int = 0):
@@ -406,6 +469,8 @@ def partition_outline(
     max_dz: float | None = 0.1,
     boundaries: str = "each",
     plane_sigma: np.ndarray | None = None,
+    refine_steps: bool = True,
+    rise: float | None = None,
 ):
     """Split the outline among the planes.
 
@@ -455,6 +520,22 @@ def partition_outline(
         Height residual (m) of each plane's points; with ``'each'`` the
         crease tolerance of two planes is ``max(max_dz, 2 hypot(sigma_a,
         sigma_b))``, without it ``max_dz``.
+    refine_steps : bool
+        With ``'each'``: the raster is halved, and each cell that puts a
+        labelled point under a plane more than ``max_dz`` off its own (a
+        cell holding points of both levels of a height step) is split in
+        four and labelled anew (:func:`_steps_refined`); ``simplify`` and
+        ``min_area`` stay in cells of ``cell``, the staircase floor (0.75
+        cells) is the halved raster's.
+    rise : float or None
+        A point on no plane (``labels == -1``: a parapet's coping, a
+        gutter, roof clutter) takes part in the partition, and in the
+        simplification's point checks, as a point of the plane it stands
+        on: of its ``k`` nearest labelled points' planes, the one it stands
+        least high above, at most ``rise`` (m) above and ``max_dz`` under
+        (:func:`_attached`); one standing higher (a chimney, a flat block's
+        business) or under them all (a wall) takes no part.  None: only
+        labelled points take part.
 
     Returns
     -------
@@ -468,6 +549,10 @@ def partition_outline(
     P, lab = np.asarray(xyz)[sel], np.asarray(labels)[sel]
     if len(P) == 0 or outline.is_empty:
         return [], []
+    if rise is not None and max_dz is not None and (~sel).any():
+        # the points on no plane take part as points of the plane they stand on
+        extra, on = _attached(np.asarray(xyz)[~sel], P, lab, planes, k, max_dz, rise)
+        P, lab = np.vstack([P, extra]), np.concatenate([lab, on])
     minx, miny, maxx, maxy = outline.bounds
     area = (maxx - minx + 20 * cell) * (maxy - miny + 20 * cell)
     if area / cell**2 > MAX_CELLS:
@@ -484,18 +569,13 @@ def partition_outline(
     # (wider than the simplification tolerance, which can move region edges)
     inside = shapely.contains_xy(outline.buffer((simplify + 2) * cell), C_all[:, 0], C_all[:, 1])
     C = C_all[inside]
-    cand = lab[_nearest(P[:, :2], lab, C, int(min(k, len(P))))]
-    choice = cand[:, 0].copy()
-    # Only cells whose neighbours disagree need a decision.
-    rows = np.flatnonzero((cand != cand[:, :1]).any(axis=1))
-    cm, Cm = cand[rows], C[rows]
     # Where no line is near, the nearest point's plane (or with ``vote`` the
     # majority of the k nearest, a smoother boundary that drifts off the
     # points at a step).
     K = len(planes)
     segidx = np.full((K, K), -1, dtype=np.int64)
     seg, sign = np.zeros((0, 2, 2)), np.zeros(0, dtype=np.int64)
-    if lines is not None and len(lines.lines) and len(rows):
+    if lines is not None and len(lines.lines):
         # One segment per plane pair, spanning all its pieces (a ridge cut
         # by a courtyard is collinear pieces).
         spans: dict = {}
@@ -513,29 +593,45 @@ def partition_outline(
             seg.append(ends)
             sign.append(cv)
         seg, sign = np.asarray(seg, dtype=np.float64).reshape(-1, 2, 2), np.asarray(sign, dtype=np.int64)
-    # Only candidate pairs joined by a line matter, and only near the line:
-    # each cell's distance to each such line, then fewest violations first,
-    # then the vote (compiled, see rooftrace.roof.face_kernels).
-    ptr, line = cell_lines(cm, segidx)
-    at = np.repeat(np.arange(len(rows)), np.diff(ptr))
-    near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
-    z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
-    if len(rows):
+
+    def plane_of(C: np.ndarray) -> np.ndarray:
+        """The plane each cell centre ``C`` takes."""
+        cand = lab[_nearest(P[:, :2], lab, C, int(min(k, len(P))))]
+        choice = cand[:, 0].copy()
+        # Only cells whose neighbours disagree need a decision.
+        rows = np.flatnonzero((cand != cand[:, :1]).any(axis=1))
+        if not len(rows):
+            return choice
+        cm, Cm = cand[rows], C[rows]
+        # Only candidate pairs joined by a line matter, and only near the line:
+        # each cell's distance to each such line, then fewest violations first,
+        # then the vote (compiled, see rooftrace.roof.face_kernels).
+        ptr, line = cell_lines(cm, segidx)
+        at = np.repeat(np.arange(len(rows)), np.diff(ptr))
+        near = _segment_distance(Cm[at], seg[line, 0], seg[line, 1]) <= line_tolerance
+        z = plane_height(planes[cm], Cm[:, None, :]) if len(line) else np.zeros(cm.shape)
         choice[rows] = cm[np.arange(len(rows)), cell_choice(cm, segidx, ptr, line, near, sign, z, vote)]
+        return choice
+
+    choice = plane_of(C)
     grid = np.full(len(C_all), -1, dtype=np.int32)
     grid[inside] = choice
     grid = grid.reshape(ny, nx)
+    raster_cell = cell
+    if refine_steps and boundaries == "each" and max_dz is not None:
+        grid, raster_cell = _steps_refined(grid, x0, y1, cell, P[:, :2], lab, planes, max_dz, plane_of)
     # rasterio (GDAL) only here: importing it costs every command's start-up a tenth of a second
     from rasterio import features
     from rasterio.transform import Affine
 
-    transform = Affine(cell, 0, x0, 0, -cell, y1)
+    transform = Affine(raster_cell, 0, x0, 0, -raster_cell, y1)
     regions, ids = _polygons(features.shapes(grid, transform=transform, connectivity=4))
     if max_dz is None or boundaries == "free":
         regions = shapely.coverage_simplify(np.array(regions, dtype=object), simplify * cell, simplify_boundary=False)
     elif boundaries == "each":
-        regions, ids = _arcs_simplified(regions, ids, grid, x0, y1, cell, P, lab, planes, tolerance=simplify * cell,
-                                        floor=min(0.75, simplify) * cell, max_dz=max_dz, plane_sigma=plane_sigma)
+        regions, ids = _arcs_simplified(regions, ids, grid, x0, y1, raster_cell, P, lab, planes,
+                                        tolerance=simplify * cell,
+                                        floor=min(0.75, simplify) * raster_cell, max_dz=max_dz, plane_sigma=plane_sigma)
     else:
         # only points near a region boundary can change region: those whose
         # cell has another label within the tolerance (plus a cell)

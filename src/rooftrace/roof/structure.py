@@ -103,7 +103,9 @@ class RoofOptions:
     min_ridge_length : float
         Shortest ridge, hip, valley or step line kept (m).
     step_height : float
-        Smallest height jump (m) between neighbouring faces for a step edge.
+        Smallest height jump (m) between neighbouring faces for a step edge;
+        also the most a point on no plane may stand above a neighbouring
+        plane to count as its point in the face partition (a coping, a gutter).
     cell : float or None
         Raster cell (m) of the face partition; default ``s / 2``.  At a
         height step a cell of ``s / 2`` may hold points of both levels and
@@ -409,7 +411,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
-            boundaries=opt.face_boundaries, plane_sigma=fit.sigma,
+            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)

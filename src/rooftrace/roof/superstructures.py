@@ -28,6 +28,11 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
                  rise: float = 0.5, link: float | None = None, min_density: float = 0.25):
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
+    First the points a plane holds apart from the rest of it (groups of
+    fewer than ``min_points`` linked within ``link``) are taken off it: they
+    lie on the plane's extension, not on its surface, and join the points
+    on no plane.
+
     Parameters
     ----------
     xyz : ndarray of shape (N, 3), float64
@@ -54,7 +59,8 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     Returns
     -------
     labels : ndarray of shape (N,), int64
-        With the blocks numbered after the planes of ``fit``.
+        With the blocks numbered after the planes of ``fit``, the stray
+        points of a plane ``-1`` unless in a block.
     fit : PlaneFit
         ``fit`` with the blocks appended (``p = q = 0``, ``r`` the mean
         height, ``sigma`` with ``n - 1`` degrees of freedom and only
@@ -74,11 +80,12 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
-    un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
     K = len(fit.planes)
+    link = link or 2.5 * spacing
+    labels = _stray_points_released(xyz, labels, link, min_points)
+    un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
     if len(un) < min_points or not len(on):
         return labels, fit
-    link = link or 2.5 * spacing
     comp = components(len(un), cKDTree(xyz[un]).query_pairs(link, output_type="ndarray"))
     # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it
     _, nearest = cKDTree(xyz[on, :2]).query(xyz[un, :2])
@@ -120,3 +127,29 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
         np.concatenate([fit.n, n]).astype(fit.n.dtype),
     )
     return labels, out
+
+
+def _stray_points_released(xyz: np.ndarray, labels: np.ndarray, link: float, min_points: int) -> np.ndarray:
+    """``labels`` with the points of a plane that lie apart from the rest of it taken off it (``-1``).
+
+    A plane holds a point by its equation: a point of a chimney, a parapet or
+    a lower roof that happens to lie on the extension of a plane elsewhere on
+    the roof is labelled with it, alone or with one or two others, metres
+    from the plane's own points.  The face partition gives such a point a
+    region of a cell or two, which merges into the face around it, and the
+    point ends up metres off that face.  The groups of a plane's points
+    linked within ``link`` (m, 3D) that have fewer than ``min_points``
+    points are released, to be judged with the other leftovers.
+    """
+    on = np.flatnonzero(labels >= 0)
+    if len(on) < 2:
+        return labels
+    pairs = cKDTree(xyz[on]).query_pairs(link, output_type="ndarray")
+    pairs = pairs[labels[on[pairs[:, 0]]] == labels[on[pairs[:, 1]]]]
+    comp = components(len(on), pairs)
+    small = np.bincount(comp)[comp] < min_points
+    if not small.any():
+        return labels
+    labels = labels.copy()
+    labels[on[small]] = -1
+    return labels
