@@ -76,6 +76,30 @@ def insert_sorted(bd, bi, p, d, index):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def _first_at_least(zs, lo, hi, z):  # pragma: no cover - compiled
+    """The first index in ``[lo, hi)`` of the ascending ``zs`` whose value is at least ``z`` (``hi``: none)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if zs[mid] < z:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline="always")
+def _first_above(zs, lo, hi, z):  # pragma: no cover - compiled
+    """The first index in ``[lo, hi)`` of the ascending ``zs`` whose value is above ``z`` (``hi``: none)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if zs[mid] <= z:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, inline="always")
 def _block_candidates(px, py, pz, cx, cy, start, perm, xs, ys, zs, x0, y0, side, nx, ny, bound, cd,
                       ci):  # pragma: no cover
     """Squared distances (and points) of the 3 x 3 cells around cell (cx, cy) below ``bound``, into ``cd``, ``ci``.
@@ -96,22 +120,8 @@ def _block_candidates(px, py, pz, cx, cy, start, perm, xs, ys, zs, x0, y0, side,
             a, b = start[c], start[c + 1]
             if finite and a < b:
                 # a cell is sorted by height: only its slice within reach in z
-                lo, hi = a, b
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if zs[mid] < pz - reach:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                a = lo
-                hi = b
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if zs[mid] <= pz + reach:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                b = lo
+                a = _first_at_least(zs, a, b, pz - reach)
+                b = _first_above(zs, a, b, pz + reach)
             for s in range(a, b):
                 dx = xs[s] - px
                 dy = ys[s] - py
@@ -213,15 +223,7 @@ def _knn_one(i, xyz, cell, start, perm, xs, ys, zs, x0, y0, side, nx, ny, k, gue
                 c = gx * ny + gy
                 a, b = start[c], start[c + 1]
                 if a < b and worst < np.inf:
-                    zlo = pz - np.sqrt(worst) * (1.0 + 1e-9)
-                    lo, hi = a, b
-                    while lo < hi:
-                        mid = (lo + hi) // 2
-                        if zs[mid] < zlo:
-                            lo = mid + 1
-                        else:
-                            hi = mid
-                    a = lo
+                    a = _first_at_least(zs, a, b, pz - np.sqrt(worst) * (1.0 + 1e-9))
                 for s in range(a, b):
                     dz = zs[s] - pz
                     if dz > 0.0 and dz * dz >= worst:
