@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height
+from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height, with_horizontal_planes
 
 __all__ = ["low_blocks", "open_to_sky", "depth_under_roof"]
 
@@ -164,27 +164,5 @@ def low_blocks(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: floa
                 blocks.append(un[layer])
     if not blocks:
         return labels, fit
-    return _with_horizontal(xyz, labels, fit, blocks)
+    return with_horizontal_planes(xyz, labels, fit, blocks)
 
-
-def _with_horizontal(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, blocks: list) -> tuple:
-    """``labels`` and ``fit`` with each group of point indices in ``blocks`` a horizontal plane at its mean height."""
-    K = len(fit.planes)
-    labels = labels.copy()
-    n = np.array([len(b) for b in blocks])
-    mean = np.array([xyz[b, 2].mean() for b in blocks])
-    sigma = np.array([np.sqrt(np.sum((xyz[b, 2] - m) ** 2) / max(len(b) - 1, 1)) for b, m in zip(blocks, mean)])
-    for j, b in enumerate(blocks):
-        labels[b] = K + j
-    cov = np.zeros((len(blocks), 3, 3))
-    cov[:, 2, 2] = sigma**2 / n
-    zeros = np.zeros(len(blocks))
-    out = PlaneFit(
-        np.vstack([fit.planes, np.column_stack([zeros, zeros, np.ones(len(blocks)), -mean])]),
-        np.vstack([fit.pqr, np.column_stack([zeros, zeros, mean])]),
-        np.vstack([fit.centre, np.array([xyz[b, :2].mean(axis=0) for b in blocks])]),
-        np.concatenate([fit.cov, cov]),
-        np.concatenate([fit.sigma, sigma]),
-        np.concatenate([fit.n, n]).astype(fit.n.dtype),
-    )
-    return labels, out
