@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely
 
+from rooftrace.errors import GeometryError
 from rooftrace.model import (
     ModelOptions,
     build_model,
@@ -17,7 +18,6 @@ from rooftrace.model import (
     solid_volume,
     vertical_rmse,
 )
-from rooftrace.errors import GeometryError
 from rooftrace.model.measure import roof_height_at
 from rooftrace.model.validity import overlapping_parts
 from rooftrace.roof import RoofStructure, roof_structure
