@@ -44,7 +44,7 @@ import shapely
 from rooftrace.cloud import ASPRS
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
-           "footprint_attributes", "STATUSES"]
+           "footprint_attributes", "touching_points", "STATUSES"]
 
 log = logging.getLogger(__name__)
 
@@ -383,8 +383,8 @@ def assign_footprints(
             where[out] = _first_per_point(p, f_, int(out.sum()))
         keep = (where >= 0) & ok[where]
         spacing = 1.0 / np.sqrt(density) if density and np.isfinite(density) and density > 0 else 0.5
-        joined, to = _touching(xyz, cand[keep], where[keep], building_id, 2.5 * spacing)
-        building_id[joined] = (to + 1).astype(np.int32)
+        joined, to = touching_points(xyz, cand[keep], building_id, 2.5 * spacing, owner=where[keep] + 1)
+        building_id[joined] = to.astype(np.int32)
         touching = np.sort(joined)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
@@ -394,35 +394,56 @@ def assign_footprints(
                                touching=touching)
 
 
-def _touching(xyz: np.ndarray, candidates: np.ndarray, owner: np.ndarray, building_id: np.ndarray,
-              link: float, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """The ``candidates`` (point indices) within ``link`` (m, 3D) of a point of the building ``owner + 1`` they
-    would join, or of one joined before them (``rounds`` times), and that building's index.
+def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.ndarray, link: float, *,
+                    owner: np.ndarray | None = None, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """The ``candidates`` that touch a building's points, and that building.
+
+    A candidate touches a building when its nearest point of a building
+    (``building_id > 0``) lies within ``link`` (m, 3D), or its nearest
+    candidate that joined in the round before does (``rounds`` rounds: a
+    chain of clutter reaches from the roof).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+    candidates : ndarray of int
+        Indices of the points that may join.
+    building_id : ndarray of shape (N,), int
+        0 for none.
+    link : float
+        3D distance (m).
+    owner : ndarray of int, optional
+        Per candidate, the only building id it may join (a footprint's);
+        default any.
+    rounds : int
 
     Returns
     -------
     joined : ndarray of int
         Point indices.
-    footprint : ndarray of int
-        The footprint index each joins.
+    to : ndarray of int
+        The building id each joins.
     """
     from scipy.spatial import cKDTree
 
     joined, to = [], []
     members = np.flatnonzero(building_id > 0)
     ids = building_id[members].astype(np.int64)
+    candidates = np.asarray(candidates, dtype=np.int64)
     for _ in range(rounds):
         if not len(candidates) or not len(members):
             break
         d, j = cKDTree(xyz[members]).query(xyz[candidates], distance_upper_bound=link)
         hit = np.isfinite(d)
-        hit[hit] = ids[j[hit]] == owner[hit] + 1
+        if owner is not None:
+            hit[hit] = ids[j[hit]] == owner[hit]
         if not hit.any():
             break
         joined.append(candidates[hit])
-        to.append(owner[hit])
-        members, ids = candidates[hit], owner[hit] + 1
-        candidates, owner = candidates[~hit], owner[~hit]
+        to.append(ids[j[hit]])
+        members, ids = candidates[hit], ids[j[hit]]
+        candidates = candidates[~hit]
+        owner = owner[~hit] if owner is not None else None
     if not joined:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     return np.concatenate(joined), np.concatenate(to)
