@@ -466,6 +466,7 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         raise GeometryError("no roof cells")
     if footprint is None:
         footprint = shapely.union_all([shapely.force_2d(c) for c, _ in cells])
+    footprint = _unpinched(footprint, snap)
     attempt = 0
     while True:
         try:
@@ -485,6 +486,49 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
             dropped = small > 0 and len(opened) < len(cells)
             cells = opened
             attempt += 0 if dropped else 1
+
+
+def _pinch_points(polygon) -> np.ndarray:
+    """Plan positions (M, 2) where the rings of ``polygon`` pass more than once (a hole touching the shell or
+    another hole at one point)."""
+    rings = shapely.get_rings(polygon)
+    xy = np.concatenate([shapely.get_coordinates(r)[:-1] for r in rings]) if len(rings) else np.zeros((0, 2))
+    uniq, count = np.unique(xy, axis=0, return_counts=True)
+    return uniq[count > 1]
+
+
+def _unpinched(footprint, snap: float):
+    """``footprint`` without the points where its boundary touches itself on the ``snap`` lattice.
+
+    Where a hole touches the shell (or another hole) at one point, the walls
+    of both rings stand on the same vertical edge: four walls, a
+    non-manifold edge no roof cell can mend (the disks of
+    :func:`_open_saddles` stop at the footprint).  A notch, an octagon of
+    radius two lattice steps around the point, is cut out of the footprint
+    there (the hole then opens onto the outside, or the two holes become
+    one): the outline moves inward by at most ``2 snap`` (m) within that
+    octagon, no roof height changes.  Where the cut would split the
+    footprint (a strip between the hole and the shell), the octagon is
+    added instead (the roof there is the neighbouring cell's plane carried
+    over at most ``2 snap``).  The octagon grows (2, 4, 8 steps) when the
+    lattice makes a new pinch of a narrow sector's tip.
+
+    A footprint without such a point is returned as it is.
+    """
+    fp = shapely.set_precision(shapely.force_2d(footprint), snap)
+    if fp.geom_type != "Polygon" or not len(_pinch_points(fp)):
+        return footprint
+    for steps in (2, 4, 8):
+        points = _pinch_points(fp)
+        if not len(points):
+            return fp
+        notch = shapely.union_all(shapely.buffer(shapely.points(points), steps * snap, quad_segs=2))
+        cut = shapely.set_precision(shapely.difference(fp, notch), snap)
+        if cut.geom_type != "Polygon":
+            cut = shapely.set_precision(shapely.union(fp, notch), snap)
+        if cut.geom_type == "Polygon" and not len(_pinch_points(cut)):
+            return cut
+    return footprint  # left as it was: the solid reports the saddle
 
 
 class _Saddle(Exception):
