@@ -8,6 +8,7 @@ import shapely
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from rooftrace.errors import GeometryError
 from rooftrace.model import horizontal_plane, prism_solid, solid_errors, solid_volume
 
 SETTINGS = settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
@@ -66,10 +67,30 @@ def test_two_holes_touching_at_one_point_become_one():
     assert solid_errors(prism_solid([(fp, horizontal_plane(5.0))], 0.0, footprint=fp)) == []
 
 
+def test_a_lobe_touching_the_footprint_at_a_corner_is_dropped_or_joined():
+    """A part's footprint cut from a building's arrangement was a polygon and a lobe of a few cm² touching it at a
+    corner (IGN with s/4 faces): the part lost every level ("the footprint falls into 2 pieces")."""
+    from rooftrace.model.solid import SLIVER_AREA, _unpinched
+
+    main = shapely.box(0, 0, 6, 4)
+    for lobe, kept in ((shapely.box(6, 4, 6.1, 4.2), False), (shapely.box(6, 4, 8, 6), True)):
+        fp = shapely.MultiPolygon([main, lobe])
+        assert fp.is_valid and (lobe.area >= SLIVER_AREA) == kept
+        out = _unpinched(fp, SNAP)
+        assert out.geom_type == "Polygon" and out.contains(main.buffer(-1e-9))
+        assert out.contains(lobe.buffer(-1e-9)) == kept
+        solid = prism_solid([(main, horizontal_plane(6.0)), (lobe, horizontal_plane(5.0))], 0.0, footprint=fp)
+        assert solid_errors(solid) == []
+        assert solid_volume(solid) == pytest.approx(main.area * 6.0 + kept * lobe.area * 5.0, abs=NOTCH * 6.0)
+    with pytest.raises(GeometryError, match="falls into 2 pieces"):  # pieces apart are not one solid
+        far = shapely.MultiPolygon([main, shapely.box(7, 0, 9, 2)])
+        prism_solid([(far, horizontal_plane(6.0))], 0.0, footprint=far)
+
+
 def _raster_partition(seed: int, n: int, size: float, levels: int = 4):
     """Random faces on an ``n`` x ``n`` raster of ``size`` m cells: one height level per cell (half of the
     faces tilted), some cells left out of the footprint, faces and holes meeting at corners (saddles,
-    faces touching themselves, holes touching the shell)."""
+    faces touching themselves, holes touching the shell, pieces of the footprint touching at corners)."""
     rng = np.random.default_rng(seed)
     level = rng.integers(0, levels, (n, n))
     inside = rng.random((n, n)) > 0.15
@@ -78,7 +99,9 @@ def _raster_partition(seed: int, n: int, size: float, levels: int = 4):
     for i, j in zip(*np.nonzero(inside)):
         boxes.setdefault(int(level[i, j]), []).append(shapely.box(i * size, j * size, (i + 1) * size, (j + 1) * size))
     fp = shapely.union_all([b for v in boxes.values() for b in v])
-    fp = max(shapely.get_parts(fp), key=lambda g: g.area)
+    pieces = sorted(shapely.get_parts(fp), key=lambda g: -g.area)
+    # pieces touching the largest at corners stay (lobes to drop or join), the others go
+    fp = shapely.union_all([g for g in pieces if shapely.intersects(g, pieces[0])])
     return _cells(rng, boxes, fp), fp
 
 

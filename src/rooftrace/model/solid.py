@@ -513,15 +513,25 @@ def _unpinched(footprint, snap: float):
     over at most ``2 snap``).  The octagon grows (2, 4, 8 steps) when the
     lattice makes a new pinch of a narrow sector's tip.
 
+    A footprint of pieces touching at points (a part's footprint cut from a
+    building's arrangement may keep a lobe of a few cm² at a corner) first
+    loses the pieces under ``SLIVER_AREA`` that touch the largest one; a
+    larger piece touching it is joined to it by the octagon.  Pieces that do
+    not touch are left: such a footprint is not one solid.
+
     A footprint without such a point is returned as it is.
     """
     fp = shapely.set_precision(shapely.force_2d(footprint), snap)
-    if fp.geom_type != "Polygon" or not len(_pinch_points(fp)):
+    if fp.geom_type == "MultiPolygon":
+        fp = _one_piece(fp, snap)
+        if fp is None:
+            return footprint
+    elif fp.geom_type != "Polygon" or not len(_pinch_points(fp)):
         return footprint
+    points = _pinch_points(fp)
+    if not len(points):
+        return fp
     for steps in (2, 4, 8):
-        points = _pinch_points(fp)
-        if not len(points):
-            return fp
         notch = shapely.union_all(shapely.buffer(shapely.points(points), steps * snap, quad_segs=2))
         cut = shapely.set_precision(shapely.difference(fp, notch), snap)
         if cut.geom_type != "Polygon":
@@ -529,6 +539,25 @@ def _unpinched(footprint, snap: float):
         if cut.geom_type == "Polygon" and not len(_pinch_points(cut)):
             return cut
     return footprint  # left as it was: the solid reports the saddle
+
+
+#: pieces of a footprint (m²) touching its largest piece at a point that are dropped rather than joined to it
+SLIVER_AREA = 1.0
+
+
+def _one_piece(pieces, snap: float):
+    """The largest of ``pieces`` (polygons on the lattice), with those touching it at points dropped (under
+    ``SLIVER_AREA``) or joined to it by an octagon of two lattice steps; None if some piece does not touch."""
+    parts = sorted(shapely.get_parts(pieces), key=lambda g: -g.area)
+    main, rest = parts[0], parts[1:]
+    if not all(shapely.intersects(main, g) for g in rest):
+        return None
+    big = [g for g in rest if g.area >= SLIVER_AREA]
+    if big:
+        touch = shapely.get_coordinates(shapely.intersection(main, shapely.union_all(big)))
+        notch = shapely.buffer(shapely.points(touch), 2 * snap, quad_segs=2)
+        main = shapely.set_precision(shapely.union_all([main, *big, *notch]), snap)
+    return main if main.geom_type == "Polygon" else None
 
 
 class _Saddle(Exception):
