@@ -112,6 +112,7 @@ def _lines_partition(seed: int, size: float, n_lines: int = 8, levels: int = 4):
     angle = np.sort(rng.uniform(0, 2 * np.pi, 9))
     radius = rng.uniform(0.5, 1.0, 9) * size / 2
     fp = shapely.Polygon(np.column_stack([radius * np.cos(angle), radius * np.sin(angle)])).buffer(0)
+    fp = max(shapely.get_parts(fp), key=lambda g: g.area)
     if rng.random() < 0.3:
         c = shapely.get_coordinates(fp.exterior)[0]
         fp = fp.difference(shapely.Polygon([c, c / 2 + rng.normal(0, size / 20, 2), c / 2 + rng.normal(0, size / 20, 2)]))
