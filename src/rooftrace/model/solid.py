@@ -9,6 +9,10 @@ Construction (all coordinates on a grid, 1 mm by default, so that equal
 vertices are equal numbers and the CityJSON writer's integer vertices are
 exact; plan positions on a coarser lattice, ``snap``, 1 cm by default):
 
+0. A footprint that touches itself on the ``snap`` lattice (a hole touching
+   the shell or another hole at one point, pieces touching at a corner) is
+   mended first (:func:`_unpinched`): the walls of both sides would stand on
+   one vertical edge, which no roof cell can open.
 1. The cells' and the footprint's boundaries are snapped to the ``snap``
    lattice, noded together and polygonised (so two plan vertices are at
    least ``snap`` apart: a validator reading the file merges vertices
@@ -428,6 +432,10 @@ def prism_solid(cells, ground_height: float, *, footprint=None, grid: float = 1e
         Height of the ground surface (m).
     footprint : shapely Polygon, optional
         The plan outline of the solid; default the union of the cells.
+        Where it touches itself at a point on the ``snap`` lattice it gets a
+        notch there, an octagon of 2 lattice steps (up to 64 in a narrow
+        wedge); pieces touching its largest one at a point are dropped
+        (under 1 m²) or joined to it by the octagon.
     grid : float, default 0.001
         Every vertex is rounded to this grid (m).
     snap : float, default 0.01
