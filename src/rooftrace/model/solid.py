@@ -515,12 +515,12 @@ def _unpinched(footprint, snap: float):
     radius two lattice steps around the point, is cut out of the footprint
     there (the hole then opens onto the outside, or the two holes become
     one): the outline moves inward by at most ``2 snap`` (m) within that
-    octagon (more at a narrow wedge, below), no roof height changes.  Where the cut would split the
-    footprint (a strip between the hole and the shell), the octagon is
-    added instead (the roof there is the neighbouring cell's plane carried
-    over at most ``2 snap``).  The octagon grows (2, 4, 8, ... 64 steps)
-    while the lattice makes a new pinch of a narrow sector's tip (a wedge of
-    a few degrees is under a step wide for decimetres).
+    octagon, no roof height changes.  Where the cut would split the
+    footprint, the octagon is added instead (the roof there is the
+    neighbouring cell's plane carried over at most ``2 snap``).  The octagon
+    grows (4, 8, ... 64 steps) while the lattice makes a new pinch of a
+    narrow sector's tip (a wedge of a few degrees is under a step wide for
+    decimetres).
 
     A footprint of pieces touching at points (a part's footprint cut from a
     building's arrangement may keep a lobe of a few cm² at a corner) first
