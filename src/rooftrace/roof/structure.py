@@ -136,7 +136,7 @@ class RoofOptions:
     distance: float | None = None
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
-    min_block_points: int | None = 4
+    min_block_points: int | None = 1
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0
@@ -382,10 +382,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     detail = np.arange(len(fit.planes)) >= n_main
     if detail.any():
         fit = level_untilted(xyz, labels, fit, detail)
+    blocks = None
     if opt.min_block_points:
+        n_planes = len(fit.planes)
         labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
                                    link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
+        blocks = np.arange(len(fit.planes)) >= n_planes
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
@@ -411,7 +414,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
-            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height,
+            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
