@@ -73,12 +73,17 @@ class RoofOptions:
         turns the pass off.
     min_block_points : int or None
         Fewest points of a flat block (:func:`rooftrace.roof.superstructures.block_planes`):
-        each cluster of points left on no plane after the second pass is
-        peeled from its top in layers of ``step_height`` while a layer's
-        median height is more than ``step_height`` above the roof under it
-        (parapets, gable tops, chimneys of a few points); each such layer
-        becomes a horizontal plane at its points' mean height, with a face
-        but no lines.  0 or ``None`` turns it off.
+        the points left on no plane after the second pass that stand more
+        than ``step_height`` above the roof under them, on no neighbouring
+        plane's extension within ``step_height`` and with no point within
+        the spacing standing ``step_height`` higher (the top of a chimney, a
+        vent, a parapet's coping, a gable wall's top), are linked into
+        clusters, cut from their top in layers of ``step_height``, and each
+        layer of at least this many points becomes a horizontal plane at its
+        points' mean height when they support it against the roof (AIC);
+        its face holding most of its points is kept however small, with no
+        lines.  A lone return (a bird, a wire, a multipath echo, or a vent
+        pipe) is no block at the default 2.  0 or ``None`` turns it off.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
@@ -136,7 +141,7 @@ class RoofOptions:
     distance: float | None = None
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
-    min_block_points: int | None = 1
+    min_block_points: int | None = 2
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0

@@ -30,7 +30,7 @@ from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plan
 __all__ = ["block_planes", "block_supported"]
 
 
-def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 1,
+def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
                  rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
                  k: int = 8, max_dz: float = 0.1):
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
@@ -99,7 +99,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     >>> vent = np.array([[1.5, 4.5, 5.9]])
     >>> xyz = np.vstack([roof[(np.hypot(*(g - 3.15).T) > 0.4) & (np.hypot(*(g - 1.5).T) > 0.1)], chimney, vent])
     >>> lab = np.r_[np.zeros(len(xyz) - 5, np.int64), -np.ones(5, np.int64)]
-    >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3)
+    >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3, min_points=1)
     >>> lab2[-5:].tolist(), fit2.planes[1:].round(2).tolist()
     ([1, 1, 1, 1, 2], [[0.0, 0.0, 1.0, -6.2], [0.0, 0.0, 1.0, -5.9]])
     """
