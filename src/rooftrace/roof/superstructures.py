@@ -122,7 +122,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     high = (above > rise) & ~((over >= -max_dz) & (over <= rise)).any(axis=1)
     if high.any():
         # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
-        d, idx = cKDTree(xyz[:, :2]).query(xyz[un[high], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
+        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[high], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
         z = np.r_[xyz[:, 2], -np.inf][idx]
         high[high] = ~(z > xyz[un[high], 2:3] + rise).any(axis=1)
     cand = np.flatnonzero(high)
@@ -175,10 +175,18 @@ def block_supported(above: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> bool
     the roof; with one, off by its height's deviation from the layer's mean.
     Both are weighed by the noise ``sigma`` of the roof plane under each
     point, and the block costs its one parameter (its height): it stands
-    when ``Σ (above / σ)² - Σ ((z - mean) / σ)² > 2``.  A chimney top of one
-    point half a metre above a roof of 5 cm noise scores 100; a layer that
-    the roof's noise explains (a rough roof plane), or whose points spread
-    as far as they stand above the roof, does not stand.
+    when ``Σ (above / σ)² - Σ ((z - mean) / σ)² > 2`` (over a flat roof of
+    one noise: ``n mean(above)² / σ² > 2``).  A chimney top of one point
+    half a metre above a roof of 5 cm noise scores 100; a layer whose height
+    above the roof the roof's noise explains (a rough roof plane's strip)
+    does not stand.
+
+    Examples
+    --------
+    >>> block_supported([0.6], [6.0], [0.05])
+    True
+    >>> block_supported([0.06, -0.04, 0.05], [5.06, 4.96, 5.05], [0.05, 0.05, 0.05])
+    False
 
     Parameters
     ----------
