@@ -30,6 +30,7 @@ from scipy.spatial import Delaunay, QhullError
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines, step_edges
+from rooftrace.roof.lowparts import low_blocks
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
@@ -83,7 +84,16 @@ class RoofOptions:
         points' mean height when they support it against the roof (AIC);
         its face holding most of its points is kept however small, with no
         lines.  A lone return (a bird, a wire, a multipath echo, or a vent
-        pipe) is no block at the default 2.  0 or ``None`` turns it off.
+        pipe) is no block at the default 2.  0 or ``None`` turns it off (and the
+        low blocks).
+    low_blocks : bool
+        With ``min_block_points``, the mirror of the flat blocks for what
+        lies *under* the roof (:func:`rooftrace.roof.lowparts.low_blocks`):
+        each cluster of points on no plane, seen from above, is peeled from
+        its bottom in layers of ``step_height`` while a layer lies more than
+        that under the plane of its nearest labelled points (terraces,
+        balconies, lower roof parts of mixed heights no plane took), each
+        layer a horizontal plane with a face but no lines.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
@@ -142,6 +152,7 @@ class RoofOptions:
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
     min_block_points: int | None = 2
+    low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0
@@ -392,8 +403,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         n_planes = len(fit.planes)
         labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
                                    link=opt.adjacency_radius or link)
+        n_blocks = len(fit.planes)
+        if opt.low_blocks:
+            # (at their own fewest points, 4: the low blocks were measured so)
+            labels, fit = low_blocks(xyz, labels, fit, s, rise=opt.step_height, link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
-        blocks = np.arange(len(fit.planes)) >= n_planes
+        # the faces of the blocks on the roof are kept however small: a chimney of two points
+        blocks = (np.arange(len(fit.planes)) >= n_planes) & (np.arange(len(fit.planes)) < n_blocks)
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
