@@ -29,8 +29,14 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.faces import (claim_points, lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines,
-                                  step_edges)
+from rooftrace.roof.faces import (
+    claim_points,
+    lift_to_plane,
+    merge_close_vertices,
+    partition_outline,
+    snap_to_lines,
+    step_edges,
+)
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
