@@ -241,7 +241,7 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
 
 
 def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
-             radius: float, max_dz: float, width: float) -> tuple[list, list]:
+             radius: float, max_dz: float, width: float) -> tuple[list, list, bool]:
     """The faces with each labelled point under another level handed to its own plane's nearest face.
 
     A point under a face whose plane is more than ``max_dz`` (m) off its
@@ -254,31 +254,36 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     theirs under a plane more than ``max_dz`` off its own (another level's
     point between the two: that point stays where it is).  Wedges of one
     face are joined; a wedge crossing one of another face is dropped.  If the
-    faces would stop tiling the outline they are returned unchanged.
+    faces would stop tiling the outline they are returned unchanged.  The
+    flag says whether a wedge was dropped (a narrower one may pass).
     """
     faces = np.asarray(polys, dtype=object)
     pids = np.asarray(ids, dtype=np.int64)
     if len(faces) < 2 or not len(P):
-        return polys, ids
+        return polys, ids, False
     xy = P[:, :2]
     own_z = plane_height(planes[lab], xy)
     pt, target, near, fits = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz)
     if not len(pt):
-        return polys, ids
+        return polys, ids, False
     reach = shapely.intersection(faces[target], shapely.box(*(near - width).T, *(near + width).T))
-    # the point with a margin beyond it, away from the face (a point on the wedge's edge would lie on the new
-    # boundary)
+    # the point with a margin of width / 4 beyond it and to either side, away from the face: a point near the
+    # wedge's edge would fall across it when the model rounds its vertices
     u = xy[pt] - near
     u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
-    margin = xy[pt] + u * width / 4
+    t = np.column_stack([-u[:, 1], u[:, 0]])
+    margin = np.concatenate([xy[pt] + (u + t) * width / 4, xy[pt] + (u - t) * width / 4])
     rc, ri = shapely.get_coordinates(reach, return_index=True)
-    corners, of = np.concatenate([rc, margin]), np.concatenate([ri, np.arange(len(pt))])
+    corners, of = np.concatenate([rc, margin]), np.concatenate([ri, np.arange(len(pt)), np.arange(len(pt))])
     order = np.argsort(of, kind="stable")
     hull = shapely.convex_hull(shapely.multipoints(corners[order], indices=of[order]))
     wedge = shapely.intersection(hull, outline)
     # a wedge must not put another level's point under its face: a point that fits where it is and would not
     # fit under the target's plane
-    q, wi = shapely.STRtree(wedge).query(shapely.points(xy), predicate="intersects")
+    x0, y0, x1, y1 = shapely.total_bounds(wedge)
+    near_wedges = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
+    q, wi = shapely.STRtree(wedge).query(shapely.points(xy[near_wedges]), predicate="intersects")
+    q = near_wedges[q]
     harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
     ok = np.ones(len(wedge), dtype=bool)
     ok[wi[harm]] = False
@@ -288,29 +293,48 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     for i, j in zip(wi, wj):
         if i < j and ok[i] and ok[j] and target[i] != target[j]:
             ok[j] = False
+    retry = not ok.all()
     if not ok.any():
-        return polys, ids
-    grown = {int(t): shapely.union_all(wedge[ok & (target == t)]) for t in np.unique(target[ok])}
-    claim = shapely.union_all(list(grown.values()))
-    out_faces, out_ids = [], []
-    hit = set(shapely.STRtree(faces).query(claim, predicate="intersects").tolist())
-    for i, (g, pid) in enumerate(zip(faces, pids)):
-        if i in grown:
-            g = shapely.union(shapely.difference(g, shapely.union_all([w for t, w in grown.items() if t != i])),
-                              grown[i])
-        elif i in hit:
-            g = shapely.difference(g, claim)
-        for part in shapely.get_parts(g):
-            if part.geom_type == "Polygon" and part.area > 0:
-                out_faces.append(part)
-                out_ids.append(int(pid))
-    area = _area_sum(faces)
-    if (not shapely.is_valid(np.asarray(out_faces, dtype=object)).all()
-            or abs(_area_sum(out_faces) - area) > 1e-6 * max(area, 1.0)
-            or abs(shapely.union_all(out_faces).area - area) > 1e-6 * max(area, 1.0)):
+        return polys, ids, retry
+    # a wedge that would cut a face in two or open a hole in one (faces meeting at a point, which the solids and
+    # the part split refuse) is dropped, and the others applied again
+    for _ in range(4):
+        grown = {int(t): shapely.union_all(wedge[ok & (target == t)]) for t in np.unique(target[ok])}
+        claim = shapely.union_all(list(grown.values()))
+        # only the faces the wedges touch change; they must tile what they tiled
+        changed = sorted(set(grown) | set(shapely.STRtree(faces).query(claim, predicate="intersects").tolist()))
+        # (wedges of different faces are apart: taking all of them and giving back the face's own is the same)
+        g = shapely.difference(faces[changed], claim)
+        mine = np.isin(changed, list(grown))
+        g[mine] = shapely.union(g[mine], np.array([grown[i] for i in np.asarray(changed)[mine]], dtype=object))
+        split = (shapely.get_num_geometries(g) != 1) | (shapely.get_num_interior_rings(g)
+                                                          > shapely.get_num_interior_rings(faces[changed]))
+        if not split.any():
+            break
+        ok[shapely.STRtree(wedge).query(faces[np.asarray(changed)[split]], predicate="intersects")[1]] = False
+        retry = True
+        if not ok.any():
+            return polys, ids, retry
+    else:
+        return polys, ids, retry
+    new_faces = [[q for q in shapely.get_parts(x) if q.geom_type == "Polygon" and q.area > 0] for x in g]
+    new_ids = [[int(pids[i])] * len(parts) for i, parts in zip(changed, new_faces)]
+    flat = np.asarray([q for parts in new_faces for q in parts], dtype=object)
+    area = _area_sum(faces[changed])
+    if (not len(flat) or not shapely.is_valid(flat).all() or abs(_area_sum(flat) - area) > 1e-6 * max(area, 1.0)
+            or abs(shapely.union_all(flat).area - area) > 1e-6 * max(area, 1.0)):
         log.debug("points handed to their faces undone (would break the tiling)")
-        return polys, ids
-    return out_faces, out_ids
+        return polys, ids, False
+    out_faces, out_ids = [], []
+    at = {i: k for k, i in enumerate(changed)}
+    for i, (g, pid) in enumerate(zip(faces, pids)):
+        if i in at:
+            out_faces.extend(new_faces[at[i]])
+            out_ids.extend(new_ids[at[i]])
+        else:
+            out_faces.append(g)
+            out_ids.append(int(pid))
+    return out_faces, out_ids, retry
 
 
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
@@ -322,9 +346,9 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     face, metres off its own plane.  Each labelled point under a face whose
     plane is more than ``max_dz`` off its own there, with a face of its own
     plane within ``radius`` in plan, is joined to the nearest such face by a
-    wedge (the convex hull of the point, a margin of ``width / 4`` beyond it,
-    and the part of the face within ``width`` of the face's point nearest
-    it), taken from the faces it covers; then again with wedges a quarter as
+    wedge (the convex hull of the point with a margin of ``width / 4``
+    beyond it and to either side, and the part of the face within ``width``
+    of the face's point nearest it), taken from the faces it covers; then again with wedges a quarter as
     wide for the points left.
 
     What it guarantees, on any data: no labelled point that lay under a face
@@ -387,7 +411,10 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     outline = shapely.force_2d(outline)
     # a second round with narrower wedges for the points whose first wedge would have covered another level's point
     for w in (width, width / 4):
-        polys, plane_ids = _claimed(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz, width=w)
+        polys, plane_ids, dropped = _claimed(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
+                                             width=w)
+        if not dropped:
+            break
     return list(polys), list(plane_ids)
 
 
