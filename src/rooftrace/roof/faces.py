@@ -147,11 +147,30 @@ def _under_fitting_face(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, own
     fits = np.zeros(len(xy), dtype=bool)
     if not len(faces) or not len(xy):
         return cover, fits
-    at, f = shapely.STRtree(faces).query(shapely.points(xy), predicate="intersects")
+    at, f = _points_in(faces, xy)
     cover[at] = pids[f]
-    close = np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz
-    fits[at[close]] = True
+    fits[at[np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz]] = True
     return cover, fits
+
+
+def _points_in(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (point, polygon) of the points ``xy`` in (or on) each polygon, as an STR tree's query gives them.
+
+    Polygon by polygon on the points in its box (sorted by x), without a
+    point geometry per point: a roof has tens of thousands of points and a
+    few dozen faces.
+    """
+    order = np.argsort(xy[:, 0], kind="stable")
+    xs = xy[order, 0]
+    at, of = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for k, (poly, (x0, y0, x1, y1)) in enumerate(zip(polys, shapely.bounds(polys))):
+        cand = order[np.searchsorted(xs, x0):np.searchsorted(xs, x1, side="right")]
+        cand = cand[(xy[cand, 1] >= y0) & (xy[cand, 1] <= y1)]
+        if len(cand):
+            cand = cand[shapely.intersects_xy(poly, xy[cand, 0], xy[cand, 1])]
+            at.append(cand)
+            of.append(np.full(len(cand), k, dtype=np.int64))
+    return np.concatenate(at), np.concatenate(of)
 
 
 def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: np.ndarray, own_z: np.ndarray,
@@ -240,6 +259,16 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     return out
 
 
+def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """A MultiPolygon per group ``0 .. n - 1`` of the (disjoint) polygons, None for a group without any."""
+    out = np.full(n, None, dtype=object)
+    if len(polys):
+        present, inv = np.unique(group, return_inverse=True)
+        order = np.argsort(inv, kind="stable")
+        out[present] = shapely.multipolygons(polys[order], indices=inv[order])
+    return out
+
+
 def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
              radius: float, max_dz: float, width: float) -> tuple[list, list, bool]:
     """The faces with each labelled point under another level handed to its own plane's nearest face.
@@ -277,13 +306,13 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     corners, of = np.concatenate([rc, margin]), np.concatenate([ri, np.arange(len(pt)), np.arange(len(pt))])
     order = np.argsort(of, kind="stable")
     hull = shapely.convex_hull(shapely.multipoints(corners[order], indices=of[order]))
-    wedge = shapely.intersection(hull, outline)
+    shapely.prepare(outline)
+    wedge = hull.copy()
+    out = ~shapely.contains_properly(outline, hull)
+    wedge[out] = shapely.intersection(hull[out], outline)
     # a wedge must not put another level's point under its face: a point that fits where it is and would not
     # fit under the target's plane
-    x0, y0, x1, y1 = shapely.total_bounds(wedge)
-    near_wedges = np.flatnonzero((xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1))
-    q, wi = shapely.STRtree(wedge).query(shapely.points(xy[near_wedges]), predicate="intersects")
-    q = near_wedges[q]
+    q, wi = _points_in(wedge, xy)
     harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
     ok = np.ones(len(wedge), dtype=bool)
     ok[wi[harm]] = False
@@ -299,14 +328,20 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     # a wedge that would cut a face in two or open a hole in one (faces meeting at a point, which the solids and
     # the part split refuse) is dropped, and the others applied again
     for _ in range(4):
-        grown = {int(t): shapely.union_all(wedge[ok & (target == t)]) for t in np.unique(target[ok])}
-        claim = shapely.union_all(list(grown.values()))
-        # only the faces the wedges touch change; they must tile what they tiled
-        changed = sorted(set(grown) | set(shapely.STRtree(faces).query(claim, predicate="intersects").tolist()))
-        # (wedges of different faces are apart: taking all of them and giving back the face's own is the same)
-        g = shapely.difference(faces[changed], claim)
-        mine = np.isin(changed, list(grown))
-        g[mine] = shapely.union(g[mine], np.array([grown[i] for i in np.asarray(changed)[mine]], dtype=object))
+        # the claim in pieces, each the wedges of one face (wedges of different faces are apart)
+        pieces = np.asarray(shapely.get_parts(shapely.union_all(wedge[ok])), dtype=object)
+        pi, wj = shapely.STRtree(wedge[ok]).query(pieces, predicate="intersects")
+        owner = np.full(len(pieces), -1, dtype=np.int64)
+        owner[pi] = target[ok][wj]
+        # only the faces the pieces touch change (each less the pieces on it, plus its own); they must tile what
+        # they tiled
+        pj, fi = shapely.STRtree(faces).query(pieces, predicate="intersects")
+        changed, at = np.unique(np.concatenate([fi, owner]), return_inverse=True)
+        at_cut, at_own = at[:len(fi)], at[len(fi):]
+        cut = _grouped(pieces[pj], at_cut, len(changed))
+        g = np.where(shapely.is_missing(cut), faces[changed], shapely.difference(faces[changed], cut))
+        own = _grouped(pieces, at_own, len(changed))
+        g = np.where(shapely.is_missing(own), g, shapely.union(g, own))
         split = (shapely.get_num_geometries(g) != 1) | (shapely.get_num_interior_rings(g)
                                                           > shapely.get_num_interior_rings(faces[changed]))
         if not split.any():
@@ -321,8 +356,8 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     new_ids = [[int(pids[i])] * len(parts) for i, parts in zip(changed, new_faces)]
     flat = np.asarray([q for parts in new_faces for q in parts], dtype=object)
     area = _area_sum(faces[changed])
-    if (not len(flat) or not shapely.is_valid(flat).all() or abs(_area_sum(flat) - area) > 1e-6 * max(area, 1.0)
-            or abs(shapely.union_all(flat).area - area) > 1e-6 * max(area, 1.0)):
+    # (the new faces are apart by construction: the areas tell a gap)
+    if not len(flat) or not shapely.is_valid(flat).all() or abs(_area_sum(flat) - area) > 1e-6 * max(area, 1.0):
         log.debug("points handed to their faces undone (would break the tiling)")
         return polys, ids, False
     out_faces, out_ids = [], []
