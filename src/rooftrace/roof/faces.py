@@ -277,12 +277,14 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     own (the edge row of a roof level given to the neighbouring level's
     face by a raster cell, or by a sliver merged away), with a face of its
     own plane within ``radius`` (m), is joined to that face by a wedge: the
-    convex hull of the point and the part of the face within ``width`` (m)
-    of the face's point nearest it, cut by the outline.  The wedge is taken
-    from the faces it covers, unless it would put a labelled point of
-    theirs under a plane more than ``max_dz`` off its own (another level's
-    point between the two: that point stays where it is).  Wedges of one
-    face are joined; a wedge crossing one of another face is dropped.  If the
+    convex hull of the point (with a margin of ``width / 4`` beyond it and
+    to either side) and the part of the face within ``width`` (m) of the
+    face's point nearest it, cut by the outline.  The wedge is taken from
+    the faces it covers, unless it would put a labelled point of theirs
+    under a plane more than ``max_dz`` off its own (another level's point
+    between the two: that point stays where it is), it meets a wedge of
+    another face (the first in point order stands), or it would cut a face
+    in two or open a hole in one.  Wedges of one face are joined.  If the
     faces would stop tiling the outline they are returned unchanged.  The
     flag says whether a wedge was dropped (a narrower one may pass).
     """
@@ -342,8 +344,11 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
         g = np.where(shapely.is_missing(cut), faces[changed], shapely.difference(faces[changed], cut))
         own = _grouped(pieces, at_own, len(changed))
         g = np.where(shapely.is_missing(own), g, shapely.union(g, own))
-        split = (shapely.get_num_geometries(g) != 1) | (shapely.get_num_interior_rings(g)
-                                                          > shapely.get_num_interior_rings(faces[changed]))
+        # judged on the centimetre grid: a neck narrower than that closes when the model rounds its vertices
+        coarse = shapely.set_precision(g, 0.01)
+        split = ((shapely.get_num_geometries(g) != 1) | (shapely.get_num_geometries(coarse) != 1)
+                 | (shapely.get_num_interior_rings(g) > shapely.get_num_interior_rings(faces[changed]))
+                 | (shapely.get_num_interior_rings(coarse) > shapely.get_num_interior_rings(faces[changed])))
         if not split.any():
             break
         ok[shapely.STRtree(wedge).query(faces[np.asarray(changed)[split]], predicate="intersects")[1]] = False
@@ -383,8 +388,8 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     plane within ``radius`` in plan, is joined to the nearest such face by a
     wedge (the convex hull of the point with a margin of ``width / 4``
     beyond it and to either side, and the part of the face within ``width``
-    of the face's point nearest it), taken from the faces it covers; then again with wedges a quarter as
-    wide for the points left.
+    of the face's point nearest it), taken from the faces it covers; after
+    a wedge is dropped, again with wedges a quarter as wide.
 
     What it guarantees, on any data: no labelled point that lay under a face
     of its own plane (or one within ``max_dz``) is moved from it, the faces
@@ -395,9 +400,12 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     valleys, where the two planes meet, to the line rule), unless
 
     - both wedges would cover a labelled point of another level (the two
-      levels' points interleave there: that point keeps its face), or
-    - its wedge meets the wedge of a point of another face (the first, in
-      point order, is taken; the other point waits for the second round).
+      levels' points interleave there: that point keeps its face),
+    - both meet the wedge of a point of another face (the first, in point
+      order, is taken), or
+    - both would cut a face in two or open a hole in one, also once rounded
+      to a centimetre (faces meeting at a point, which the solids and the
+      building parts refuse).
 
     Parameters
     ----------
@@ -425,7 +433,7 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     -------
     polygons : list of shapely Polygon
     plane_ids : list of int
-        A face a wedge cuts in two comes out as two faces of its plane.
+        As many faces as before, in the same order.
 
     Examples
     --------
