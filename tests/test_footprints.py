@@ -109,6 +109,24 @@ def test_unclassified_points_standing_in_a_built_footprint_join_its_building():
     assert (off.building_id[n:] == 0).all() and res.status == off.status
 
 
+def test_unclassified_points_touching_a_roof_in_its_overhang_band_join_it_but_not_its_outline():
+    """Clutter along house 1's eaves (0.5 m over its roof, outside the footprint, under the overhang) touches the
+    roof's points: it joins house 1 as roof points, listed in ``touching`` (the outline is traced without them).
+    A 3 m post in the same band touches nothing of the roof, and stays out."""
+    xyz, cls, det, truth = _row()
+    eaves = _grid(1.0, 3.0, 10.25, 10.5, 8.5)
+    post = _grid(-1.0, -0.75, 5.0, 5.25, 3.0)
+    xyz = np.vstack([xyz, eaves, post])
+    cls = np.concatenate([cls, np.full(len(eaves) + len(post), ASPRS.UNCLASSIFIED)]).astype(np.uint8)
+    det = np.concatenate([det, np.zeros(len(eaves) + len(post))]).astype(np.int32)
+    hag = np.where(cls == G, 0.0, xyz[:, 2])
+    res = assign_footprints(xyz, cls, det, FOOTPRINTS, FootprintOptions(min_points=20), hag=hag, density=16.0)
+    n = len(truth)
+    assert np.array_equal(res.building_id[:n], truth)
+    assert (res.building_id[n:n + len(eaves)] == 1).all() and (res.building_id[n + len(eaves):] == 0).all()
+    assert np.array_equal(res.touching, np.arange(n, n + len(eaves)))
+
+
 def test_traced_outlines_are_clipped_off_the_neighbouring_footprint():
     from rooftrace.contour.outline import RoofOutline
 

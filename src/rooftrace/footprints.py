@@ -11,7 +11,13 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
   several footprints goes to the nearest one, and
 * the points inside it that the detection left unclassified and that stand
   ``min_height`` above the ground (chimneys, parapets, roof clutter too rough
-  or too small for its roof test), when it has building points.
+  or too small for its roof test), when it has building points, and
+* the unclassified points inside it or in its band, ``min_height / 2`` above
+  the ground, that touch its building's points (within ``2.5 s`` in 3D, or
+  of one that joined so, three links deep): clutter along the eaves, a
+  chimney's top, a shed roof under ``min_height``.  They are roof points but
+  not outline points (:attr:`FootprintAssignment.touching`): traced with
+  them, an outline reached out over lower roofs beyond the building.
 
 A detected building spanning several footprints (a terraced row) is thereby
 split along the footprints: a point inside footprint A goes to A, a point in
@@ -38,7 +44,7 @@ import shapely
 from rooftrace.cloud import ASPRS
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
-           "footprint_attributes", "STATUSES"]
+           "footprint_attributes", "touching_points", "STATUSES"]
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +112,11 @@ class FootprintOptions:
         footprint says a building stands there, and on AHN3 Delft two
         thirds of them are the provider's building points (chimneys,
         parapets and roof clutter too rough or too small for the
-        detection's roof test), which the roof must model.
+        detection's roof test), which the roof must model.  So do the
+        unclassified points inside it or in its overhang band, half
+        ``min_height`` above the ground, that touch the building's points
+        (within 2.5 point spacings in 3D): judged by the building's own
+        points, not by a class.
     """
 
     section = "footprints"
@@ -149,6 +159,10 @@ class FootprintAssignment:
         are none); empty for the other statuses.
     params : dict
         The resolved options (``min_points`` derived from the density).
+    touching : ndarray of int
+        Indices of the points that joined a building by touching its points
+        (``unclassified``): roof points, but not for the outline, which they
+        would pull out over what lies beyond the building's own points.
     """
 
     building_id: np.ndarray
@@ -159,6 +173,7 @@ class FootprintAssignment:
     n_cloud: np.ndarray
     fallback: list[np.ndarray] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
+    touching: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _containing(polygons: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -317,6 +332,7 @@ def assign_footprints(
 
 
     status, reason, fallback = [], [], []
+    touching = np.zeros(0, np.int64)
     high = None
     if hag is not None:
         hag = np.asarray(hag, dtype=np.float64)
@@ -355,11 +371,82 @@ def assign_footprints(
         ok = np.array([s == "ok" for s in status] + [False])  # index -1: in no footprint
         extra = np.flatnonzero(high & (classification == ASPRS.UNCLASSIFIED) & ok[all_owner])
         building_id[extra] = (all_owner[extra] + 1).astype(np.int32)
+        # unclassified points touching an ok footprint building's own points, in the footprint or its band (a
+        # chimney of a few points, clutter along the eaves, a shed roof under min_height): roof points, not outline
+        rough = (classification == ASPRS.UNCLASSIFIED) & (building_id == 0) & (hag >= options.min_height / 2)
+        cand = np.flatnonzero(rough)
+        where = all_owner[cand]
+        out = where < 0
+        if out.any() and options.overhang > 0:
+            p, f_ = tree.query_nearest(shapely.points(xyz[cand[out], :2]), max_distance=options.overhang,
+                                       all_matches=True)
+            where[out] = _first_per_point(p, f_, int(out.sum()))
+        keep = (where >= 0) & ok[where]
+        spacing = 1.0 / np.sqrt(density) if density and np.isfinite(density) and density > 0 else 0.5
+        joined, to = touching_points(xyz, cand[keep], building_id, 2.5 * spacing, owner=where[keep] + 1)
+        building_id[joined] = to.astype(np.int32)
+        touching = np.sort(joined)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
-                                       "min_height": options.min_height, "unclassified": options.unclassified})
+                                       "min_height": options.min_height, "unclassified": options.unclassified},
+                               touching=touching)
+
+
+def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.ndarray, link: float, *,
+                    owner: np.ndarray | None = None, rounds: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """The ``candidates`` that touch a building's points, and that building.
+
+    A candidate touches a building when its nearest point of a building
+    (``building_id > 0``) lies within ``link`` (m, 3D), or its nearest
+    candidate that joined in the round before does (``rounds`` rounds: a
+    chain of clutter reaches from the roof).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+    candidates : ndarray of int
+        Indices of the points that may join.
+    building_id : ndarray of shape (N,), int
+        0 for none.
+    link : float
+        3D distance (m).
+    owner : ndarray of int, optional
+        Per candidate, the only building id it may join (a footprint's);
+        default any.
+    rounds : int
+
+    Returns
+    -------
+    joined : ndarray of int
+        Point indices.
+    to : ndarray of int
+        The building id each joins.
+    """
+    from scipy.spatial import cKDTree
+
+    joined, to = [], []
+    members = np.flatnonzero(building_id > 0)
+    ids = building_id[members].astype(np.int64)
+    candidates = np.asarray(candidates, dtype=np.int64)
+    for _ in range(rounds):
+        if not len(candidates) or not len(members):
+            break
+        d, j = cKDTree(xyz[members]).query(xyz[candidates], distance_upper_bound=link)
+        hit = np.isfinite(d)
+        if owner is not None:
+            hit[hit] = ids[j[hit]] == owner[hit]
+        if not hit.any():
+            break
+        joined.append(candidates[hit])
+        to.append(ids[j[hit]])
+        members, ids = candidates[hit], ids[j[hit]]
+        candidates = candidates[~hit]
+        owner = owner[~hit] if owner is not None else None
+    if not joined:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(joined), np.concatenate(to)
 
 
 def _nearest_zone(footprint, neighbours, extent, step: float = 0.1):

@@ -419,11 +419,15 @@ def run_pipeline(
     if buildings is not None:
         building_id = np.where(np.isin(building_id, np.asarray(buildings(cloud.xyz, detection))), building_id, 0)
     members = points_by_building(building_id)
+    traced = building_id
+    if assignment is not None and len(assignment.touching):
+        traced = building_id.copy()
+        traced[assignment.touching] = 0  # roof points, not the outline's (footprints.FootprintAssignment)
 
     clock.start()
     # the roof edge lies between the last roof point and the first that is not roof (noise aside)
-    around = (building_id <= 0) & (detection.classification != 7)
-    outlines = outline_buildings(cloud.xyz, building_id, options.outline, mean_spacing=detection.mean_spacing,
+    around = (traced <= 0) & (detection.classification != 7)
+    outlines = outline_buildings(cloud.xyz, traced, options.outline, mean_spacing=detection.mean_spacing,
                                  reporter=reporter, context_xy=cloud.xyz[around])
     if assignment is not None:
         outlines = footprint_outlines(outlines, footprints, assignment, cloud.xyz)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely
 
+from rooftrace.errors import GeometryError
 from rooftrace.model import (
     ModelOptions,
     build_model,
@@ -230,3 +231,35 @@ def test_a_face_boundary_meeting_the_footprint_leaves_no_hair_thin_wall():
         shortest.append(min(np.linalg.norm(np.diff(np.vstack([r, r[:1]]), axis=0), axis=1).min()
                             for s in solid.surfaces for r in s.rings))
     assert len(shortest) > 30 and min(shortest) > 0.0015
+
+
+def test_a_part_whose_superstructure_faces_break_its_solids_is_built_without_them(monkeypatch):
+    """A superstructure's face may close a saddle the solid builder cannot open (an IGN block at a pinch of its
+    outline): that part's LoD 1.3 and 2.2 are then built without the superstructures' faces, their place filled by
+    the neighbouring faces, rather than left out; the other parts and levels are untouched."""
+    import rooftrace.model.build as build
+
+    m = flat_annex(stair_house=True, angle=-8, offset=(85000.0, 447000.0))
+    xyz, _ = sample_roof(m, 16, 0.03, seed=3)
+    roof = roof_structure(xyz, m.outline)
+    detail = roof.planes[roof.plane_detail]
+    assert len(detail) and any(roof.plane_detail[k] for k in roof.face_plane)
+    real = build.prism_solid
+
+    def breaks_on_detail(cells, *args, **kwargs):
+        if any(np.allclose(pl, d) for _, pl in cells for d in detail):
+            raise GeometryError("roof faces meet at 1 saddle or pinch vertices")
+        return real(cells, *args, **kwargs)
+
+    monkeypatch.setattr(build, "prism_solid", breaks_on_detail)
+    model = build_model(m.outline, roof, xyz, 0.0)
+    assert sorted(model.parts[0].lods) == ["1.2", "1.3", "2.2"] and model.attributes["status"] == "ok"
+    assert all(solid_errors(s) == [] for s in model.parts[0].lods.values())
+    # the chimney's top (the superstructure) is not in that LoD 2.2; the roof and the stair house are
+    chimney = detail[:, 3] / -detail[:, 2]
+    heights = np.array([v[2] for s in model.parts[0].lods["2.2"].surfaces if s.kind == "RoofSurface"
+                        for r in s.rings for v in r])
+    assert np.abs(heights[:, None] - chimney[None, :]).min() > 0.5 and heights.max() > 11.0
+    # without superstructures in the roof there is nothing to leave out: the failure stands
+    bare = dataclasses.replace(roof, plane_detail=np.zeros(len(roof.planes), bool))
+    assert build_model(m.outline, bare, xyz, 0.0).attributes["status"] != "ok"

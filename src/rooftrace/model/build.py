@@ -127,11 +127,14 @@ def _largest_polygon(geom):
     return max(parts, key=lambda g: g.area) if parts else None
 
 
-def _roof_cells(roof) -> list[tuple[Any, np.ndarray]]:
+def _roof_cells(roof, *, detail: bool = True) -> list[tuple[Any, np.ndarray]]:
+    """The roof faces as (plan polygon, plane) cells; without ``detail`` those of the superstructures' planes
+    (``RoofStructure.plane_detail``: chimney tops, flat blocks) left out, their place filled by the neighbours."""
     if roof is None or not len(getattr(roof, "faces", [])):
         return []
+    skip = np.asarray(getattr(roof, "plane_detail", np.zeros(0, bool)), dtype=bool)
     return [(shapely.force_2d(f), np.asarray(roof.planes[k], dtype=np.float64))
-            for f, k in zip(roof.faces, roof.face_plane)]
+            for f, k in zip(roof.faces, roof.face_plane) if detail or not (k < len(skip) and skip[k])]
 
 
 #: no roof comes closer to the ground than this (m): a face that does is a steep plane carried
@@ -461,8 +464,26 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
     cut = _cut(footprints, cells, opt.snap)
     whys = []
+    plain = None
     for k, (fp, part_cells) in enumerate(cut, start=1):
         part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt)
+        if "1.3" in why or "2.2" in why:
+            # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
+            # outline): the part's solids without the superstructures, when that gives more levels or a planar
+            # LoD 2.2 for a flat one (cut as the parts were, so that the party walls still match)
+            if plain is None:
+                bare = _above_ground(_roof_cells(roof, detail=False), float(ground))
+                plain = _cut(footprints, bare, opt.snap) if bare and len(bare) < len(cells) else []
+            if len(plain) == len(cut) and plain[k - 1][1]:
+                try:
+                    again, why_again = _part(k, plain[k - 1][0], plain[k - 1][1], xyz, float(ground), roof_status,
+                                             opt)
+                except _FAILURES:
+                    again = None
+                if again is not None and (len(again.lods), -len(why_again)) > (len(part.lods), -len(why)):
+                    log.debug("building %d part %d: solids without the superstructures' faces (%s)", building_id,
+                              k, "; ".join(why.values()))
+                    part, why = again, why_again
         model.parts.append(part)
         whys.append(why)
     if len(model.parts) > 1:

@@ -28,6 +28,7 @@ __all__ = [
     "plane_height",
     "neighbourhood_normals",
     "level_untilted",
+    "with_horizontal_planes",
     "plan_hull_area",
     "plan_hull_areas",
     "hull_area_test",
@@ -306,3 +307,46 @@ def level_untilted(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, candidate
     out.cov[flat] = 0.0
     out.cov[flat, 2, 2] = sigma[flat] ** 2 / n[flat]
     return out
+
+
+def with_horizontal_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, groups: list) -> tuple:
+    """``labels`` and ``fit`` with each group of points a horizontal plane at its mean height, numbered after ``fit``'s.
+
+    The least-squares horizontal plane of a flat block (a chimney's top, a
+    terrace's floor): ``p = q = 0``, ``r`` the mean height, ``sigma`` with
+    ``n - 1`` degrees of freedom and only ``var(r) = sigma² / n``.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` for none.
+    fit : PlaneFit
+        The planes of ``labels``.
+    groups : list of ndarray of int
+        Point indices of each new plane (disjoint, at least one point each).
+
+    Returns
+    -------
+    labels : ndarray of shape (N,), int64
+    fit : PlaneFit
+    """
+    K = len(fit.planes)
+    labels = np.asarray(labels, dtype=np.int64).copy()
+    n = np.array([len(b) for b in groups])
+    mean = np.array([xyz[b, 2].mean() for b in groups])
+    sigma = np.array([np.sqrt(np.sum((xyz[b, 2] - m) ** 2) / max(len(b) - 1, 1)) for b, m in zip(groups, mean)])
+    for j, b in enumerate(groups):
+        labels[b] = K + j
+    cov = np.zeros((len(groups), 3, 3))
+    cov[:, 2, 2] = sigma**2 / n
+    zeros = np.zeros(len(groups))
+    out = PlaneFit(
+        np.vstack([fit.planes, np.column_stack([zeros, zeros, np.ones(len(groups)), -mean])]),
+        np.vstack([fit.pqr, np.column_stack([zeros, zeros, mean])]),
+        np.vstack([fit.centre, np.array([xyz[b, :2].mean(axis=0) for b in groups])]),
+        np.concatenate([fit.cov, cov]),
+        np.concatenate([fit.sigma, sigma]),
+        np.concatenate([fit.n, n]).astype(fit.n.dtype),
+    )
+    return labels, out

@@ -37,6 +37,7 @@ from rooftrace.roof.faces import (
     snap_to_lines,
     step_edges,
 )
+from rooftrace.roof.lowparts import low_blocks
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
@@ -85,7 +86,15 @@ class RoofOptions:
         median height is more than ``step_height`` above the roof under it
         (parapets, gable tops, chimneys of a few points); each such layer
         becomes a horizontal plane at its points' mean height, with a face
-        but no lines.  0 or ``None`` turns it off.
+        but no lines.  0 or ``None`` turns it off (and the low blocks).
+    low_blocks : bool
+        With ``min_block_points``, the mirror of the flat blocks for what
+        lies *under* the roof (:func:`rooftrace.roof.lowparts.low_blocks`):
+        each cluster of points on no plane, seen from above, is peeled from
+        its bottom in layers of ``step_height`` while a layer lies more than
+        that under the plane of its nearest labelled points (terraces,
+        balconies, lower roof parts of mixed heights no plane took), each
+        layer a horizontal plane with a face but no lines.
     merge_angle : float
         Adjacent coplanar regions within this angle (deg) are merged.
     iterations : int
@@ -144,6 +153,7 @@ class RoofOptions:
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
     min_block_points: int | None = 4
+    low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
     max_slope: float = 75.0
@@ -392,6 +402,9 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if opt.min_block_points:
         labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
                                    link=opt.adjacency_radius or link)
+        if opt.low_blocks:
+            labels, fit = low_blocks(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
+                                     link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
-from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height
+from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height, with_horizontal_planes
 
 __all__ = ["block_planes"]
 
@@ -80,7 +80,6 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
-    K = len(fit.planes)
     link = link or 2.5 * spacing
     labels = _stray_points_released(xyz, labels, link, min_points)
     un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
@@ -109,24 +108,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
                 blocks.append(un[layer])
     if not blocks:
         return labels, fit
-    labels = labels.copy()
-    n = np.array([len(b) for b in blocks])
-    mean = np.array([xyz[b, 2].mean() for b in blocks])
-    sigma = np.array([np.sqrt(np.sum((xyz[b, 2] - m) ** 2) / max(len(b) - 1, 1)) for b, m in zip(blocks, mean)])
-    for j, b in enumerate(blocks):
-        labels[b] = K + j
-    cov = np.zeros((len(blocks), 3, 3))
-    cov[:, 2, 2] = sigma**2 / n
-    zeros = np.zeros(len(blocks))
-    out = PlaneFit(
-        np.vstack([fit.planes, np.column_stack([zeros, zeros, np.ones(len(blocks)), -mean])]),
-        np.vstack([fit.pqr, np.column_stack([zeros, zeros, mean])]),
-        np.vstack([fit.centre, np.array([xyz[b, :2].mean(axis=0) for b in blocks])]),
-        np.concatenate([fit.cov, cov]),
-        np.concatenate([fit.sigma, sigma]),
-        np.concatenate([fit.n, n]).astype(fit.n.dtype),
-    )
-    return labels, out
+    return with_horizontal_planes(xyz, labels, fit, blocks)
 
 
 def _stray_points_released(xyz: np.ndarray, labels: np.ndarray, link: float, min_points: int) -> np.ndarray:
