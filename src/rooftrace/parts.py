@@ -256,6 +256,7 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
     same_plane = np.argwhere(np.triu((face_plane[:, None] == face_plane[None, :]) & ~detail[:, None] & ~detail[None, :],
                                      k=1))
     group = components(len(faces2d), np.vstack([np.array(joined, dtype=np.int64).reshape(-1, 2), same_plane]))
+    group = _details_joined(faces2d, group, detail)
     pieces = _group_polygons(faces2d, group, outline)
     pieces = _merge_small(pieces, outline, options)
     if len(pieces) <= 1:
@@ -264,6 +265,42 @@ def split_parts(xyz: np.ndarray, outline, faces: list, face_plane: list, planes:
     kinds = sorted({k for i, j, k in cuts if at[i] != at[j]})
     part_id = _points_to_parts(xyz[:, :2], pieces)
     return BuildingParts(building_id, part_id, pieces, kinds)
+
+
+def _details_joined(faces: list, group: np.ndarray, detail: np.ndarray) -> np.ndarray:
+    """``group`` with each detail face in the group of the face it shares most edge with.
+
+    A superstructure's face or a sliver goes with the part it shares most
+    edge with, as a small part does (:func:`_merge_small`), but before the
+    pieces are built: a roof with hundreds of chimney and vent blocks would
+    otherwise make as many pieces, and their union and merging grow with the
+    square of their number.  A detail face touching only detail faces (a
+    block on a block) follows once its neighbour is placed; one touching no
+    face keeps its group.
+    """
+    group = np.asarray(group).copy()
+    todo = np.flatnonzero(detail)
+    if not len(todo) or detail.all():
+        return group
+    geoms = np.array(faces, dtype=object)
+    edges = shapely.boundary(geoms)
+    placed = ~np.asarray(detail, dtype=bool)
+    pairs = shapely.STRtree(geoms).query(geoms[todo], predicate="intersects")
+    near_of = np.split(pairs[1], np.searchsorted(pairs[0], np.arange(1, len(todo))))
+    while len(todo):
+        # one round against the faces placed before it: the result does not depend on the order within a round
+        choice = np.full(len(todo), -1)
+        for t, (i, near) in enumerate(zip(todo, near_of)):
+            near = near[placed[near] & (near != i)]
+            if len(near) and (shared := shapely.length(shapely.intersection(edges[i], edges[near]))).max() > 0:
+                choice[t] = near[np.argmax(shared)]
+        done = choice >= 0
+        if not done.any():
+            break
+        group[todo[done]] = group[choice[done]]
+        placed[todo[done]] = True
+        todo, near_of = todo[~done], [n for n, d in zip(near_of, done) if not d]
+    return group
 
 
 def _group_polygons(faces: list, group: np.ndarray, outline) -> list:

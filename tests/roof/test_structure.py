@@ -232,3 +232,52 @@ def test_points_a_plane_holds_apart_from_the_rest_of_it_are_released():
     lab = np.zeros(len(xyz), np.int64)
     out, fit = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3)
     assert (out[:-2] == 0).all() and out[-2:].tolist() == [-1, -1] and len(fit.planes) == 1
+
+
+def _top(xyz, spacing, rise):
+    """The points with no point within ``spacing`` (plan) standing ``rise`` higher: the top surface."""
+    from scipy.spatial import cKDTree
+
+    _, idx = cKDTree(xyz[:, :2]).query(xyz[:, :2], k=9, distance_upper_bound=spacing)
+    return ~(np.r_[xyz[:, 2], -np.inf][idx] > xyz[:, 2:3] + rise).any(axis=1)
+
+
+def _tops_off(roof, xyz, solids, rise):
+    """The top points (:func:`_top`) on no plane that stand more than ``rise`` above the LoD 2.2 roof: what stands on
+    the roof and is not modelled (its sides and walls aside)."""
+    from rooftrace.model.measure import roof_height_at
+
+    h = roof_height_at(solids, xyz[:, :2])
+    return (roof.labels < 0) & _top(xyz, roof.spacing, rise) & (xyz[:, 2] - h > rise)
+
+
+def test_small_chimneys_and_vents_become_blocks():
+    """Exact truth: four boxes of 0.3-0.7 m square standing 0.7-1.2 m over a gable's pitches hold one to six
+    points each at 10 pts/m², too few for any plane.  Each is a flat block at its points' height: the LoD 2.2
+    roof over every box point is within 0.1 m of it (a block's face is kept however small), no top point on no
+    plane stands more than ``step_height`` above the roof, the ridge is the only line and the solids are valid,
+    at one face per box; without blocks the box points are 0.7-1.7 m off.  At the default ``min_block_points``
+    (2) a box of one point (the vent pipe) is no block, every other box is."""
+    from scipy.spatial import cKDTree
+
+    from rooftrace.graph import components
+    from rooftrace.model import build_model, solid_errors
+    from rooftrace.model.measure import roof_height_at
+
+    m = models.gable(vents=True, angle=20, offset=(85000.0, 447000.0))
+    for seed in range(3):
+        xyz, face = models.sample_roof(m, 10, 0.03, seed=seed)
+        box = np.flatnonzero(face < 0)
+        of = components(len(box), cKDTree(xyz[box, :2]).query_pairs(1.0, output_type="ndarray"))
+        alone = np.bincount(of)[of] == 1
+        dz = {}
+        for points in (0, 1, 2):
+            roof = roof_structure(xyz, m.outline, RoofOptions(min_block_points=points))
+            solids = [p.lods["2.2"] for p in build_model(m.outline, roof, xyz, 0.0).parts]
+            assert all(solid_errors(s) == [] for s in solids)
+            assert roof.ridge_kind == ["ridge"] and (~roof.plane_detail).sum() == 2 and len(roof.faces) <= 2 + 4
+            dz[points] = np.abs(xyz[box, 2] - roof_height_at(solids, xyz[box, :2]))
+            if points == 1:
+                assert not _tops_off(roof, xyz, solids, 0.5).any()
+        assert dz[0].min() > 0.7 and dz[1].max() < 0.1
+        assert dz[2][~alone].max() < 0.1 and (dz[2][alone] > 0.7).all()

@@ -102,8 +102,8 @@ def _nearest(xy: np.ndarray, lab: np.ndarray, C: np.ndarray, k: int) -> np.ndarr
     return idx
 
 
-def _absorb_slivers(polys: list, ids: list, min_area: float):
-    """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary."""
+def _absorb_slivers(polys: list, ids: list, min_area: float, kept: np.ndarray | None = None):
+    """Merge faces smaller than ``min_area`` into the neighbour sharing most boundary, but those ``kept`` (bool per face)."""
     geoms = np.array(polys, dtype=object)
     ids = list(ids)
     if len(geoms) < 2:
@@ -114,8 +114,9 @@ def _absorb_slivers(polys: list, ids: list, min_area: float):
     areas = shapely.area(geoms)
     box = shapely.bounds(geoms)
     edges = shapely.boundary(geoms)
+    spared = np.zeros(len(geoms), dtype=bool) if kept is None else np.asarray(kept, dtype=bool)
     while alive.sum() >= 2:
-        small = np.flatnonzero(alive & (areas < min_area))
+        small = np.flatnonzero(alive & (areas < min_area) & ~spared)
         if not len(small):
             break
         i = int(small[np.argmin(areas[small])])
@@ -795,6 +796,7 @@ def partition_outline(
     plane_sigma: np.ndarray | None = None,
     refine_steps: bool = True,
     rise: float | None = None,
+    kept_planes: np.ndarray | None = None,
 ):
     """Split the outline among the planes.
 
@@ -860,6 +862,11 @@ def partition_outline(
         (:func:`_attached`); one standing higher (a chimney, a flat block's
         business) or under them all (a wall) takes no part.  None: only
         labelled points take part.
+    kept_planes : ndarray of shape (K,), bool, optional
+        Planes whose face holding most of their points is kept whatever its
+        area (the flat blocks of
+        :func:`rooftrace.roof.superstructures.block_planes`: a chimney of
+        one point); their other faces are merged as slivers when small.
 
     Returns
     -------
@@ -973,7 +980,18 @@ def partition_outline(
     keep = (shapely.get_type_id(parts) == 3) & ~shapely.is_empty(parts)
     keep[keep] = shapely.area(parts[keep]) > 0
     polys, pids = list(parts[keep]), np.asarray(ids)[labelled][of[keep]].tolist()
-    polys, pids = _absorb_slivers(polys, pids, 4 * cell**2 if min_area is None else min_area)
+    min_area = 4 * cell**2 if min_area is None else min_area
+    kept = None
+    if kept_planes is not None and len(polys):
+        # of a kept plane's faces, the one holding most of its points (one face per block)
+        kept = np.zeros(len(polys), dtype=bool)
+        faces_of = np.flatnonzero(np.asarray(kept_planes, dtype=bool)[pids])
+        held = np.array([shapely.contains_xy(polys[i], *P[lab == pids[i], :2].T).sum() for i in faces_of])
+        for plane in np.unique(np.asarray(pids)[faces_of]):
+            mine = np.asarray(pids)[faces_of] == plane
+            best = int(np.argmax(np.where(mine, held, -1)))
+            kept[faces_of[best]] = held[best] > 0
+    polys, pids = _absorb_slivers(polys, pids, min_area, kept)
     return polys, pids
 
 

@@ -108,12 +108,23 @@ def _build(name, local_outline, local_planes, parts, ridges_local, kinds, chimne
     return m
 
 
-def gable(length=14.0, width=9.0, eave=5.0, slope=35.0, *, chimney=False, angle=0.0, offset=(0.0, 0.0)):
-    """Gable roof, ridge along the local x axis."""
+def gable(length=14.0, width=9.0, eave=5.0, slope=35.0, *, chimney=False, vents=False, angle=0.0, offset=(0.0, 0.0)):
+    """Gable roof, ridge along the local x axis.
+
+    ``chimney``: a 0.8 m x 0.8 m box 1 m above the ridge; ``vents``: four
+    small boxes on the pitches (0.3 m to 0.7 m square, 0.7 m to 1.2 m above
+    the roof at their upper edge: a vent pipe, small chimneys), one to five
+    points each at 10 pts/m².
+    """
     t = np.tan(np.radians(slope))
     h = eave + t * width / 2
     planes = [(eave, 0, t), (eave + t * width, 0, -t)]
     ch = [(length * 0.3, width / 2 + 0.6, length * 0.3 + 0.8, width / 2 + 1.4, h + 1.0)] if chimney else []
+    if vents:
+        for x, y, side, rise in ((0.2, 0.2, 0.3, 0.8), (0.45, 0.3, 0.5, 1.0), (0.7, 0.65, 0.7, 1.2), (0.3, 0.8, 0.4, 0.7)):
+            x0, y0 = x * length, y * width
+            top = eave + t * min(y0 + side, width - y0)  # the roof's highest point under the box
+            ch.append((x0, y0, x0 + side, y0 + side, top + rise))
     return _build(
         "gable", [(0, 0), (length, 0), (length, width), (0, width)], planes,
         [(0, 0, length, width, [0, 1])], [[(0, width / 2, h), (length, width / 2, h)]], ["ridge"], ch, angle, offset,

@@ -81,12 +81,18 @@ class RoofOptions:
         turns the pass off.
     min_block_points : int or None
         Fewest points of a flat block (:func:`rooftrace.roof.superstructures.block_planes`):
-        each cluster of points left on no plane after the second pass is
-        peeled from its top in layers of ``step_height`` while a layer's
-        median height is more than ``step_height`` above the roof under it
-        (parapets, gable tops, chimneys of a few points); each such layer
-        becomes a horizontal plane at its points' mean height, with a face
-        but no lines.  0 or ``None`` turns it off (and the low blocks).
+        the points left on no plane after the second pass that stand more
+        than ``step_height`` above the roof under them, on no neighbouring
+        plane's extension within ``step_height`` and with no point within
+        the spacing standing ``step_height`` higher (the top of a chimney, a
+        vent, a parapet's coping, a gable wall's top), are linked into
+        clusters, cut from their top in layers of ``step_height``, and each
+        layer of at least this many points becomes a horizontal plane at its
+        points' mean height when they support it against the roof (AIC);
+        its face holding most of its points is kept however small, with no
+        lines.  A lone return (a bird, a wire, a multipath echo, or a vent
+        pipe) is no block at the default 2.  0 or ``None`` turns it off (and the
+        low blocks).
     low_blocks : bool
         With ``min_block_points``, the mirror of the flat blocks for what
         lies *under* the roof (:func:`rooftrace.roof.lowparts.low_blocks`):
@@ -152,7 +158,7 @@ class RoofOptions:
     distance: float | None = None
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
-    min_block_points: int | None = 4
+    min_block_points: int | None = 2
     low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
@@ -399,13 +405,18 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     detail = np.arange(len(fit.planes)) >= n_main
     if detail.any():
         fit = level_untilted(xyz, labels, fit, detail)
+    blocks = None
     if opt.min_block_points:
+        n_planes = len(fit.planes)
         labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
                                    link=opt.adjacency_radius or link)
+        n_blocks = len(fit.planes)
         if opt.low_blocks:
-            labels, fit = low_blocks(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
-                                     link=opt.adjacency_radius or link)
+            # (at their own fewest points, 4: the low blocks were measured so)
+            labels, fit = low_blocks(xyz, labels, fit, s, rise=opt.step_height, link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
+        # the faces of the blocks on the roof are kept however small: a chimney of two points
+        blocks = (np.arange(len(fit.planes)) >= n_planes) & (np.arange(len(fit.planes)) < n_blocks)
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
@@ -431,7 +442,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     try:
         polys, pids = partition_outline(
             outline2d, xyz, labels, fit.planes, lines, cell=cell, line_tolerance=line_tol,
-            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height,
+            boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level

@@ -1,16 +1,22 @@
-"""Flat blocks for what stands on a roof but fits no plane: parapets, chimneys, gable tops, roof clutter.
+"""Flat blocks for what stands on a roof but fits no plane: chimneys, vents, parapets, gable tops, roof clutter.
 
 The segmentation and its second pass (:func:`rooftrace.roof.segmentation.detail_planes`)
 leave points on no plane when they are too few, too rough or too narrow
 for a plane: chains along a parapet or a gable wall rising above the roof,
-chimneys of a few points, vents.  Under the faces of the planes around them
-such points sit metres above the roof surface.  As LoD 1.3 models a roof
-by flat blocks, each cluster of such points is peeled from its top in
-layers ``rise`` deep, as seen from above, while a layer stands more than
-``rise`` above the roof: each such layer becomes a horizontal plane at its
-points' mean height (the least-squares horizontal), a parapet's coping on
-its wall, a gable's sloping top in steps, a chimney's top without its
-sides; the face partition gives each its face like any plane.
+chimneys and vents of one to a few points.  Under the faces of the planes
+around them such points sit metres above the roof surface.  As LoD 1.3
+models a roof by flat blocks, the top surface of what stands on the roof
+is modelled by boxes: the points on no plane that stand more than ``rise``
+above the roof under them, with no point within the spacing standing
+``rise`` higher (the sides of a chimney, a wall under a higher roof's
+edge), are linked into clusters; each cluster is cut from its top in
+layers ``rise`` deep (a sloping coping, a gable's top in steps) and each
+layer becomes a horizontal plane at its points' mean height (the
+least-squares horizontal) when its points support it against the roof
+under them (:func:`block_supported`).  The face partition gives each block
+the plan region its points own (their nearest-point cells), kept whatever
+its area (``partition_outline(kept_planes=...)``), with walls down to the
+roof in the model: a box, however few its points.
 """
 
 from __future__ import annotations
@@ -21,17 +27,27 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height, with_horizontal_planes
 
-__all__ = ["block_planes"]
+__all__ = ["block_planes", "block_supported"]
 
 
-def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 4,
-                 rise: float = 0.5, link: float | None = None, min_density: float = 0.25):
+def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
+                 rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
+                 k: int = 8, max_dz: float = 0.1):
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
     First the points a plane holds apart from the rest of it (groups of
-    fewer than ``min_points`` linked within ``link``) are taken off it: they
-    lie on the plane's extension, not on its surface, and join the points
-    on no plane.
+    fewer than ``stray_points`` linked within ``link``) are taken off it:
+    they lie on the plane's extension, not on its surface, and join the
+    points on no plane.
+
+    Guarantee: every point on no plane that stands more than ``rise`` above
+    the plane of its nearest labelled point and is not within ``rise``
+    above (``max_dz`` under) another plane of its ``k`` nearest labelled
+    points, with no point within ``spacing`` (plan) standing ``rise``
+    higher, is in a block whose height
+    is within ``rise`` of its own, unless its layer has fewer than
+    ``min_points`` points, is scattered (``min_density``), or is not
+    supported against the roof (:func:`block_supported`).
 
     Parameters
     ----------
@@ -46,15 +62,23 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     min_points : int
         Fewest points of a block.
     rise : float
-        Depth (m) of a layer, and the median height of a layer's points
-        above the plane of their nearest labelled point that makes it a
-        block; lower layers (wall points under the eaves, a rough strip of
-        the roof itself) stay on no plane.
+        Least height (m) of a block's point above the plane of its nearest
+        labelled point (lower points on no plane are the roof's own rough
+        strips, gutters and low parapets: the face partition takes them),
+        and the depth of a layer.
     link : float, optional
         3D distance (m) linking points into clusters; default ``2.5 s``.
     min_density : float
-        Fewest points per ``s²`` over a layer's plan hull: scattered
-        returns (wires, birds, a tree branch) are not a block.
+        Fewest points per ``s²`` over the plan hull of a layer of three
+        points or more: scattered returns (wires, birds, a tree branch) are
+        not a block.
+    stray_points : int
+        A plane's points in groups of fewer than this are released.
+    k, max_dz : int, float
+        A point standing at most ``rise`` above, or ``max_dz`` (m) under, a
+        plane of its ``k`` nearest labelled points is left to the face
+        partition, which puts it with that plane
+        (``partition_outline(rise=...)``, same ``k`` and ``max_dz``).
 
     Returns
     -------
@@ -72,43 +96,98 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     >>> g = np.stack(np.meshgrid(np.arange(0, 6, 0.3), np.arange(0, 6, 0.3)), -1).reshape(-1, 2)
     >>> roof = np.column_stack([g, np.full(len(g), 5.0)])
     >>> chimney = np.array([[3.0, 3.0, 6.2], [3.3, 3.0, 6.25], [3.0, 3.3, 6.2], [3.3, 3.3, 6.15]])
-    >>> xyz = np.vstack([roof[np.hypot(*(g - 3.15).T) > 0.4], chimney])
-    >>> lab = np.r_[np.zeros(len(xyz) - 4, np.int64), -np.ones(4, np.int64)]
-    >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3)
-    >>> lab2[-4:].tolist(), fit2.planes[1].round(2).tolist()
-    ([1, 1, 1, 1], [0.0, 0.0, 1.0, -6.2])
+    >>> vent = np.array([[1.5, 4.5, 5.9]])
+    >>> xyz = np.vstack([roof[(np.hypot(*(g - 3.15).T) > 0.4) & (np.hypot(*(g - 1.5).T) > 0.1)], chimney, vent])
+    >>> lab = np.r_[np.zeros(len(xyz) - 5, np.int64), -np.ones(5, np.int64)]
+    >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3, min_points=1)
+    >>> lab2[-5:].tolist(), fit2.planes[1:].round(2).tolist()
+    ([1, 1, 1, 1, 2], [[0.0, 0.0, 1.0, -6.2], [0.0, 0.0, 1.0, -5.9]])
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
     link = link or 2.5 * spacing
-    labels = _stray_points_released(xyz, labels, link, min_points)
+    labels = _stray_points_released(xyz, labels, link, stray_points)
     un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
-    if len(un) < min_points or not len(on):
+    if len(un) < max(min_points, 1) or not len(on):
         return labels, fit
-    comp = components(len(un), cKDTree(xyz[un]).query_pairs(link, output_type="ndarray"))
-    # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it
-    _, nearest = cKDTree(xyz[on, :2]).query(xyz[un, :2])
-    above = xyz[un, 2] - plane_height(fit.planes[labels[on[nearest]]], xyz[un, :2])
+    # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it;
+    # one standing at most ``rise`` above (``max_dz`` under) a plane of its ``k`` nearest labelled points is that
+    # plane's in the face partition (``faces._attached``: a coping, a gutter), not a block's
+    _, nearest = cKDTree(xyz[on, :2]).query(xyz[un, :2], k=int(min(k, len(on))))
+    nearest = nearest.reshape(len(un), -1)
+    cand_planes = labels[on[nearest]]
+    over = xyz[un, 2:3] - plane_height(fit.planes[cand_planes], xyz[un, None, :2])
+    roof, above = cand_planes[:, 0], over[:, 0]
+    high = (above > rise) & ~((over >= -max_dz) & (over <= rise)).any(axis=1)
+    if high.any():
+        # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
+        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[high], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
+        z = np.r_[xyz[:, 2], -np.inf][idx]
+        high[high] = ~(z > xyz[un[high], 2:3] + rise).any(axis=1)
+    cand = np.flatnonzero(high)
+    if len(cand) < max(min_points, 1):
+        return labels, fit
+    comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
     order = np.argsort(comp, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
     blocks = []
-    for cluster in np.split(order, starts[1:]):
-        # peeled from the top, a layer of ``rise`` at a time, as seen from above: a parapet on its wall, a
-        # gable's sloping top in steps; the layers under the roof's own height are walls and stay on none
-        while len(cluster) >= min_points:
+    for cluster in np.split(cand[order], starts[1:]):
+        # cut from the top, a layer of ``rise`` at a time: a sloping coping, a gable's top in steps
+        while len(cluster) >= max(min_points, 1):
             z = xyz[un[cluster], 2]
             top = z >= z.max() - rise
-            layer = cluster[top]
-            if len(layer) < min_points or not np.median(above[layer]) > rise:
-                break
-            cluster = cluster[~top]
-            # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
+            layer, cluster = cluster[top], cluster[~top]
+            if len(layer) < min_points:
+                continue
             pts, n = xyz[un[layer]], len(layer)
-            if hull_area_test(pts, plan_hull_area(pts), lambda a, n=n: n >= min_density * a / spacing**2, True):
+            # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
+            dense = n < 3 or hull_area_test(pts, plan_hull_area(pts), lambda a, n=n: n >= min_density * a / spacing**2,
+                                            True)
+            if dense and block_supported(above[layer], pts[:, 2], fit.sigma[roof[layer]]):
                 blocks.append(un[layer])
     if not blocks:
         return labels, fit
     return with_horizontal_planes(xyz, labels, fit, blocks)
+
+
+def block_supported(above: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> bool:
+    """Whether a layer's points are better explained by a flat block than by the roof under them (AIC).
+
+    Without a block each point is a roof point off by its height ``above``
+    the roof; with one, off by its height's deviation from the layer's mean.
+    Both are weighed by the noise ``sigma`` of the roof plane under each
+    point, and the block costs its one parameter (its height): it stands
+    when ``Σ (above / σ)² - Σ ((z - mean) / σ)² > 2`` (over a flat roof of
+    one noise: ``n mean(above)² / σ² > 2``).  A chimney top of one point
+    half a metre above a roof of 5 cm noise scores 100; a layer whose height
+    above the roof the roof's noise explains (a rough roof plane's strip)
+    does not stand.
+
+    Examples
+    --------
+    >>> block_supported([0.6], [6.0], [0.05])
+    True
+    >>> block_supported([0.06, -0.04, 0.05], [5.06, 4.96, 5.05], [0.05, 0.05, 0.05])
+    False
+
+    Parameters
+    ----------
+    above : ndarray of shape (n,)
+        Each point's height above the roof plane under it (m).
+    z : ndarray of shape (n,)
+        The points' heights (m).
+    sigma : ndarray of shape (n,)
+        Height noise (m) of the roof plane under each point.
+
+    Returns
+    -------
+    bool
+    """
+    sigma = np.asarray(sigma, dtype=np.float64)
+    # a plane of exact points (synthetic) or of too few for a residual: millimetre noise
+    w = 1.0 / np.maximum(np.where(np.isfinite(sigma), sigma, 0.0), 1e-3) ** 2
+    z = np.asarray(z, dtype=np.float64)
+    return bool(np.sum(w * np.asarray(above) ** 2) - np.sum(w * (z - z.mean()) ** 2) > 2.0)
 
 
 def _stray_points_released(xyz: np.ndarray, labels: np.ndarray, link: float, min_points: int) -> np.ndarray:
