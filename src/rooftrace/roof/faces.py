@@ -43,7 +43,8 @@ from rooftrace.graph import components
 from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points, points_in_boxes, simplify_arcs
 from rooftrace.roof.planes import plane_height
 
-__all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges"]
+__all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges",
+           "points_off_their_faces", "claim_points"]
 
 log = logging.getLogger(__name__)
 
@@ -136,6 +137,329 @@ def _absorb_slivers(polys: list, ids: list, min_area: float, kept: np.ndarray | 
         geoms[j], areas[j], box[j], edges[j] = merged, merged.area, merged.bounds, merged.boundary
         alive[i] = False
     return list(geoms[alive]), [pid for pid, on in zip(ids, alive) if on]
+
+
+def _under_fitting_face(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, own_z: np.ndarray,
+                        planes: np.ndarray, max_dz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (plan ``xy``, own plane height ``own_z``): the plane of a face over it (``-1`` none), and
+    whether some face over it has its plane within ``max_dz`` (m) of its own there (a point on a shared
+    edge is under both faces)."""
+    cover = np.full(len(xy), -1, dtype=np.int64)
+    fits = np.zeros(len(xy), dtype=bool)
+    if not len(faces) or not len(xy):
+        return cover, fits
+    at, f = _points_in(faces, xy)
+    cover[at] = pids[f]
+    fits[at[np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz]] = True
+    return cover, fits
+
+
+def _points_in(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (point, polygon) of the points ``xy`` in (or on) each polygon, as an STR tree's query gives them.
+
+    Polygon by polygon on the points in its box (sorted by x), without a
+    point geometry per point: a roof has tens of thousands of points and a
+    few dozen faces.
+    """
+    order = np.argsort(xy[:, 0], kind="stable")
+    xs = xy[order, 0]
+    at, of = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for k, (poly, (x0, y0, x1, y1)) in enumerate(zip(polys, shapely.bounds(polys))):
+        cand = order[np.searchsorted(xs, x0):np.searchsorted(xs, x1, side="right")]
+        cand = cand[(xy[cand, 1] >= y0) & (xy[cand, 1] <= y1)]
+        if len(cand):
+            cand = cand[shapely.intersects_xy(poly, xy[cand, 0], xy[cand, 1])]
+            at.append(cand)
+            of.append(np.full(len(cand), k, dtype=np.int64))
+    return np.concatenate(at), np.concatenate(of)
+
+
+def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: np.ndarray, own_z: np.ndarray,
+                     planes: np.ndarray, radius: float, max_dz: float):
+    """The labelled points under another level, each with the nearest face of its own plane within ``radius``.
+
+    Returns the points (indices into ``xy``), that face, its point nearest
+    the point, and whether a face over each point fits it (all points).  A
+    point whose covering plane meets its own at that nearest face point (within
+    ``max_dz``: a ridge, hip or valley, where the line rule of
+    :func:`partition_outline` decides and the plane error, not the face,
+    puts a few points across) is left out.
+    """
+    cover, fits = _under_fitting_face(faces, pids, xy, own_z, planes, max_dz)
+    off = np.flatnonzero((cover >= 0) & ~fits)
+    none = np.zeros(0, dtype=np.int64)
+    if not len(off):
+        return none, none, np.zeros((0, 2)), fits
+    at, f = shapely.STRtree(faces).query(shapely.points(xy[off]), predicate="dwithin", distance=radius)
+    mine = pids[f] == lab[off[at]]
+    at, f = at[mine], f[mine]
+    if not len(at):
+        return none, none, np.zeros((0, 2)), fits
+    d = shapely.distance(faces[f], shapely.points(xy[off[at]]))
+    order = np.lexsort((f, d, at))
+    first = np.r_[True, at[order][1:] != at[order][:-1]]
+    pt, target = off[at[order][first]], f[order][first]
+    near = shapely.get_coordinates(shapely.shortest_line(faces[target], shapely.points(xy[pt])))[::2]
+    step = np.abs(plane_height(planes[lab[pt]], near) - plane_height(planes[cover[pt]], near)) > max_dz
+    return pt[step], target[step], near[step], fits
+
+
+def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                           radius: float, max_dz: float = 0.1) -> np.ndarray:
+    """The labelled points under a face of another level while a face of their own plane is near.
+
+    The faces' promise at height steps: a labelled point lies under a face
+    of its own plane, or of a plane within ``max_dz`` of it at the point,
+    unless no face of its own plane lies within ``radius`` in plan (a stray
+    point its plane holds by its equation only, metres from its own points),
+    no face covers it (outside the outline), or the plane over it meets its
+    own plane (within ``max_dz``) where its own nearest face is nearest it:
+    across a ridge, hip or valley, where the faces follow the planes'
+    intersection line and a few points lie beyond it by the planes' error.
+
+    Parameters
+    ----------
+    polys : sequence of shapely Polygon
+        Faces tiling the outline (Z ignored).
+    plane_ids : sequence of int
+        Plane of each face.
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none.
+    planes : ndarray of shape (K, 4)
+    radius : float
+        Plan distance (m) within which a face of the point's own plane makes it count.
+    max_dz : float
+        Height difference (m) between the planes at the point that still counts as its own.
+
+    Returns
+    -------
+    ndarray of shape (N,), bool
+        The points that break the promise.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4)]
+    >>> xyz = np.array([[3.9, 2.0, 8.0], [4.2, 2.0, 8.0], [6.0, 2.0, 8.0], [6.0, 2.0, 5.0]])
+    >>> points_off_their_faces(faces, [0, 1], xyz, np.array([0, 0, 0, 1]), planes, radius=0.5).tolist()
+    [False, True, False, False]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels)
+    faces = np.asarray(list(polys), dtype=object)
+    pids = np.asarray(list(plane_ids), dtype=np.int64)
+    out = np.zeros(len(xyz), dtype=bool)
+    sel = np.flatnonzero(labels >= 0)
+    if not len(sel) or not len(faces):
+        return out
+    xy, lab = xyz[sel, :2], labels[sel]
+    pt = _off_their_faces(faces, pids, xy, lab, plane_height(planes[lab], xy), planes, radius, max_dz)[0]
+    out[sel[pt]] = True
+    return out
+
+
+def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """A MultiPolygon per group ``0 .. n - 1`` of the (disjoint) polygons, None for a group without any."""
+    out = np.full(n, None, dtype=object)
+    if len(polys):
+        present, inv = np.unique(group, return_inverse=True)
+        order = np.argsort(inv, kind="stable")
+        out[present] = shapely.multipolygons(polys[order], indices=inv[order])
+    return out
+
+
+def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
+             radius: float, max_dz: float, width: float) -> tuple[list, list, bool]:
+    """The faces with each labelled point under another level handed to its own plane's nearest face.
+
+    A point under a face whose plane is more than ``max_dz`` (m) off its
+    own (the edge row of a roof level given to the neighbouring level's
+    face by a raster cell, or by a sliver merged away), with a face of its
+    own plane within ``radius`` (m), is joined to that face by a wedge: the
+    convex hull of the point (with a margin of ``width / 4`` beyond it and
+    to either side) and the part of the face within ``width`` (m) of the
+    face's point nearest it, cut by the outline.  The wedge is taken from
+    the faces it covers, unless it would put a labelled point of theirs
+    under a plane more than ``max_dz`` off its own (another level's point
+    between the two: that point stays where it is), it meets a wedge of
+    another face (the first in point order stands), or it would cut a face
+    in two or open a hole in one.  Wedges of one face are joined.  If the
+    faces would stop tiling the outline they are returned unchanged.  The
+    flag says whether a wedge was dropped (a narrower one may pass).
+    """
+    faces = np.asarray(polys, dtype=object)
+    pids = np.asarray(ids, dtype=np.int64)
+    if len(faces) < 2 or not len(P):
+        return polys, ids, False
+    xy = P[:, :2]
+    own_z = plane_height(planes[lab], xy)
+    pt, target, near, fits = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz)
+    if not len(pt):
+        return polys, ids, False
+    reach = shapely.intersection(faces[target], shapely.box(*(near - width).T, *(near + width).T))
+    # the point with a margin of width / 4 beyond it and to either side, away from the face: a point near the
+    # wedge's edge would fall across it when the model rounds its vertices
+    u = xy[pt] - near
+    u /= np.maximum(np.hypot(u[:, 0], u[:, 1]), 1e-12)[:, None]
+    t = np.column_stack([-u[:, 1], u[:, 0]])
+    margin = np.concatenate([xy[pt] + (u + t) * width / 4, xy[pt] + (u - t) * width / 4])
+    rc, ri = shapely.get_coordinates(reach, return_index=True)
+    corners, of = np.concatenate([rc, margin]), np.concatenate([ri, np.arange(len(pt)), np.arange(len(pt))])
+    order = np.argsort(of, kind="stable")
+    hull = shapely.convex_hull(shapely.multipoints(corners[order], indices=of[order]))
+    shapely.prepare(outline)
+    wedge = hull.copy()
+    out = ~shapely.contains_properly(outline, hull)
+    wedge[out] = shapely.intersection(hull[out], outline)
+    # a wedge must not put another level's point under its face: a point that fits where it is and would not
+    # fit under the target's plane
+    q, wi = _points_in(wedge, xy)
+    harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
+    ok = np.ones(len(wedge), dtype=bool)
+    ok[wi[harm]] = False
+    ok &= shapely.get_type_id(wedge) == 3
+    # wedges of different faces that meet: the first one (in point order) stands
+    wi, wj = shapely.STRtree(wedge).query(wedge, predicate="intersects")
+    for i, j in zip(wi, wj):
+        if i < j and ok[i] and ok[j] and target[i] != target[j]:
+            ok[j] = False
+    retry = not ok.all()
+    if not ok.any():
+        return polys, ids, retry
+    # a wedge that would cut a face in two or open a hole in one (faces meeting at a point, which the solids and
+    # the part split refuse) is dropped, and the others applied again
+    for _ in range(4):
+        # the claim in pieces, each the wedges of one face (wedges of different faces are apart)
+        pieces = np.asarray(shapely.get_parts(shapely.union_all(wedge[ok])), dtype=object)
+        pi, wj = shapely.STRtree(wedge[ok]).query(pieces, predicate="intersects")
+        owner = np.full(len(pieces), -1, dtype=np.int64)
+        owner[pi] = target[ok][wj]
+        # only the faces the pieces touch change (each less the pieces on it, plus its own); they must tile what
+        # they tiled
+        pj, fi = shapely.STRtree(faces).query(pieces, predicate="intersects")
+        changed, at = np.unique(np.concatenate([fi, owner]), return_inverse=True)
+        at_cut, at_own = at[:len(fi)], at[len(fi):]
+        cut = _grouped(pieces[pj], at_cut, len(changed))
+        g = np.where(shapely.is_missing(cut), faces[changed], shapely.difference(faces[changed], cut))
+        own = _grouped(pieces, at_own, len(changed))
+        g = np.where(shapely.is_missing(own), g, shapely.union(g, own))
+        # judged on the centimetre grid: a neck narrower than that closes when the model rounds its vertices
+        coarse = shapely.set_precision(g, 0.01)
+        split = ((shapely.get_num_geometries(g) != 1) | (shapely.get_num_geometries(coarse) != 1)
+                 | (shapely.get_num_interior_rings(g) > shapely.get_num_interior_rings(faces[changed]))
+                 | (shapely.get_num_interior_rings(coarse) > shapely.get_num_interior_rings(faces[changed])))
+        if not split.any():
+            break
+        ok[shapely.STRtree(wedge).query(faces[np.asarray(changed)[split]], predicate="intersects")[1]] = False
+        retry = True
+        if not ok.any():
+            return polys, ids, retry
+    else:
+        return polys, ids, retry
+    new_faces = [[q for q in shapely.get_parts(x) if q.geom_type == "Polygon" and q.area > 0] for x in g]
+    new_ids = [[int(pids[i])] * len(parts) for i, parts in zip(changed, new_faces)]
+    flat = np.asarray([q for parts in new_faces for q in parts], dtype=object)
+    area = _area_sum(faces[changed])
+    # (the new faces are apart by construction: the areas tell a gap)
+    if not len(flat) or not shapely.is_valid(flat).all() or abs(_area_sum(flat) - area) > 1e-6 * max(area, 1.0):
+        log.debug("points handed to their faces undone (would break the tiling)")
+        return polys, ids, False
+    out_faces, out_ids = [], []
+    at = {i: k for k, i in enumerate(changed)}
+    for i, (g, pid) in enumerate(zip(faces, pids)):
+        if i in at:
+            out_faces.extend(new_faces[at[i]])
+            out_ids.extend(new_ids[at[i]])
+        else:
+            out_faces.append(g)
+            out_ids.append(int(pid))
+    return out_faces, out_ids, retry
+
+
+def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                 radius: float, width: float, max_dz: float = 0.1) -> tuple[list, list]:
+    """Faces that hold every labelled point of a level near its own face: the step boundaries mended.
+
+    At a height step the raster, its simplification and the sliver merging
+    can leave the edge row of a roof level under the neighbouring level's
+    face, metres off its own plane.  Each labelled point under a face whose
+    plane is more than ``max_dz`` off its own there, with a face of its own
+    plane within ``radius`` in plan, is joined to the nearest such face by a
+    wedge (the convex hull of the point with a margin of ``width / 4``
+    beyond it and to either side, and the part of the face within ``width``
+    of the face's point nearest it), taken from the faces it covers; after
+    a wedge is dropped, again with wedges a quarter as wide.
+
+    What it guarantees, on any data: no labelled point that lay under a face
+    of its own plane (or one within ``max_dz``) is moved from it, the faces
+    still tile the outline, and afterwards every labelled point with a face
+    of its own plane within ``radius`` lies under a face of its own plane or
+    of one within ``max_dz`` of it at the point
+    (:func:`points_off_their_faces` finds none; it leaves ridges, hips and
+    valleys, where the two planes meet, to the line rule), unless
+
+    - both wedges would cover a labelled point of another level (the two
+      levels' points interleave there: that point keeps its face),
+    - both meet the wedge of a point of another face (the first, in point
+      order, is taken), or
+    - both would cut a face in two or open a hole in one, also once rounded
+      to a centimetre (faces meeting at a point, which the solids and the
+      building parts refuse).
+
+    Parameters
+    ----------
+    polys : list of shapely Polygon
+        Faces tiling ``outline`` (2D).
+    plane_ids : list of int
+        Plane of each face.
+    outline : shapely Polygon
+        The outline the faces tile; wedges are cut by it.
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none (those take no part).
+    planes : ndarray of shape (K, 4)
+    radius : float
+        Farthest face of a point's own plane (m, plan) it is joined to: a
+        point farther from all of them (a stray its plane holds by its
+        equation only) stays where it is.
+    width : float
+        Half-width (m) of the part of the face a wedge starts from (the face
+        partition's raster cell).
+    max_dz : float
+        Height difference (m) between two planes at a point under which either is its own.
+
+    Returns
+    -------
+    polygons : list of shapely Polygon
+    plane_ids : list of int
+        As many faces as before, in the same order.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> outline = shapely.box(0, 0, 8, 4)
+    >>> faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4)]
+    >>> xyz = np.array([[3.9, 2.0, 8.0], [4.2, 2.0, 8.0], [6.0, 2.0, 5.0]])  # the second under the lower face
+    >>> polys, ids = claim_points(faces, [0, 1], outline, xyz, np.array([0, 0, 1]), planes, radius=0.5, width=0.2)
+    >>> points_off_their_faces(polys, ids, xyz, np.array([0, 0, 1]), planes, radius=0.5).any()
+    np.False_
+    >>> round(sum(p.area for p in polys), 9)
+    32.0
+    """
+    labels = np.asarray(labels)
+    sel = labels >= 0
+    P, lab = np.asarray(xyz, dtype=np.float64)[sel], labels[sel]
+    outline = shapely.force_2d(outline)
+    # a second round with narrower wedges for the points whose first wedge would have covered another level's point
+    for w in (width, width / 4):
+        polys, plane_ids, dropped = _claimed(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
+                                             width=w)
+        if not dropped:
+            break
+    return list(polys), list(plane_ids)
 
 
 def _misplaced(regions: np.ndarray, ids: np.ndarray, xy: np.ndarray, own_z: np.ndarray, planes: np.ndarray,

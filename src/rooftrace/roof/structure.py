@@ -29,7 +29,14 @@ from scipy.spatial import Delaunay, QhullError
 
 from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
-from rooftrace.roof.faces import lift_to_plane, merge_close_vertices, partition_outline, snap_to_lines, step_edges
+from rooftrace.roof.faces import (
+    claim_points,
+    lift_to_plane,
+    merge_close_vertices,
+    partition_outline,
+    snap_to_lines,
+    step_edges,
+)
 from rooftrace.roof.lowparts import low_blocks
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
@@ -438,6 +445,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
+        # the edge rows of roof levels the raster, the simplification or the slivers left under another level
+        polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
