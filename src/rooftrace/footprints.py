@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import shapely
+from scipy.spatial import cKDTree
 
 from rooftrace.cloud import ASPRS
 
@@ -424,8 +425,6 @@ def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.nda
     to : ndarray of int
         The building id each joins.
     """
-    from scipy.spatial import cKDTree
-
     joined, to = [], []
     members = np.flatnonzero(building_id > 0)
     ids = building_id[members].astype(np.int64)

@@ -531,15 +531,16 @@ def _unpinched(footprint, snap: float):
     A footprint without such a point is returned as it is.
     """
     fp = shapely.set_precision(shapely.force_2d(footprint), snap)
-    if fp.geom_type == "MultiPolygon":
+    joined = fp.geom_type == "MultiPolygon"
+    if joined:
         fp = _one_piece(fp, snap)
         if fp is None:
             return footprint
-    elif fp.geom_type != "Polygon" or not len(_pinch_points(fp)):
+    elif fp.geom_type != "Polygon":
         return footprint
     points = _pinch_points(fp)
     if not len(points):
-        return fp
+        return fp if joined else footprint
     for steps in (2, 4, 8, 16, 32, 64):
         notch = shapely.union_all(shapely.buffer(shapely.points(points), steps * snap, quad_segs=2))
         cut = shapely.set_precision(shapely.difference(fp, notch), snap)

@@ -157,16 +157,14 @@ def _under_fitting_face(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, own
 def _points_in(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (point, polygon) of the points ``xy`` in (or on) each polygon, as an STR tree's query gives them.
 
-    Polygon by polygon on the points in its box (sorted by x), without a
-    point geometry per point: a roof has tens of thousands of points and a
-    few dozen faces.
+    Polygon by polygon on the points in its box (:func:`points_in_boxes`),
+    without a point geometry per point: a roof has tens of thousands of
+    points and a few dozen faces.
     """
-    order = np.argsort(xy[:, 0], kind="stable")
-    xs = xy[order, 0]
+    ptr, inbox = points_in_boxes(xy[:, 0], xy[:, 1], np.argsort(xy[:, 0], kind="stable"), shapely.bounds(polys))
     at, of = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    for k, (poly, (x0, y0, x1, y1)) in enumerate(zip(polys, shapely.bounds(polys))):
-        cand = order[np.searchsorted(xs, x0):np.searchsorted(xs, x1, side="right")]
-        cand = cand[(xy[cand, 1] >= y0) & (xy[cand, 1] <= y1)]
+    for k, poly in enumerate(polys):
+        cand = inbox[ptr[k]:ptr[k + 1]]
         if len(cand):
             cand = cand[shapely.intersects_xy(poly, xy[cand, 0], xy[cand, 1])]
             at.append(cand)

@@ -416,7 +416,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             labels, fit = low_blocks(xyz, labels, fit, s, rise=opt.step_height, link=opt.adjacency_radius or link)
         detail = np.arange(len(fit.planes)) >= n_main
         # the faces of the blocks on the roof are kept however small: a chimney of two points
-        blocks = (np.arange(len(fit.planes)) >= n_planes) & (np.arange(len(fit.planes)) < n_blocks)
+        blocks = np.zeros(len(fit.planes), dtype=bool)
+        blocks[n_planes:n_blocks] = True
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
