@@ -466,9 +466,12 @@ def test_a_point_under_the_other_level_is_claimed_by_its_own_face():
 def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkeypatch):
     """The roof's faces keep their promise at height steps (three seeds): every labelled point with a face
     of its own plane within the point spacing lies under a face of its plane or of one within 0.1 m of
-    it, and the faces tile the outline."""
+    it, and the faces tile the outline; the LoD 2.2 solid keeps it for every such point more than the
+    lattice's step (1 cm) inside its face."""
     import rooftrace.roof.structure as structure
-    from rooftrace.roof.faces import points_off_their_faces
+    from rooftrace.model import build_model
+    from rooftrace.model.measure import points_off_their_roof
+    from rooftrace.roof.faces import points_off_their_faces, points_on_their_faces
 
     def breaks():
         n = 0
@@ -479,6 +482,10 @@ def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkey
             assert shapely.union_all(faces).area == pytest.approx(model.outline.area, rel=1e-6)
             n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes,
                                             radius=roof.spacing).sum())
+            solids = [p.lods["2.2"] for p in build_model(model.outline, roof, xyz, 0.0).parts]
+            placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, margin=0.01)
+            assert placed.sum() > 0.9 * (roof.labels >= 0).sum()
+            assert not (placed & points_off_their_roof(solids, xyz, roof.labels, roof.planes, max_dz=0.11)).any()
         return n
 
     assert breaks() == 0

@@ -71,7 +71,9 @@ def test_delft_step_edges_hold_their_levels_points(monkeypatch):
     import rooftrace.roof.structure as structure
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import read_layer
-    from rooftrace.roof.faces import points_off_their_faces
+    from rooftrace.model import build_model
+    from rooftrace.model.measure import points_off_their_roof
+    from rooftrace.roof.faces import points_off_their_faces, points_on_their_faces
 
     pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
     b = pc.xyz[pc.fields["classification"] == 6]
@@ -86,6 +88,13 @@ def test_delft_step_edges_hold_their_levels_points(monkeypatch):
                                           radius=roof.spacing).sum())
 
     assert breaks() == 0
+    # and the LoD 2.2 solid keeps every point the faces hold more than the lattice's step inside its face
+    roof = roof_structure(xyz, outline, building_id=80)
+    faces = [shapely.force_2d(f) for f in roof.faces]
+    solids = [p.lods["2.2"] for p in build_model(outline, roof, xyz, float(xyz[:, 2].min()) - 3.0).parts]
+    placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, margin=0.01)
+    assert placed.sum() > 0.9 * (roof.labels >= 0).sum()
+    assert not (placed & points_off_their_roof(solids, xyz, roof.labels, roof.planes, max_dz=0.11)).any()
     monkeypatch.setattr(structure, "claim_points", lambda polys, ids, *a, **k: (polys, ids))
     assert breaks() > 5  # measured: 15
 

@@ -9,7 +9,7 @@ import shapely
 
 from rooftrace.model.validity import surface_normal, surface_normals, surface_polygons
 
-__all__ = ["roof_height_at", "surface_distance", "vertical_rmse"]
+__all__ = ["roof_height_at", "surface_distance", "vertical_rmse", "points_off_their_roof"]
 
 
 def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
@@ -66,6 +66,55 @@ def roof_height_at(solids: Iterable, xy: np.ndarray) -> np.ndarray:
         at = cand[shapely.intersects_xy(polys[k], xy[cand, 0], xy[cand, 1])]
         pl = planes[k]
         np.fmax.at(out, at, -(pl[0] * xy[at, 0] + pl[1] * xy[at, 1] + pl[3]) / pl[2])
+    return out
+
+
+def points_off_their_roof(solids: Iterable, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                          max_dz: float = 0.1) -> np.ndarray:
+    """The labelled points whose roof in ``solids`` is more than ``max_dz`` (m) off their own plane there.
+
+    With :func:`rooftrace.roof.faces.points_on_their_faces` this states what
+    the model step keeps: a point the roof faces put under a face of its
+    plane (or of one within ``max_dz``) lies under a roof surface within
+    ``max_dz`` plus the solids' ``z_tolerance`` of its plane, unless it lies
+    within the plan lattice's half diagonal of its face's edge (the lattice
+    moves the edge that far).
+
+    Parameters
+    ----------
+    solids : iterable of Solid
+        E.g. the LoD 2.2 solids of a building's parts.
+    xyz : ndarray of shape (N, 3)
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none (never off).
+    planes : ndarray of shape (K, 4)
+    max_dz : float
+
+    Returns
+    -------
+    ndarray of shape (N,), bool
+        False where there is no roof or no label.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> from rooftrace.model.solid import prism_solid, horizontal_plane
+    >>> box = prism_solid([(shapely.box(0, 0, 4, 4), horizontal_plane(5.0))], 0.0)
+    >>> xyz = np.array([[1.0, 1.0, 5.0], [2.0, 2.0, 8.0], [9.0, 9.0, 8.0]])
+    >>> planes = np.array([[0.0, 0.0, 1.0, -5.0], [0.0, 0.0, 1.0, -8.0]])
+    >>> points_off_their_roof([box], xyz, np.array([0, 1, 1]), planes).tolist()
+    [False, True, False]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    labels = np.asarray(labels)
+    out = np.zeros(len(xyz), dtype=bool)
+    sel = np.flatnonzero(labels >= 0)
+    if not len(sel):
+        return out
+    pl = np.asarray(planes, dtype=np.float64)[labels[sel]]
+    own = -(pl[:, 0] * xyz[sel, 0] + pl[:, 1] * xyz[sel, 1] + pl[:, 3]) / pl[:, 2]
+    h = roof_height_at(list(solids), xyz[sel, :2])
+    out[sel] = np.isfinite(h) & (np.abs(h - own) > max_dz)
     return out
 
 

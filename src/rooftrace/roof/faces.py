@@ -44,7 +44,7 @@ from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points,
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges",
-           "points_off_their_faces", "claim_points"]
+           "points_off_their_faces", "points_on_their_faces", "claim_points", "hidden_under", "eaves"]
 
 log = logging.getLogger(__name__)
 
@@ -258,6 +258,80 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     return out
 
 
+#: steepest plane (degrees) whose points hide a lower roof's points under its eave (:func:`hidden_under`):
+#: a plane fitted to a wall has none
+EAVES_SLOPE = 60.0
+
+
+def eaves(planes: np.ndarray) -> np.ndarray:
+    """Per plane: whether it is flat enough (at most :data:`EAVES_SLOPE`) to reach over a lower roof."""
+    planes = np.asarray(planes, dtype=np.float64).reshape(-1, 4)
+    return np.abs(planes[:, 2]) >= np.cos(np.radians(EAVES_SLOPE)) * np.linalg.norm(planes[:, :3], axis=1)
+
+
+def hidden_under(xyz: np.ndarray, labels: np.ndarray, at: np.ndarray, plane: np.ndarray, within: float,
+                 rise: float, tree: cKDTree | None = None) -> np.ndarray:
+    """Whether each point ``at`` has a point of ``plane`` (one per point) within ``within`` (m, plan) more than ``rise`` (m) higher.
+
+    Such a point (a lower roof's return under the upper level's eave, a
+    second return through its gutter) lies under that level's roof in plan:
+    no 2.5D roof can put it under its own plane there, and it says nothing
+    about where the step between the two is.  ``tree``: a k-d tree of
+    ``xyz[:, :2]``, when the caller has one.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    at = np.asarray(at, dtype=np.int64)
+    out = np.zeros(len(at), dtype=bool)
+    if not len(at) or within <= 0:
+        return out
+    tree = cKDTree(xyz[:, :2]) if tree is None else tree
+    near = tree.query_ball_point(xyz[at, :2], within, return_sorted=False)
+    n = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(near))
+    if not n.sum():
+        return out
+    who = np.repeat(np.arange(len(at)), n)
+    by = np.fromiter((j for x in near for j in x), dtype=np.int64, count=int(n.sum()))
+    higher = (labels[by] == np.broadcast_to(plane, len(at))[who]) & (xyz[by, 2] - xyz[at[who], 2] > rise)
+    out[who[higher]] = True
+    return out
+
+
+def points_on_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                          max_dz: float = 0.1, margin: float = 0.0) -> np.ndarray:
+    """The labelled points under a face of their own plane, or of one within ``max_dz`` (m) of it at the point,
+    at least ``margin`` (m, plan) inside that face.
+
+    What the models must keep (:func:`rooftrace.model.measure.points_off_their_roof`):
+    a solid rounds its plan vertices to a lattice, so a point closer to its
+    face's edge than the lattice's half diagonal may change sides.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])
+    >>> faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4)]
+    >>> xyz = np.array([[3.0, 2.0, 8.0], [3.995, 2.0, 8.0], [4.2, 2.0, 8.0], [6.0, 2.0, 5.0]])
+    >>> points_on_their_faces(faces, [0, 1], xyz, np.array([0, 0, 0, 1]), planes, margin=0.01).tolist()
+    [True, False, False, True]
+    """
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels)
+    faces = np.asarray(list(polys), dtype=object)
+    pids = np.asarray(list(plane_ids), dtype=np.int64)
+    out = np.zeros(len(xyz), dtype=bool)
+    sel = np.flatnonzero(labels >= 0)
+    if not len(sel) or not len(faces):
+        return out
+    xy, lab = xyz[sel, :2], labels[sel]
+    own_z = plane_height(planes[lab], xy)
+    at, f = _points_in(faces, xy)
+    fit = np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz
+    if margin > 0:
+        fit &= shapely.distance(shapely.boundary(faces[f]), shapely.points(xy[at])) >= margin
+    out[sel[at[fit]]] = True
+    return out
+
+
 def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
     """A MultiPolygon per group ``0 .. n - 1`` of the (disjoint) polygons, None for a group without any."""
     out = np.full(n, None, dtype=object)
@@ -269,7 +343,8 @@ def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
 
 
 def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
-             radius: float, max_dz: float, width: float) -> tuple[list, list, bool]:
+             radius: float, max_dz: float, width: float, hidden_within: float = 0.0,
+             step_height: float = 0.5) -> tuple[list, list, bool]:
     """The faces with each labelled point under another level handed to its own plane's nearest face.
 
     A point under a face whose plane is more than ``max_dz`` (m) off its
@@ -281,7 +356,9 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     face's point nearest it, cut by the outline.  The wedge is taken from
     the faces it covers, unless it would put a labelled point of theirs
     under a plane more than ``max_dz`` off its own (another level's point
-    between the two: that point stays where it is), it meets a wedge of
+    between the two: that point stays where it is; one with a point of the
+    claiming plane within ``hidden_within`` more than ``step_height``
+    higher, under its eave, is not protected), it meets a wedge of
     another face (the first in point order stands), or it would cut a face
     in two or open a hole in one.  Wedges of one face are joined.  If the
     faces would stop tiling the outline they are returned unchanged.  The
@@ -315,6 +392,10 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     # fit under the target's plane
     q, wi = _points_in(wedge, xy)
     harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
+    if hidden_within > 0 and harm.any():
+        # a point under the claiming level's eave: no 2.5D roof puts it under its own plane there
+        claimer = pids[target[wi[harm]]]
+        harm[harm] = ~(hidden_under(P, lab, q[harm], claimer, hidden_within, step_height) & eaves(planes)[claimer])
     ok = np.ones(len(wedge), dtype=bool)
     ok[wi[harm]] = False
     ok &= shapely.get_type_id(wedge) == 3
@@ -377,7 +458,8 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
 
 
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-                 radius: float, width: float, max_dz: float = 0.1) -> tuple[list, list]:
+                 radius: float, width: float, max_dz: float = 0.1, hidden_within: float = 0.0,
+                 step_height: float = 0.5) -> tuple[list, list]:
     """Faces that hold every labelled point of a level near its own face: the step boundaries mended.
 
     At a height step the raster, its simplification and the sliver merging
@@ -399,7 +481,11 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     valleys, where the two planes meet, to the line rule), unless
 
     - both wedges would cover a labelled point of another level (the two
-      levels' points interleave there: that point keeps its face),
+      levels' points interleave there: that point keeps its face) that
+      is not hidden from above (no point of the claiming plane within
+      ``hidden_within`` in plan stands ``step_height`` higher: a lower
+      level's return under the upper level's eave may go under the upper
+      face, as no 2.5D roof can put it under its own there),
     - both meet the wedge of a point of another face (the first, in point
       order, is taken), or
     - both would cut a face in two or open a hole in one, also once rounded
@@ -427,6 +513,9 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
         partition's raster cell).
     max_dz : float
         Height difference (m) between two planes at a point under which either is its own.
+    hidden_within, step_height : float
+        Plan distance and height (m) of :func:`rooftrace.roof.steplines.hidden_under`;
+        ``hidden_within = 0`` protects every point.
 
     Returns
     -------
@@ -454,7 +543,7 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     # a second round with narrower wedges for the points whose first wedge would have covered another level's point
     for w in (width, width / 4):
         polys, plane_ids, dropped = _claimed(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
-                                             width=w)
+                                             width=w, hidden_within=hidden_within, step_height=step_height)
         if not dropped:
             break
     return list(polys), list(plane_ids)

@@ -41,6 +41,7 @@ from rooftrace.roof.lowparts import low_blocks
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
+from rooftrace.roof.steplines import fit_step_boundaries
 from rooftrace.roof.superstructures import block_planes
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
@@ -143,6 +144,12 @@ class RoofOptions:
         tolerance per roof, held back by that rule (3.8 times the face
         vertices of ``'free'`` on AHN3 Delft, a 40 % slower run); ``'free'``
         one tolerance of 5 cells (a boundary may leave its height step).
+    step_lines : bool
+        Each height step between two faces is redrawn as lines fitted to
+        separate the two levels' points within ``2 s`` of it
+        (:func:`rooftrace.roof.steplines.fit_step_boundaries`), kept where
+        they move no labelled point from under a face that fits it and mend
+        one or take fewer vertices than the raster's boundary.
     hull_edge : float or None
         Longest triangle edge (m) of the point hull used when no outline is
         given; default ``max(3 s, 2 P95)``, ``P95`` the 95th percentile of
@@ -172,6 +179,7 @@ class RoofOptions:
     step_height: float = 0.5
     cell: float | None = None
     face_boundaries: str = "each"
+    step_lines: bool = True
     hull_edge: float | None = None
 
     def __post_init__(self) -> None:
@@ -446,6 +454,10 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
+        if opt.step_lines:
+            # the height steps as lines between the two levels' points, not the raster's staircase
+            polys, pids = fit_step_boundaries(polys, pids, xyz, labels, fit.planes, step_height=opt.step_height,
+                                              band=2.0 * s, run_tolerance=s, rise=opt.step_height)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
         polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
