@@ -344,7 +344,7 @@ def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
 
 def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
              radius: float, max_dz: float, width: float, hidden_within: float = 0.0,
-             step_height: float = 0.5) -> tuple[list, list, bool]:
+             step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list, bool]:
     """The faces with each labelled point under another level handed to its own plane's nearest face.
 
     A point under a face whose plane is more than ``max_dz`` (m) off its
@@ -395,7 +395,8 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     if hidden_within > 0 and harm.any():
         # a point under the claiming level's eave: no 2.5D roof puts it under its own plane there
         claimer = pids[target[wi[harm]]]
-        harm[harm] = ~(hidden_under(P, lab, q[harm], claimer, hidden_within, step_height) & eaves(planes)[claimer])
+        hides = eaves(planes) if overhanging is None else eaves(planes) & np.asarray(overhanging, dtype=bool)
+        harm[harm] = ~(hidden_under(P, lab, q[harm], claimer, hidden_within, step_height) & hides[claimer])
     ok = np.ones(len(wedge), dtype=bool)
     ok[wi[harm]] = False
     ok &= shapely.get_type_id(wedge) == 3
@@ -459,7 +460,7 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
 
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                  radius: float, width: float, max_dz: float = 0.1, hidden_within: float = 0.0,
-                 step_height: float = 0.5) -> tuple[list, list]:
+                 step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
     """Faces that hold every labelled point of a level near its own face: the step boundaries mended.
 
     At a height step the raster, its simplification and the sliver merging
@@ -514,8 +515,11 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     max_dz : float
         Height difference (m) between two planes at a point under which either is its own.
     hidden_within, step_height : float
-        Plan distance and height (m) of :func:`rooftrace.roof.steplines.hidden_under`;
-        ``hidden_within = 0`` protects every point.
+        Plan distance and height (m) of :func:`hidden_under`; ``hidden_within = 0`` protects every point.
+    overhanging : ndarray of shape (K,), bool, optional
+        The planes whose points may hide another level's (default: every
+        plane flatter than :data:`EAVES_SLOPE`; a small plane fitted to a
+        messy corner or a wall reaches over nothing).
 
     Returns
     -------
@@ -543,7 +547,8 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     # a second round with narrower wedges for the points whose first wedge would have covered another level's point
     for w in (width, width / 4):
         polys, plane_ids, dropped = _claimed(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
-                                             width=w, hidden_within=hidden_within, step_height=step_height)
+                                             width=w, hidden_within=hidden_within, step_height=step_height,
+                                             overhanging=overhanging)
         if not dropped:
             break
     return list(polys), list(plane_ids)

@@ -218,7 +218,8 @@ def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance
 
 def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                         step_height: float, band: float, run_tolerance: float, hidden_within: float = 0.0,
-                        rise: float | None = None, max_dz: float = 0.1) -> tuple[list, list]:
+                        rise: float | None = None, overhanging: np.ndarray | None = None,
+                        max_dz: float = 0.1) -> tuple[list, list]:
     """Faces whose height steps run along lines fitted to the two levels' points.
 
     Every boundary shared by two faces whose planes are more than
@@ -261,7 +262,9 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
         hidden from above (:func:`hidden_under`: a return under the upper
         level's eave) and takes no part, neither in the fit nor in the count
         (not under a plane steeper than :data:`rooftrace.roof.faces.EAVES_SLOPE`:
-        a wall has no eave).
+        a wall has no eave; nor under one not ``overhanging``).
+    overhanging : ndarray of shape (K,), bool, optional
+        The planes whose points may hide a lower level's (default: all).
     rise : float or None
         A point on no plane takes part as a point of the plane it stands on,
         at most ``rise`` (m) above it (as in
@@ -301,7 +304,7 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
         # the points on no plane that stand on one (a coping, a gutter) count as its points, as in the partition
         extra, on = _attached(np.asarray(xyz, dtype=np.float64)[~sel], P, lab, planes, 8, max_dz, rise)
         P, lab = np.vstack([P, extra]), np.concatenate([lab, on])
-    roofish = eaves(planes)
+    roofish = eaves(planes) if overhanging is None else eaves(planes) & np.asarray(overhanging, dtype=bool)
     xy = P[:, :2]
     tree = cKDTree(xy)
     own_z = plane_height(planes[lab], xy)

@@ -454,12 +454,17 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
+        # a lower level's returns within s / 2 of a point of a main roof plane (twice the smallest plane) standing
+        # step_height higher lie under its eave: they neither place its step nor stop its claim
+        eaves = (np.arange(len(fit.planes)) < n_main) & (fit.n * s**2 >= 2 * opt.min_area)
+        hide = dict(hidden_within=0.5 * s, overhanging=eaves)
         if opt.step_lines:
             # the height steps as lines between the two levels' points, not the raster's staircase
             polys, pids = fit_step_boundaries(polys, pids, xyz, labels, fit.planes, step_height=opt.step_height,
-                                              band=2.0 * s, run_tolerance=s, rise=opt.step_height)
+                                              band=2.0 * s, run_tolerance=s, rise=opt.step_height, **hide)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
-        polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
+        polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell,
+                                   step_height=opt.step_height, **hide)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
