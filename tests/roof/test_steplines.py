@@ -99,3 +99,26 @@ def test_a_lower_point_under_the_eave_is_hidden_by_the_upper_level_only():
     hidden = hidden_under(xyz, labels, np.array([0, 2, 4]), np.array([0, 0, 0]), 0.2, 0.5)
     assert hidden.tolist() == [True, False, False]
     assert not hidden_under(xyz, labels, np.array([0]), np.array([0]), 0.05, 0.5).any()
+
+
+def test_a_lower_point_under_the_eave_does_not_stop_the_upper_level_s_claim():
+    """The upper level's edge row (x = 4.2, 4.35) lies under the lower face with a lower-level return between
+    them and the upper face (x = 4.3, 3 m under them: under the eave).  Protected, it stops the wedge of the
+    farther one (the nearer one passes with a narrow wedge); as a point under the eave (``hidden_within``) it
+    does not, and only it is left under the other level."""
+    from rooftrace.roof.faces import claim_points
+
+    outline = shapely.box(0, 0, 8, 4)
+    faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4)]
+    xyz = np.array([[3.8, 2.0, 8.0], [4.2, 2.0, 8.0], [4.35, 2.0, 8.0], [4.3, 2.0, 5.0], [6.0, 2.0, 5.0],
+                    [6.0, 3.0, 5.0]])
+    labels = np.array([0, 0, 0, 1, 1, 1])
+    kw = dict(radius=1.0, width=0.4)
+    polys, ids = claim_points(faces, [0, 1], outline, xyz, labels, PLANES, **kw)
+    assert points_off_their_faces(polys, ids, xyz, labels, PLANES, radius=1.0).tolist() == [0, 0, 1, 0, 0, 0]
+    polys, ids = claim_points(faces, [0, 1], outline, xyz, labels, PLANES, hidden_within=0.1, **kw)
+    off = points_off_their_faces(polys, ids, xyz, labels, PLANES, radius=1.0)
+    assert off.tolist() == [0, 0, 0, 1, 0, 0]
+    # the exception the invariant names
+    assert not points_off_their_faces(polys, ids, xyz, labels, PLANES, radius=1.0, hidden_within=0.1).any()
+    assert shapely.union_all(polys).area == pytest.approx(32.0)

@@ -173,7 +173,7 @@ def _points_in(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: np.ndarray, own_z: np.ndarray,
-                     planes: np.ndarray, radius: float, max_dz: float):
+                     planes: np.ndarray, radius: float, max_dz: float, under_eave=None):
     """The labelled points under another level, each with the nearest face of its own plane within ``radius``.
 
     Returns the points (indices into ``xy``), that face, its point nearest
@@ -181,10 +181,14 @@ def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: n
     point whose covering plane meets its own at that nearest face point (within
     ``max_dz``: a ridge, hip or valley, where the line rule of
     :func:`partition_outline` decides and the plane error, not the face,
-    puts a few points across) is left out.
+    puts a few points across) is left out, and so is one ``under_eave``
+    (a function of the points and the planes over them: True where the
+    point lies under that plane's eave).
     """
     cover, fits = _under_fitting_face(faces, pids, xy, own_z, planes, max_dz)
     off = np.flatnonzero((cover >= 0) & ~fits)
+    if under_eave is not None and len(off):
+        off = off[~under_eave(off, cover[off])]
     none = np.zeros(0, dtype=np.int64)
     if not len(off):
         return none, none, np.zeros((0, 2)), fits
@@ -203,7 +207,8 @@ def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: n
 
 
 def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-                           radius: float, max_dz: float = 0.1) -> np.ndarray:
+                           radius: float, max_dz: float = 0.1, hidden_within: float = 0.0, step_height: float = 0.5,
+                           overhanging: np.ndarray | None = None) -> np.ndarray:
     """The labelled points under a face of another level while a face of their own plane is near.
 
     The faces' promise at height steps: a labelled point lies under a face
@@ -213,7 +218,10 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     no face covers it (outside the outline), or the plane over it meets its
     own plane (within ``max_dz``) where its own nearest face is nearest it:
     across a ridge, hip or valley, where the faces follow the planes'
-    intersection line and a few points lie beyond it by the planes' error.
+    intersection line and a few points lie beyond it by the planes' error;
+    with ``hidden_within``, nor a point under the eave of the plane over it
+    (:func:`hidden_under`: a point of that plane within ``hidden_within``
+    stands ``step_height`` higher; ``overhanging`` as in :func:`claim_points`).
 
     Parameters
     ----------
@@ -253,7 +261,8 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     if not len(sel) or not len(faces):
         return out
     xy, lab = xyz[sel, :2], labels[sel]
-    pt = _off_their_faces(faces, pids, xy, lab, plane_height(planes[lab], xy), planes, radius, max_dz)[0]
+    under_eave = _eave_rule(xyz[sel], lab, planes, hidden_within, step_height, overhanging)
+    pt = _off_their_faces(faces, pids, xy, lab, plane_height(planes[lab], xy), planes, radius, max_dz, under_eave)[0]
     out[sel[pt]] = True
     return out
 
@@ -332,6 +341,20 @@ def points_on_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray,
     return out
 
 
+def _eave_rule(xyz: np.ndarray, lab: np.ndarray, planes: np.ndarray, within: float, rise: float,
+               overhanging: np.ndarray | None):
+    """``under_eave(points, planes)`` of :func:`_off_their_faces` for labelled points ``xyz`` (None when off)."""
+    if within <= 0:
+        return None
+    hides = eaves(planes) if overhanging is None else eaves(planes) & np.asarray(overhanging, dtype=bool)
+    tree = cKDTree(xyz[:, :2])
+
+    def under_eave(at: np.ndarray, plane: np.ndarray) -> np.ndarray:
+        return hides[plane] & hidden_under(xyz, lab, at, plane, within, rise, tree)
+
+    return under_eave
+
+
 def _grouped(polys: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
     """A MultiPolygon per group ``0 .. n - 1`` of the (disjoint) polygons, None for a group without any."""
     out = np.full(n, None, dtype=object)
@@ -370,6 +393,8 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
         return polys, ids, False
     xy = P[:, :2]
     own_z = plane_height(planes[lab], xy)
+    under_eave = _eave_rule(P, lab, planes, hidden_within, step_height, overhanging)
+    # (a point under another level's eave is still claimed back where no point of that level is in the way)
     pt, target, near, fits = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz)
     if not len(pt):
         return polys, ids, False
@@ -392,11 +417,9 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     # fit under the target's plane
     q, wi = _points_in(wedge, xy)
     harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
-    if hidden_within > 0 and harm.any():
+    if under_eave is not None and harm.any():
         # a point under the claiming level's eave: no 2.5D roof puts it under its own plane there
-        claimer = pids[target[wi[harm]]]
-        hides = eaves(planes) if overhanging is None else eaves(planes) & np.asarray(overhanging, dtype=bool)
-        harm[harm] = ~(hidden_under(P, lab, q[harm], claimer, hidden_within, step_height) & hides[claimer])
+        harm[harm] = ~under_eave(q[harm], pids[target[wi[harm]]])
     ok = np.ones(len(wedge), dtype=bool)
     ok[wi[harm]] = False
     ok &= shapely.get_type_id(wedge) == 3
