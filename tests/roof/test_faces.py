@@ -483,7 +483,7 @@ def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkey
             n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes,
                                             radius=roof.spacing).sum())
             solids = [p.lods["2.2"] for p in build_model(model.outline, roof, xyz, 0.0).parts]
-            placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, margin=0.01)
+            placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes)
             assert placed.sum() > 0.9 * (roof.labels >= 0).sum()
             assert not (placed & points_off_their_roof(solids, xyz, roof.labels, roof.planes, max_dz=0.11)).any()
         return n

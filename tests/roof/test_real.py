@@ -92,7 +92,7 @@ def test_delft_step_edges_hold_their_levels_points(monkeypatch):
     roof = roof_structure(xyz, outline, building_id=80)
     faces = [shapely.force_2d(f) for f in roof.faces]
     solids = [p.lods["2.2"] for p in build_model(outline, roof, xyz, float(xyz[:, 2].min()) - 3.0).parts]
-    placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, margin=0.01)
+    placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes)
     assert placed.sum() > 0.9 * (roof.labels >= 0).sum()
     assert not (placed & points_off_their_roof(solids, xyz, roof.labels, roof.planes, max_dz=0.11)).any()
     monkeypatch.setattr(structure, "claim_points", lambda polys, ids, *a, **k: (polys, ids))

@@ -11,7 +11,10 @@ planes and faces, the roof points) and the ground height, and returns a
   where their shared edges do not jump more than ``level_step``, each level
   at the ``roof_percentile`` of its points;
 - **LoD 2.2**: the roof faces on their planes, walls under every step
-  between faces and around the footprint, down to the ground.
+  between faces and around the footprint, down to the ground.  A roof
+  point that the faces hold under its own plane stays under it in the
+  solid: where the plan lattice moved a face edge across it, it gets the
+  lattice square around it (:func:`_points_kept`).
 
 Every solid comes from :func:`rooftrace.model.solid.prism_solid` and is
 checked by :func:`rooftrace.model.validity.solid_errors`; a level that
@@ -125,6 +128,19 @@ def _largest_polygon(geom):
     geom = shapely.make_valid(shapely.force_2d(geom))
     parts = [g for g in shapely.get_parts(geom) if g.geom_type == "Polygon" and g.area > 0]
     return max(parts, key=lambda g: g.area) if parts else None
+
+
+def _own_heights(roof, xyz: np.ndarray) -> np.ndarray | None:
+    """Per point the height of its own roof plane at it (NaN on none); None without labels for these points."""
+    labels = getattr(roof, "labels", None)
+    if labels is None or len(labels) != len(xyz) or not len(getattr(roof, "planes", [])):
+        return None
+    labels = np.asarray(labels)
+    out = np.full(len(xyz), np.nan)
+    on = labels >= 0
+    pl = np.asarray(roof.planes, dtype=np.float64)[labels[on]]
+    out[on] = -(pl[:, 0] * xyz[on, 0] + pl[:, 1] * xyz[on, 1] + pl[:, 3]) / pl[:, 2]
+    return out
 
 
 def _roof_cells(roof, *, detail: bool = True) -> list[tuple[Any, np.ndarray]]:
@@ -280,8 +296,12 @@ def _inside(poly, xyz: np.ndarray) -> np.ndarray:
 
 
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
-          options: ModelOptions, lods: tuple[str, ...] = LODS) -> tuple[PartModel, dict[str, str]]:
-    """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing."""
+          options: ModelOptions, lods: tuple[str, ...] = LODS,
+          own_z: np.ndarray | None = None) -> tuple[PartModel, dict[str, str]]:
+    """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing.
+
+    ``own_z``: per point the height of its own roof plane (NaN on none), for :func:`_points_kept`.
+    """
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
     shapely.prepare(footprint)
@@ -326,8 +346,83 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
+        else:
+            if own_z is not None:
+                part.lods["2.2"] = _points_kept(part.lods["2.2"], cells, xyz[inside, :2], own_z[inside], ground, kw,
+                                                options)
     _volumes(part)
     return part, why
+
+
+#: height difference (m) between a point's own plane and the roof over it that still counts as its own
+#: (the roof faces' ``max_dz``)
+OWN_PLANE_DZ = 0.1
+
+
+def _lost(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, options: ModelOptions) -> np.ndarray:
+    """The points (indices into ``xy``) a cell of a plane within :data:`OWN_PLANE_DZ` of their own holds, whose
+    roof in ``solid`` is more than that (plus ``z_tolerance``) off their plane."""
+    from rooftrace.model.measure import roof_height_at
+
+    mine = np.flatnonzero(np.isfinite(own_z))
+    if not len(mine) or not cells:
+        return mine[:0]
+    polys = np.array([c for c, _ in cells], dtype=object)
+    at, c = shapely.STRtree(polys).query(shapely.points(xy[mine]), predicate="intersects")
+    pl = np.array([cells[k][1] for k in c], dtype=np.float64).reshape(-1, 4)
+    z = -(pl[:, 0] * xy[mine[at], 0] + pl[:, 1] * xy[mine[at], 1] + pl[:, 3]) / pl[:, 2]
+    held = np.unique(at[np.abs(z - own_z[mine[at]]) <= OWN_PLANE_DZ])
+    if not len(held):
+        return mine[:0]
+    pts = mine[held]
+    h = roof_height_at([solid], xy[pts])
+    return pts[np.isfinite(h) & (np.abs(h - own_z[pts]) > OWN_PLANE_DZ + options.z_tolerance)]
+
+
+def _points_kept(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, ground: float, kw: dict,
+                 options: ModelOptions) -> Solid:
+    """The LoD 2.2 solid with the points its lattice rounding handed to another roof level given back.
+
+    ``prism_solid`` puts the cells' vertices on the ``snap`` lattice, which
+    moves a face edge by up to the lattice's half diagonal: a point of a
+    roof level that close to its face's edge (a height step's edge row)
+    falls under the other level, metres off.  Each such point gets the
+    lattice square around it, a lattice step beyond it on every side, from
+    the cell of its own plane that held it (taken from the others, within
+    the footprint), and the solid is built again; it is kept when it is
+    valid and loses fewer points.
+    """
+    lost = _lost(solid, cells, xy, own_z, options)
+    if not len(lost):
+        return solid
+    snap = options.snap
+    polys = np.array([c for c, _ in cells], dtype=object)
+    planes = np.array([pl for _, pl in cells], dtype=np.float64)
+    at, c = shapely.STRtree(polys).query(shapely.points(xy[lost]), predicate="intersects")
+    z = -(planes[c, 0] * xy[lost[at], 0] + planes[c, 1] * xy[lost[at], 1] + planes[c, 3]) / planes[c, 2]
+    fit = np.abs(z - own_z[lost[at]]) <= OWN_PLANE_DZ
+    at, c = at[fit], c[fit]
+    if not len(at):
+        return solid
+    # each point's first cell of its own plane (a point on a shared edge is in both)
+    order = np.lexsort((c, at))
+    at, c = at[order], c[order]
+    first = np.r_[True, at[1:] != at[:-1]]
+    at, c = at[first], c[first]
+    p = xy[lost[at]]
+    lo, hi = (np.floor(p / snap) - 1) * snap, (np.ceil(p / snap) + 1) * snap
+    squares = shapely.intersection(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]), kw["footprint"])
+    new = list(polys)
+    for k in np.unique(c):
+        take = shapely.union_all(squares[c == k])
+        new = [shapely.difference(g, take) if j != k else shapely.union(g, take) for j, g in enumerate(new)]
+    again = [(g, planes[j]) for j, piece in enumerate(new) for g in shapely.get_parts(piece)
+             if g.geom_type == "Polygon" and g.area > 0]
+    try:
+        kept = _checked(prism_solid(again, ground, **kw), options)
+    except _FAILURES:
+        return solid
+    return kept if len(_lost(kept, cells, xy, own_z, options)) < len(lost) else solid
 
 
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
@@ -461,12 +556,13 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         g for p in parts for g in shapely.get_parts(shapely.intersection(shapely.force_2d(p), poly))
         if g.geom_type == "Polygon" and g.area > 0]
     cells = _above_ground(_roof_cells(roof), float(ground))
+    own_z = _own_heights(roof, xyz)
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
     cut = _cut(footprints, cells, opt.snap)
     whys = []
     plain = None
     for k, (fp, part_cells) in enumerate(cut, start=1):
-        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt)
+        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, own_z=own_z)
         if "1.3" in why or "2.2" in why:
             # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
             # outline): the part's solids without the superstructures, when that gives more levels or a planar

@@ -74,11 +74,12 @@ def points_off_their_roof(solids: Iterable, xyz: np.ndarray, labels: np.ndarray,
     """The labelled points whose roof in ``solids`` is more than ``max_dz`` (m) off their own plane there.
 
     With :func:`rooftrace.roof.faces.points_on_their_faces` this states what
-    the model step keeps: a point the roof faces put under a face of its
-    plane (or of one within ``max_dz``) lies under a roof surface within
-    ``max_dz`` plus the solids' ``z_tolerance`` of its plane, unless it lies
-    within the plan lattice's half diagonal of its face's edge (the lattice
-    moves the edge that far).
+    the model step keeps (:func:`rooftrace.model.build.build_model`): a
+    point the roof faces put under a face of its plane (or of one within
+    ``max_dz``) lies under a roof surface within ``max_dz`` plus the solids'
+    ``z_tolerance`` of its plane; the plan lattice moves a face edge by up
+    to its half diagonal, and a point that close to it is given the lattice
+    square around it (unless the solid so built is invalid).
 
     Parameters
     ----------
