@@ -146,7 +146,7 @@ class RoofOptions:
         one tolerance of 5 cells (a boundary may leave its height step).
     step_lines : bool
         Each height step between two faces is redrawn as lines fitted to
-        separate the two levels' points within ``2 s`` of it
+        separate the two levels' points within ``3 s`` of it
         (:func:`rooftrace.roof.steplines.fit_step_boundaries`), kept where
         they move no labelled point from under a face that fits it and mend
         one or take fewer vertices than the raster's boundary.
@@ -454,16 +454,16 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
             boundaries=opt.face_boundaries, plane_sigma=fit.sigma, rise=opt.step_height, kept_planes=blocks,
         )
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
-        # a lower level's returns within s / 2 of a point of a main roof plane (twice the smallest plane) standing
+        # a lower level's returns within s of a point of a main roof plane (twice the smallest plane) standing
         # step_height higher lie under its eave: they neither place its step nor stop its claim
         eaves = (np.arange(len(fit.planes)) < n_main) & (fit.n * s**2 >= 2 * opt.min_area)
-        hide = dict(hidden_within=0.5 * s, overhanging=eaves)
+        hide = dict(hidden_within=s, overhanging=eaves)
         if opt.step_lines:
             # the height steps as lines between the two levels' points, not the raster's staircase
             polys, pids = fit_step_boundaries(polys, pids, xyz, labels, fit.planes, step_height=opt.step_height,
-                                              band=2.0 * s, run_tolerance=s, rise=opt.step_height, **hide)
+                                              band=3.0 * s, run_tolerance=s, rise=opt.step_height, **hide)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
-        polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell,
+        polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=2 * s, width=cell,
                                    step_height=opt.step_height, **hide)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
