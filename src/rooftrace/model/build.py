@@ -297,10 +297,11 @@ def _inside(poly, xyz: np.ndarray) -> np.ndarray:
 
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
           options: ModelOptions, lods: tuple[str, ...] = LODS,
-          own_z: np.ndarray | None = None) -> tuple[PartModel, dict[str, str]]:
+          own_z: np.ndarray | None = None, held_by: list | None = None) -> tuple[PartModel, dict[str, str]]:
     """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing.
 
-    ``own_z``: per point the height of its own roof plane (NaN on none), for :func:`_points_kept`.
+    ``own_z``: per point the height of its own roof plane (NaN on none), and ``held_by``: the roof faces
+    as they were before the parts were cut on the lattice (default ``cells``), for :func:`_points_kept`.
     """
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
@@ -348,8 +349,8 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             _flat_lod22(part, why, lods)
         else:
             if own_z is not None:
-                part.lods["2.2"] = _points_kept(part.lods["2.2"], cells, xyz[inside, :2], own_z[inside], ground, kw,
-                                                options)
+                part.lods["2.2"] = _points_kept(part.lods["2.2"], cells, held_by or cells, xyz[inside, :2],
+                                                own_z[inside], ground, kw, options)
     _volumes(part)
     return part, why
 
@@ -379,37 +380,39 @@ def _lost(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, options:
     return pts[np.isfinite(h) & (np.abs(h - own_z[pts]) > OWN_PLANE_DZ + options.z_tolerance)]
 
 
-def _points_kept(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, ground: float, kw: dict,
-                 options: ModelOptions) -> Solid:
+def _points_kept(solid: Solid, cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, ground: float,
+                 kw: dict, options: ModelOptions) -> Solid:
     """The LoD 2.2 solid with the points its lattice rounding handed to another roof level given back.
 
-    ``prism_solid`` puts the cells' vertices on the ``snap`` lattice, which
-    moves a face edge by up to the lattice's half diagonal: a point of a
-    roof level that close to its face's edge (a height step's edge row)
-    falls under the other level, metres off.  Each such point gets the
-    lattice square around it, a lattice step beyond it on every side, from
-    the cell of its own plane that held it (taken from the others, within
-    the footprint), and the solid is built again; it is kept when it is
-    valid and loses fewer points.
+    ``prism_solid`` (and the parts' cut, :func:`~rooftrace.model.solid.party_walls`)
+    put the faces' vertices on the ``snap`` lattice, which moves a face
+    edge by up to the lattice's half diagonal: a point of a roof level that
+    close to its face's edge (a height step's edge row) falls under the
+    other level, metres off.  Each point that a face of ``held_by`` (the
+    roof faces before any rounding) of a plane within
+    :data:`OWN_PLANE_DZ` of its own holds, but the solid does not, gets the
+    lattice square around it, a lattice step beyond it on every side, for
+    the nearest of the part's ``cells`` of such a plane (taken from the
+    others, within the footprint); the solid is built again and kept when
+    it is valid and loses fewer points.
     """
-    lost = _lost(solid, cells, xy, own_z, options)
+    lost = _lost(solid, held_by, xy, own_z, options)
     if not len(lost):
         return solid
     snap = options.snap
     polys = np.array([c for c, _ in cells], dtype=object)
-    planes = np.array([pl for _, pl in cells], dtype=np.float64)
-    at, c = shapely.STRtree(polys).query(shapely.points(xy[lost]), predicate="intersects")
-    z = -(planes[c, 0] * xy[lost[at], 0] + planes[c, 1] * xy[lost[at], 1] + planes[c, 3]) / planes[c, 2]
-    fit = np.abs(z - own_z[lost[at]]) <= OWN_PLANE_DZ
-    at, c = at[fit], c[fit]
-    if not len(at):
+    planes = np.array([pl for _, pl in cells], dtype=np.float64).reshape(-1, 4)
+    # per lost point the nearest cell of a plane within OWN_PLANE_DZ of its own at it
+    p = xy[lost]
+    z = -(planes[None, :, 0] * p[:, None, 0] + planes[None, :, 1] * p[:, None, 1] + planes[None, :, 3]) / planes[
+        None, :, 2]
+    d = shapely.distance(polys[None, :], shapely.points(p)[:, None])
+    d = np.where(np.abs(z - own_z[lost][:, None]) <= OWN_PLANE_DZ, d, np.inf)
+    c = np.argmin(d, axis=1)
+    ok = np.isfinite(d[np.arange(len(lost)), c]) & (d[np.arange(len(lost)), c] <= 2 * snap)
+    if not ok.any():
         return solid
-    # each point's first cell of its own plane (a point on a shared edge is in both)
-    order = np.lexsort((c, at))
-    at, c = at[order], c[order]
-    first = np.r_[True, at[1:] != at[:-1]]
-    at, c = at[first], c[first]
-    p = xy[lost[at]]
+    p, c = p[ok], c[ok]
     lo, hi = (np.floor(p / snap) - 1) * snap, (np.ceil(p / snap) + 1) * snap
     squares = shapely.intersection(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]), kw["footprint"])
     new = list(polys)
@@ -422,7 +425,7 @@ def _points_kept(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, g
         kept = _checked(prism_solid(again, ground, **kw), options)
     except _FAILURES:
         return solid
-    return kept if len(_lost(kept, cells, xy, own_z, options)) < len(lost) else solid
+    return kept if len(_lost(kept, held_by, xy, own_z, options)) < len(lost) else solid
 
 
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
@@ -450,7 +453,8 @@ def _volumes(part: PartModel) -> None:
 
 
 def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
-                       options: ModelOptions, rounds: int = 3) -> None:
+                       options: ModelOptions, rounds: int = 3, own_z: np.ndarray | None = None,
+                       held_by: list | None = None) -> None:
     """Rebuild the solids of parts that overlap a neighbour, their party wall bent as the neighbour's.
 
     Cut from one arrangement, two parts start with the same party wall; but
@@ -461,7 +465,7 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
     part gets that vertex in its footprint and cells too
     (:func:`shapely.snap`) and its solid of that level of detail is rebuilt,
     so both walls bend alike; a few rounds, as a rebuild may move another
-    vertex.  ``parts`` are changed in place.
+    vertex.  ``parts`` are changed in place; ``own_z`` and ``held_by`` as in :func:`_part`.
     """
     tol = 0.9 * options.snap  # above the half diagonal of a lattice cell, below a step
     extents: dict[int, tuple[Solid, PartExtent]] = {}  # by id of the solid: measured once, again only when rebuilt
@@ -498,7 +502,8 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
                 ref = shapely.multipoints(np.vstack(points))
                 fp, cells = bases[j]
                 bases[j] = (shapely.snap(fp, ref, tol), [(shapely.snap(c, ref, tol), plane) for c, plane in cells])
-                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,))
+                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,), own_z=own_z,
+                                 held_by=held_by)
                 if lod in again.lods:
                     parts[j].lods[lod] = again.lods[lod]
                     parts[j].attributes[f"volume_lod{lod.replace('.', '')}"] = again.attributes[
@@ -562,7 +567,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     whys = []
     plain = None
     for k, (fp, part_cells) in enumerate(cut, start=1):
-        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, own_z=own_z)
+        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, own_z=own_z, held_by=cells)
         if "1.3" in why or "2.2" in why:
             # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
             # outline): the part's solids without the superstructures, when that gives more levels or a planar
@@ -583,7 +588,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         model.parts.append(part)
         whys.append(why)
     if len(model.parts) > 1:
-        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt)
+        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt, own_z=own_z, held_by=cells)
     reasons: list[str] = []
     for k, why in enumerate(whys, start=1):
         for lod, reason in sorted(why.items()):
