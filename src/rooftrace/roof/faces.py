@@ -206,6 +206,14 @@ def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: n
     return pt[step], target[step], near[step], fits
 
 
+def _faces_and_labelled(polys, plane_ids, xyz, labels):
+    """As arrays: the points, their labels, the faces, their planes, and the indices of the labelled points."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    labels = np.asarray(labels)
+    faces = np.asarray(list(polys), dtype=object)
+    return xyz, labels, faces, np.asarray(list(plane_ids), dtype=np.int64), np.flatnonzero(labels >= 0)
+
+
 def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                            radius: float, max_dz: float = 0.1, hidden_within: float = 0.0, step_height: float = 0.5,
                            overhanging: np.ndarray | None = None) -> np.ndarray:
@@ -252,12 +260,8 @@ def points_off_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     >>> points_off_their_faces(faces, [0, 1], xyz, np.array([0, 0, 0, 1]), planes, radius=0.5).tolist()
     [False, True, False, False]
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    labels = np.asarray(labels)
-    faces = np.asarray(list(polys), dtype=object)
-    pids = np.asarray(list(plane_ids), dtype=np.int64)
+    xyz, labels, faces, pids, sel = _faces_and_labelled(polys, plane_ids, xyz, labels)
     out = np.zeros(len(xyz), dtype=bool)
-    sel = np.flatnonzero(labels >= 0)
     if not len(sel) or not len(faces):
         return out
     xy, lab = xyz[sel, :2], labels[sel]
@@ -323,12 +327,8 @@ def points_on_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray,
     >>> points_on_their_faces(faces, [0, 1], xyz, np.array([0, 0, 0, 1]), planes, margin=0.01).tolist()
     [True, False, False, True]
     """
-    xyz = np.asarray(xyz, dtype=np.float64)
-    labels = np.asarray(labels)
-    faces = np.asarray(list(polys), dtype=object)
-    pids = np.asarray(list(plane_ids), dtype=np.int64)
+    xyz, labels, faces, pids, sel = _faces_and_labelled(polys, plane_ids, xyz, labels)
     out = np.zeros(len(xyz), dtype=bool)
-    sel = np.flatnonzero(labels >= 0)
     if not len(sel) or not len(faces):
         return out
     xy, lab = xyz[sel, :2], labels[sel]
