@@ -15,10 +15,12 @@ their crossings; the ends stay on the boundary's nodes, so the other faces
 are untouched.  The lens between the old boundary and the new one changes
 level; the new faces are kept only where the boundary moves no labelled
 point from under a face that fits it (within ``max_dz``) to under one that
-does not, more than it mends (the two levels' points interleave: no line
-separates them, and the least-misfit line is taken only if it beats the
-raster's boundary), and only where both faces stay one polygon without new
-holes, on the centimetre lattice of the models too.
+does not (where the two levels' points interleave so that no line
+separates them the raster's boundary stays: mended points do not buy
+misplaced ones), and only where both faces stay one polygon without new
+holes, on the centimetre lattice of the models too.  A lower level's
+return under the upper level's eave (:func:`rooftrace.roof.faces.hidden_under`)
+takes no part: no 2.5D roof can put it under its own plane.
 """
 
 from __future__ import annotations
@@ -165,7 +167,7 @@ def _foot(p, n, c):
 
 
 def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance: float):
-    """The fitted boundary (vertices, (V, 2)) that replaces ``piece`` between its two ends, and the runs' misfit.
+    """The fitted boundary (vertices, (V, 2)) that replaces ``piece`` between its two ends (None: none).
 
     ``piece`` is cut into straight runs (Douglas-Peucker at
     ``run_tolerance``); each run with points of both levels within ``band``
@@ -176,8 +178,8 @@ def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance
     """
     v = shapely.get_coordinates(shapely.simplify(piece, run_tolerance))
     if len(v) < 2:
-        return None, 0.0
-    lines, misfit = [], 0.0
+        return None
+    lines = []
     for a, b in zip(v[:-1], v[1:]):
         d = b - a
         length = float(np.hypot(*d))
@@ -195,13 +197,12 @@ def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance
         if mu.any() and ml.any():
             # the run's normal pointing from the upper level's side to the lower's
             hint = nrm if (lo_xy[ml] - a).mean(axis=0) @ nrm >= (up_xy[mu] - a).mean(axis=0) @ nrm else -nrm
-            n, c, miss, _ = separating_line(up_xy[mu], lo_xy[ml], w_up[mu], w_lo[ml], normal=hint)
+            n, c, _, _ = separating_line(up_xy[mu], lo_xy[ml], w_up[mu], w_lo[ml], normal=hint)
             lines.append((n, c))
-            misfit += miss
         else:
             lines.append((nrm, float(nrm @ a)))
     if not lines:
-        return None, 0.0
+        return None
     pts = [v[0], _foot(v[0], *lines[0])]
     for k in range(len(lines) - 1):
         x = _crossing(*lines[k], *lines[k + 1])
@@ -213,7 +214,7 @@ def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance
     pts.extend([_foot(v[-1], *lines[-1]), v[-1]])
     pts = np.asarray(pts)
     keep = np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-6]
-    return pts[keep], misfit
+    return pts[keep]
 
 
 def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
@@ -334,7 +335,7 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             zu, zl = plane_height(planes[None, [up, lo]], xy[near][:, None, :]).T
             w = np.abs(zu - zl)
             is_up = lab[near] == up
-            new, _ = _new_boundary(piece, xy[near][is_up], xy[near][~is_up], w[is_up], w[~is_up], band=band,
+            new = _new_boundary(piece, xy[near][is_up], xy[near][~is_up], w[is_up], w[~is_up], band=band,
                                    run_tolerance=run_tolerance)
             if new is None:
                 continue
