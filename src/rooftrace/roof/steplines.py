@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.roof.faces import _attached, eaves, hidden_under
+from rooftrace.roof.faces import _attached, _points_in, eaves, hidden_under
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["separating_line", "fit_step_boundaries"]
@@ -40,8 +40,8 @@ log = logging.getLogger(__name__)
 
 
 def separating_line(xy_upper: np.ndarray, xy_lower: np.ndarray, w_upper: np.ndarray | None = None,
-                    w_lower: np.ndarray | None = None, *, normal: np.ndarray | None = None, spread: float = 25.0,
-                    step: float = 1.0) -> tuple[np.ndarray, float, float, float]:
+                    w_lower: np.ndarray | None = None, *, normal: np.ndarray | None = None, spread: float = 20.0,
+                    step: float = 2.0) -> tuple[np.ndarray, float, float, float]:
     """The line that separates two point sets in plan with the least weighted misfit, and the widest margin.
 
     For each direction of the line's normal (within ``spread`` degrees of
@@ -310,11 +310,19 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
     tree = cKDTree(xy)
     own_z = plane_height(planes[lab], xy)
     arr = np.asarray(faces, dtype=object)
+    # (face, plane) of every labelled point under a face more than max_dz off its plane: only a pair of faces
+    # one of which holds a point of the other's plane can gain
+    at, f = _points_in(arr, xy)
+    off = np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) > max_dz
+    wrong_in = set(zip(f[off].tolist(), lab[at[off]].tolist()))
+    changed: set[int] = set()
     i, j = shapely.STRtree(arr).query(arr, predicate="intersects")
     keep = (i < j) & (pids[i] != pids[j])
     for fi, fj in zip(i[keep].tolist(), j[keep].tolist()):
         A, B = faces[fi], faces[fj]
         a, b = int(pids[fi]), int(pids[fj])
+        if (fj, a) not in wrong_in and (fi, b) not in wrong_in and fi not in changed and fj not in changed:
+            continue
         shared = shapely.line_merge(shapely.intersection(A.boundary, B.boundary))
         for piece in shapely.get_parts(shared):
             if shapely.get_type_id(piece) != 1 or piece.length < band:
@@ -326,12 +334,23 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             up, lo = (a, b) if np.median(dz[:, 0] - dz[:, 1]) > 0 else (b, a)
             near = _in_box(xy, piece.bounds, band)
             near = near[(lab[near] == up) | (lab[near] == lo)]
-            near = near[shapely.contains_xy(shapely.union(A, B), xy[near, 0], xy[near, 1])]
+            in_a = shapely.contains_xy(A, xy[near, 0], xy[near, 1])
+            mine = in_a | shapely.contains_xy(B, xy[near, 0], xy[near, 1])
+            near, in_a = near[mine], in_a[mine]
+            # only a boundary with a point of either level on the wrong side is redrawn (the arc simplification
+            # already straightened the others as far as the points allow)
+            wrong = (lab[near] == a) != in_a
+            if not wrong.any():
+                continue
             # the lower level's returns under the upper level's eave take no part
             hide = hidden_within if roofish[up] else 0.0
-            near = near[~((lab[near] == lo) & hidden_under(P, lab, near, up, hide, step_height, tree))]
-            if not len(near):
-                continue
+            if hide > 0:
+                low = np.flatnonzero(lab[near] == lo)
+                under = np.zeros(len(near), dtype=bool)
+                under[low] = hidden_under(P, lab, near[low], up, hide, step_height, tree)
+                near, wrong = near[~under], wrong[~under]
+                if not wrong.any():
+                    continue
             zu, zl = plane_height(planes[None, [up, lo]], xy[near][:, None, :]).T
             w = np.abs(zu - zl)
             is_up = lab[near] == up
@@ -372,6 +391,7 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             # mended points do not buy misplaced ones: where the levels interleave the raster's boundary stays
             if not (fit_before & ~fit_after).any() and ((fit_after & ~fit_before).any() or simpler):
                 faces[fi], faces[fj] = A, B = newA, newB
+                changed.update((fi, fj))
             else:
                 log.debug("step %d|%d: kept (%d points mended, %d misplaced)", a, b, (fit_after & ~fit_before).sum(),
                           (fit_before & ~fit_after).sum())
