@@ -361,14 +361,20 @@ OWN_PLANE_DZ = 0.1
 
 
 def _lost(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, options: ModelOptions) -> np.ndarray:
-    """The points (indices into ``xy``) a cell of a plane within :data:`OWN_PLANE_DZ` of their own holds, whose
-    roof in ``solid`` is more than that (plus ``z_tolerance``) off their plane."""
+    """The points (indices into ``xy``) within the lattice step ``snap`` of a cell's edge that a cell of a plane
+    within :data:`OWN_PLANE_DZ` of their own holds, whose roof in ``solid`` is more than that (plus
+    ``z_tolerance``) off their plane."""
     from rooftrace.model.measure import roof_height_at
 
     mine = np.flatnonzero(np.isfinite(own_z))
     if not len(mine) or not cells:
         return mine[:0]
     polys = np.array([c for c, _ in cells], dtype=object)
+    # the lattice moves a face edge by less than its step: only points that close to an edge can change sides
+    mine = mine[np.unique(shapely.STRtree(shapely.boundary(polys)).query(shapely.points(xy[mine]), predicate="dwithin",
+                                                                         distance=options.snap)[0])]
+    if not len(mine):
+        return mine
     at, c = shapely.STRtree(polys).query(shapely.points(xy[mine]), predicate="intersects")
     pl = np.array([cells[k][1] for k in c], dtype=np.float64).reshape(-1, 4)
     z = -(pl[:, 0] * xy[mine[at], 0] + pl[:, 1] * xy[mine[at], 1] + pl[:, 3]) / pl[:, 2]
