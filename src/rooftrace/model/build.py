@@ -342,15 +342,18 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
         except _FAILURES as exc:
             why["1.3"] = str(exc)
     if "2.2" in lods:
+        kept = cells if own_z is None else _points_kept(cells, held_by or cells, xyz[inside, :2], own_z[inside],
+                                                        kw["footprint"], options)
         try:
-            part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
+            try:
+                part.lods["2.2"] = _checked(prism_solid(kept, ground, **kw), options)
+            except _FAILURES:
+                if kept is cells:
+                    raise
+                part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
-        else:
-            if own_z is not None:
-                part.lods["2.2"] = _points_kept(part.lods["2.2"], cells, held_by or cells, xyz[inside, :2],
-                                                own_z[inside], ground, kw, options)
     _volumes(part)
     return part, why
 
@@ -360,78 +363,75 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
 OWN_PLANE_DZ = 0.1
 
 
-def _lost(solid: Solid, cells: list, xy: np.ndarray, own_z: np.ndarray, options: ModelOptions) -> np.ndarray:
-    """The points (indices into ``xy``) within the lattice step ``snap`` of a cell's edge that a cell of a plane
-    within :data:`OWN_PLANE_DZ` of their own holds, whose roof in ``solid`` is more than that (plus
-    ``z_tolerance``) off their plane."""
-    from rooftrace.model.measure import roof_height_at
-
-    mine = np.flatnonzero(np.isfinite(own_z))
-    if not len(mine) or not cells:
-        return mine[:0]
-    polys = np.array([c for c, _ in cells], dtype=object)
-    # the lattice moves a face edge by less than its step: only points that close to an edge can change sides
-    mine = mine[np.unique(shapely.STRtree(shapely.boundary(polys)).query(shapely.points(xy[mine]), predicate="dwithin",
-                                                                         distance=options.snap)[0])]
-    if not len(mine):
-        return mine
-    at, c = shapely.STRtree(polys).query(shapely.points(xy[mine]), predicate="intersects")
-    pl = np.array([cells[k][1] for k in c], dtype=np.float64).reshape(-1, 4)
-    z = -(pl[:, 0] * xy[mine[at], 0] + pl[:, 1] * xy[mine[at], 1] + pl[:, 3]) / pl[:, 2]
-    held = np.unique(at[np.abs(z - own_z[mine[at]]) <= OWN_PLANE_DZ])
-    if not len(held):
-        return mine[:0]
-    pts = mine[held]
-    h = roof_height_at([solid], xy[pts])
-    return pts[np.isfinite(h) & (np.abs(h - own_z[pts]) > OWN_PLANE_DZ + options.z_tolerance)]
-
-
-def _points_kept(solid: Solid, cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, ground: float,
-                 kw: dict, options: ModelOptions) -> Solid:
-    """The LoD 2.2 solid with the points its lattice rounding handed to another roof level given back.
+def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, footprint,
+                 options: ModelOptions) -> list:
+    """The cells with each point the plan lattice would hand to another roof level given the lattice square around it.
 
     ``prism_solid`` (and the parts' cut, :func:`~rooftrace.model.solid.party_walls`)
-    put the faces' vertices on the ``snap`` lattice, which moves a face
+    put the cells' vertices on the ``snap`` lattice, which moves a cell
     edge by up to the lattice's half diagonal: a point of a roof level that
-    close to its face's edge (a height step's edge row) falls under the
-    other level, metres off.  Each point that a face of ``held_by`` (the
-    roof faces before any rounding) of a plane within
-    :data:`OWN_PLANE_DZ` of its own holds, but the solid does not, gets the
-    lattice square around it, a lattice step beyond it on every side, for
-    the nearest of the part's ``cells`` of such a plane (taken from the
-    others, within the footprint); the solid is built again and kept when
-    it is valid and loses fewer points.
+    close to its face's edge (a height step's edge row) would fall under the
+    other level, metres off.  Each point within ``snap`` of an edge that a
+    face of ``held_by`` (the roof faces before any rounding) of a plane
+    within :data:`OWN_PLANE_DZ` of its own holds, and that no cell of such a
+    plane holds once rounded to the lattice, gets the lattice square around
+    it (a lattice step beyond it on every side, within ``footprint``) for
+    the nearest of ``cells`` of such a plane, taken from the others.
     """
-    lost = _lost(solid, held_by, xy, own_z, options)
-    if not len(lost):
-        return solid
+    mine = np.flatnonzero(np.isfinite(own_z))
+    if not len(mine) or not cells or not held_by:
+        return cells
     snap = options.snap
+
+    def heights_fit(planes: np.ndarray, at: np.ndarray) -> np.ndarray:
+        z = -(planes[:, 0] * xy[at, 0] + planes[:, 1] * xy[at, 1] + planes[:, 3]) / planes[:, 2]
+        return np.abs(z - own_z[at]) <= OWN_PLANE_DZ
+
+    ref = np.array([c for c, _ in held_by], dtype=object)
+    ref_planes = np.array([pl for _, pl in held_by], dtype=np.float64).reshape(-1, 4)
+    # the lattice moves an edge by less than its step: only a point that close to a face of another level
+    # (more than OWN_PLANE_DZ off) and inside a face of its own can change sides
+    i, f = shapely.STRtree(ref).query(shapely.points(xy[mine]), predicate="dwithin", distance=snap)
+    fit = heights_fit(ref_planes[f], mine[i])
+    inside = shapely.intersects_xy(ref[f], xy[mine[i], 0], xy[mine[i], 1])
+    near_other = np.zeros(len(mine), dtype=bool)
+    near_other[i[~fit]] = True
+    held = np.zeros(len(mine), dtype=bool)
+    held[i[fit & inside]] = True
+    mine = mine[near_other & held]
+    if not len(mine):
+        return cells
     polys = np.array([c for c, _ in cells], dtype=object)
     planes = np.array([pl for _, pl in cells], dtype=np.float64).reshape(-1, 4)
-    # per lost point the nearest cell of a plane within OWN_PLANE_DZ of its own at it
+    # which of them the cells, rounded to the lattice, put under another level and none of their own
+    i, c = shapely.STRtree(polys).query(shapely.points(xy[mine]), predicate="dwithin", distance=2 * snap)
+    on = shapely.intersects_xy(shapely.set_precision(polys[c], snap), xy[mine[i], 0], xy[mine[i], 1])
+    fit = heights_fit(planes[c], mine[i])
+    own, other = np.zeros(len(mine), dtype=bool), np.zeros(len(mine), dtype=bool)
+    own[i[on & fit]] = True
+    other[i[on & ~fit]] = True
+    lost = mine[other & ~own]
+    if not len(lost):
+        return cells
+    # per lost point the nearest cell of a plane within OWN_PLANE_DZ of its own
     p = xy[lost]
     z = -(planes[None, :, 0] * p[:, None, 0] + planes[None, :, 1] * p[:, None, 1] + planes[None, :, 3]) / planes[
         None, :, 2]
     d = shapely.distance(polys[None, :], shapely.points(p)[:, None])
     d = np.where(np.abs(z - own_z[lost][:, None]) <= OWN_PLANE_DZ, d, np.inf)
     c = np.argmin(d, axis=1)
-    ok = np.isfinite(d[np.arange(len(lost)), c]) & (d[np.arange(len(lost)), c] <= 2 * snap)
+    ok = d[np.arange(len(lost)), c] <= 2 * snap
     if not ok.any():
-        return solid
+        return cells
     p, c = p[ok], c[ok]
     lo, hi = (np.floor(p / snap) - 1) * snap, (np.ceil(p / snap) + 1) * snap
-    squares = shapely.intersection(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]), kw["footprint"])
+    squares = shapely.intersection(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]), footprint)
     new = list(polys)
     for k in np.unique(c):
         take = shapely.union_all(squares[c == k])
         new = [shapely.difference(g, take) if j != k else shapely.union(g, take) for j, g in enumerate(new)]
-    again = [(g, planes[j]) for j, piece in enumerate(new) for g in shapely.get_parts(piece)
-             if g.geom_type == "Polygon" and g.area > 0]
-    try:
-        kept = _checked(prism_solid(again, ground, **kw), options)
-    except _FAILURES:
-        return solid
-    return kept if len(_lost(kept, held_by, xy, own_z, options)) < len(lost) else solid
+    return [(g, planes[j]) for j, piece in enumerate(new) for g in shapely.get_parts(piece)
+            if g.geom_type == "Polygon" and g.area > 0]
 
 
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
