@@ -12,21 +12,22 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 * the points inside it that the detection left unclassified and that stand
   ``min_height`` above the ground (chimneys, parapets, roof clutter too rough
   or too small for its roof test), when it has building points, and
-* the unclassified points inside it or in its band, ``min_height / 2`` above
-  the ground, that touch its building's points (within ``2.5 s`` in 3D, or
-  of one that joined so, three links deep): clutter along the eaves, a
-  chimney's top, a shed roof under ``min_height``.  They are roof points but
-  not outline points (:attr:`FootprintAssignment.touching`): traced with
-  them, an outline reached out over lower roofs beyond the building;
-  and so do the points the detection called vegetation there whose
-  neighbourhood is a plane (``planar_vegetation``): a roof under a tree's
-  edge or a lower roof part the detection's roof test got wrong.
+* the other non-building points inside it or in its band, ``min_height / 2``
+  above the ground, that touch its building's points (within ``2.5 s`` in
+  3D, or of one that joined so, three links deep): clutter along the eaves,
+  a chimney's top, a shed roof under ``min_height``, a roof under a tree's
+  edge or a lower roof part the detection called vegetation.  They are roof
+  points but not outline points (:attr:`FootprintAssignment.touching`):
+  traced with them, an outline reached out over lower roofs beyond the
+  building.
 
-Every non-ground point over an ``"ok"`` footprint is then either in its
-building or left out for a reason of :data:`LEFT_OUT`
-(:attr:`FootprintAssignment.left_out`): near the ground, a tree (vegetation
-whose neighbourhood scatters off a plane), or detached from the building's
-points.
+Neither of the last two takes a tree's points (:func:`tree_points`: the
+detection's vegetation, or points amid vegetation or amid returns that went
+on through, whose neighbourhood is no plane and which stand more than
+``tree_rise`` over the building).  So every non-ground point over an
+``"ok"`` footprint is either in its building or left out for a reason of
+:data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
+tree's, or detached from the building's points.
 
 A detected building spanning several footprints (a terraced row) is thereby
 split along the footprints: a point inside footprint A goes to A, a point in
@@ -54,7 +55,8 @@ from scipy.spatial import cKDTree
 from rooftrace.cloud import ASPRS
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
-           "footprint_attributes", "touching_points", "planar_spread", "STATUSES", "LEFT_OUT"]
+           "footprint_attributes", "touching_points", "planar_spread", "tree_points",
+           "STATUSES", "LEFT_OUT"]
 
 log = logging.getLogger(__name__)
 
@@ -69,10 +71,11 @@ STATUSES = {
 #: why a non-ground point over an ``ok`` footprint is not in its building (:attr:`FootprintAssignment.left_out`)
 LEFT_OUT = {
     "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
-    "vegetation": "vegetation by the detection and its 10 nearest non-ground points scatter more than "
-                  "planar_vegetation off a plane: a tree's crown",
-    "detached": "not building by the detection, and neither min_height above the ground (unclassified) nor linked "
-                "to the building's points within 2.5 point spacings in 3D (three links)",
+    "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
+            "non-ground points vegetation or returns that went on through, those no plane within planar_vegetation, "
+            "and more than tree_rise over the building beside it",
+    "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
+                "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
     "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
 }
 
@@ -144,15 +147,22 @@ class FootprintOptions:
         (within 2.5 point spacings in 3D): judged by the building's own
         points, not by a class.
     planar_vegetation : float, default 0.05
-        With ``unclassified``, a point the detection called vegetation,
-        inside an ``"ok"`` footprint or in its band, ``min_height / 2`` above
-        the ground, joins like an unclassified one (touching the building's
-        points) when its 10 nearest non-ground points fit a plane within
-        this RMS (m, :func:`planar_spread`): a roof under a tree's edge or
-        a lower roof part the detection's eigen-entropy test called
-        vegetation; a crown scatters far more.  0 turns it off.  On AHN3
-        Delft 81 % of the vegetation points so taken are the provider's
-        building points (25 % of those not taken).
+        With ``unclassified``, the tree test (:func:`tree_points`): a point
+        the detection called vegetation, or amid vegetation or amid returns
+        that went on through (half or more of its 10 nearest non-ground
+        points), is a tree's unless those points fit a plane within this
+        RMS (m) or it stands no more than ``tree_rise`` over the building
+        beside it.  A tree's point never joins; any other non-building
+        point over an ``"ok"`` footprint or in its band may (vegetation then
+        joins like unclassified points that touch the building: a roof
+        under a tree's edge, a lower roof part the detection's eigen-entropy
+        test called vegetation).  0: the detection's vegetation is the
+        trees, and nothing else is (the rule before the test).
+    tree_rise : float, default 2.0
+        Height (m) over the highest of the 5 nearest building points (plan)
+        above which a vegetation-like point that is no plane is a tree's: a
+        crown stands metres over the roof it shades, a roof's clutter and
+        chimneys within a metre or two of it.
     """
 
     section = "footprints"
@@ -162,6 +172,7 @@ class FootprintOptions:
     min_height: float = 2.0
     unclassified: bool = True
     planar_vegetation: float = 0.05
+    tree_rise: float = 2.0
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -172,6 +183,8 @@ class FootprintOptions:
             raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
         if not np.isfinite(self.planar_vegetation) or self.planar_vegetation < 0:
             raise ValueError(f"footprints.planar_vegetation must be >= 0 metres, got {self.planar_vegetation!r}")
+        if not np.isfinite(self.tree_rise):
+            raise ValueError(f"footprints.tree_rise must be a number of metres, got {self.tree_rise!r}")
 
 
 
@@ -279,6 +292,7 @@ def assign_footprints(
     *,
     hag: np.ndarray | None = None,
     density: float | None = None,
+    through: np.ndarray | None = None,
 ) -> FootprintAssignment:
     """Give every footprint its building points (roof above it plus the overhang band).
 
@@ -298,6 +312,11 @@ def assign_footprints(
         are taken.
     density : float, optional
         d_avg (pts/m²), for the derived ``min_points``.
+    through : ndarray of shape (N,), bool, optional
+        Per point, whether its pulse had a later return
+        (``return_number < number_of_returns``): with it a crown the
+        detection left unclassified is told from roof clutter
+        (:func:`tree_points`).
 
     Returns
     -------
@@ -328,8 +347,8 @@ def assign_footprints(
     n, f = len(xyz), len(footprints)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"assign_footprints: xyz must have shape (N, 3), got {xyz.shape}")
-    if len(classification) != n or len(detected_id) != n or (hag is not None and len(hag) != n):
-        raise ValueError("assign_footprints: classification, detected_id and hag need one value per point")
+    if len(classification) != n or len(detected_id) != n or any(a is not None and len(a) != n for a in (hag, through)):
+        raise ValueError("assign_footprints: classification, detected_id, hag and through need one value per point")
     min_points = options.min_points
     if min_points is None:
         min_points = max(3, int(np.ceil(4.0 * density))) if density and np.isfinite(density) else 10
@@ -412,34 +431,36 @@ def assign_footprints(
             fallback.append(np.zeros(0, np.int64))
             building_id[own] = 0
     ok = np.array([s == "ok" for s in status] + [False])  # index -1: in no footprint
-    planar = np.zeros(0, np.int64)
+    trees = np.zeros(0, np.int64)
     spacing = 1.0 / np.sqrt(density) if density and np.isfinite(density) and density > 0 else 0.5
     if high is not None and options.unclassified:
-        extra = np.flatnonzero(high & (classification == ASPRS.UNCLASSIFIED) & ok[all_owner])
-        building_id[extra] = (all_owner[extra] + 1).astype(np.int32)
-        # unclassified points touching an ok footprint building's own points, in the footprint or its band (a
-        # chimney of a few points, clutter along the eaves, a shed roof under min_height): roof points, not outline
-        rough = (classification == ASPRS.UNCLASSIFIED) & (building_id == 0) & (hag >= options.min_height / 2)
-        if options.planar_vegetation > 0:
-            # a roof the detection called vegetation (under a tree's edge, a lower part) is a plane, a crown is not
-            leafy = np.flatnonzero((classification == ASPRS.HIGH_VEGETATION) & (hag >= options.min_height / 2))
-            leafy = leafy[_near_ok_footprint(leafy, xyz, all_owner, ok, polygons, tree, options.overhang) >= 0]
-            solid = ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE))
-            planar = leafy[planar_spread(xyz, leafy, solid) <= options.planar_vegetation]
-            rough[planar] = True
-        cand = np.flatnonzero(rough)
-        where = _near_ok_footprint(cand, xyz, all_owner, ok, polygons, tree, options.overhang)
-        keep = where >= 0
-        joined, to = touching_points(xyz, cand[keep], building_id, 2.5 * spacing, owner=where[keep] + 1)
+        # the points the detection called neither building, ground nor noise, over an ok footprint or in its band
+        other = np.flatnonzero(np.isin(classification, (ASPRS.UNCLASSIFIED, ASPRS.HIGH_VEGETATION))
+                               & (hag >= options.min_height / 2))
+        where = _near_ok_footprint(other, xyz, all_owner, ok, polygons, tree, options.overhang)
+        other, where = other[where >= 0], where[where >= 0]
+        tree_like = tree_points(xyz, other, classification, options.planar_vegetation, through=through,
+                                rise=_rise(xyz, other, building_id), min_rise=options.tree_rise)
+        trees = other[tree_like]
+        # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
+        standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
+            & (hag[other] >= options.min_height)
+        building_id[other[standing]] = (where[standing] + 1).astype(np.int32)
+        # the rest joins when it touches the building's own points, in the footprint or its band (a chimney of a
+        # few points, clutter along the eaves, a shed roof under min_height, a roof the detection called
+        # vegetation): roof points, not outline points
+        rest = ~tree_like & ~standing
+        joined, to = touching_points(xyz, other[rest], building_id, 2.5 * spacing, owner=where[rest] + 1)
         building_id[joined] = to.astype(np.int32)
         touching = np.sort(joined)
-    left_out = _left_out(classification, building_id, all_owner, ok, hag, options, planar)
+    left_out = _left_out(classification, building_id, all_owner, ok, hag, options, trees)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
                                        "min_height": options.min_height, "unclassified": options.unclassified,
-                                       "planar_vegetation": options.planar_vegetation},
+                                       "planar_vegetation": options.planar_vegetation,
+                                       "tree_rise": options.tree_rise},
                                touching=touching, left_out=left_out)
 
 
@@ -486,10 +507,16 @@ def planar_spread(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: int
         covariance: a roof's noise (centimetres) on a roof, decimetres in a
         crown.  ``inf`` where fewer than 3 neighbours exist.
     """
+    return _neighbourhood(xyz, points, among, k)[0]
+
+
+def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`planar_spread` and the indices (into ``xyz``) of the ``k`` neighbours, shape (len(points), k)."""
     points = np.asarray(points, dtype=np.int64)
     pool = np.flatnonzero(among)
+    none = (np.full(len(points), np.inf), np.zeros((len(points), 0), np.int64))
     if len(points) == 0 or len(pool) < 3:
-        return np.full(len(points), np.inf)
+        return none
     # only the pool near the tested points is worth a tree (most of a cloud is far from them): the
     # 4 m cells around theirs hold every neighbour within 4 m, farther ones say nothing of a roof plane
     cell = 4.0
@@ -502,32 +529,103 @@ def planar_spread(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: int
     inside = (theirs >= 0).all(axis=1) & (theirs[:, 1] < ny)
     pool = pool[inside][np.isin(theirs[inside, 0] * ny + theirs[inside, 1], keys)]
     if len(pool) < 3:
-        return np.full(len(points), np.inf)
+        return none
     k = min(k, len(pool))
     _, j = cKDTree(xyz[pool]).query(xyz[points], k=k)
-    nb = xyz[pool[j]]
-    nb = nb - nb.mean(axis=1, keepdims=True)
+    j = pool[j.reshape(len(points), k)]
+    nb = xyz[j] - xyz[j].mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb) / k
-    return np.sqrt(np.clip(np.linalg.eigvalsh(cov)[:, 0], 0.0, None))
+    return np.sqrt(np.clip(np.linalg.eigvalsh(cov)[:, 0], 0.0, None)), j
+
+
+def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray, planar: float, *,
+                through: np.ndarray | None = None, rise: np.ndarray | None = None, min_rise: float = 0.0,
+                k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
+    """Which of ``points`` are a tree's: vegetation or amid vegetation or porous returns, and not on a plane.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    points : ndarray of int
+        Indices of the points to judge.
+    classification : ndarray of shape (N,), uint8
+        ASPRS classes of the detection (5 vegetation, 2 ground, 7 noise).
+    planar : float
+        RMS (m) of a plane fit through the ``k`` nearest non-ground,
+        non-noise points (:func:`planar_spread`) within which they are a
+        roof, whatever else is said of them; 0: the vegetation points are a
+        tree's and no other.
+    through : ndarray of shape (N,), bool, optional
+        Per point, whether its pulse had a later return (return number
+        under the number of returns): the pulse went on through a crown
+        (or past an edge).  None when the cloud has no return numbers.
+    rise : ndarray of shape (len(points),), float64, optional
+        Height (m) of each point over the building beside it (the highest
+        of its nearest building points in plan); with it only points
+        standing more than ``min_rise`` over the building are a tree's
+        (a crown stands metres over the roof it shades, the roof's own
+        clutter at its level).
+    min_rise : float
+        See ``rise``.
+    k : int
+        Neighbours.
+
+    Returns
+    -------
+    ndarray of shape (len(points),), bool
+        True for a tree's point: the detection called it vegetation, or
+        half or more of its ``k`` nearest non-ground points, or half or more
+        of them are returns that went on through, and those points fit no
+        plane within ``planar``.
+        A roof under a tree's edge or a lower roof part the eigen-entropy
+        test called vegetation lies on a plane; a chimney's top amid the
+        roof's single returns is none; a crown, even where the detection
+        left it unclassified, is porous and rough.
+    """
+    points = np.asarray(points, dtype=np.int64)
+    leafy = classification[points] == ASPRS.HIGH_VEGETATION
+    if planar <= 0 or len(points) == 0:
+        return leafy
+    spread, nb = _neighbourhood(xyz, points, ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE)), k)
+    if nb.shape[1] == 0:
+        return leafy
+    amid = np.mean(classification[nb] == ASPRS.HIGH_VEGETATION, axis=1) >= 0.5
+    if through is not None:
+        amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
+    tree = (leafy | amid) & ~(spread <= planar)
+    if rise is not None:
+        tree &= ~(np.asarray(rise) <= min_rise)
+    return tree
+
+
+def _rise(xyz: np.ndarray, points: np.ndarray, building_id: np.ndarray, k: int = 5) -> np.ndarray:
+    """Height (m) of each point over the highest of its ``k`` nearest building points (plan); inf without any."""
+    members = np.flatnonzero(building_id > 0)
+    if len(members) == 0 or len(points) == 0:
+        return np.full(len(points), np.inf)
+    k = min(k, len(members))
+    _, j = cKDTree(xyz[members, :2]).query(xyz[points, :2], k=k)
+    return xyz[points, 2] - xyz[members[j.reshape(len(points), k)], 2].max(axis=1)
 
 
 def _left_out(classification: np.ndarray, building_id: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
-              hag: np.ndarray | None, options: FootprintOptions, planar: np.ndarray) -> dict[str, np.ndarray]:
+              hag: np.ndarray | None, options: FootprintOptions, trees: np.ndarray) -> dict[str, np.ndarray]:
     """The non-ground, non-noise points inside an ``"ok"`` footprint not in its building, by reason of :data:`LEFT_OUT`.
 
     The reasons follow the rules of :func:`assign_footprints`: a building
     point inside a footprint always joins it; without heights or with
-    ``unclassified`` off nothing else does; then near the ground; a
-    vegetation point that failed the plane test (``planar``: those that
-    passed); any other that did not join was not linked to the building.
+    ``unclassified`` off nothing else does; then near the ground; a tree's
+    (``trees``, by :func:`tree_points`); any other that did not join was not
+    linked to the building.
     """
     over = np.flatnonzero(ok[all_owner] & ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE)))
     out = over[building_id[over] != all_owner[over] + 1]
     if hag is None or not options.unclassified:
         return {"not_building": out}
     low = hag[out] < options.min_height / 2
-    tree_like = (classification[out] == ASPRS.HIGH_VEGETATION) & ~low & ~np.isin(out, planar)
-    return {"low": out[low], "vegetation": out[tree_like], "detached": out[~low & ~tree_like]}
+    tree_like = ~low & np.isin(out, trees)
+    return {"low": out[low], "tree": out[tree_like], "detached": out[~low & ~tree_like]}
 
 
 def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.ndarray, link: float, *,
