@@ -23,8 +23,8 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 
 Neither of the last two takes a tree's points (:func:`tree_points`: the
 detection's vegetation, or points amid vegetation or amid returns that went
-on through, whose neighbourhood is no plane and which stand more than
-``tree_rise`` over the building).  So every non-ground point over an
+on through standing more than ``tree_rise`` over the building, whose
+neighbourhood is no plane).  So every non-ground point over an
 ``"ok"`` footprint is either in its building or left out for a reason of
 :data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
 tree's, or detached from the building's points.
@@ -72,8 +72,8 @@ STATUSES = {
 LEFT_OUT = {
     "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
     "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
-            "non-ground points vegetation or returns that went on through, those no plane within planar_vegetation, "
-            "and more than tree_rise over the building beside it",
+            "non-ground points vegetation or returns that went on through and more than tree_rise over the "
+            "building beside it; those 10 points no plane within planar_vegetation",
     "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
                 "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
     "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
@@ -148,11 +148,11 @@ class FootprintOptions:
         points, not by a class.
     planar_vegetation : float, default 0.05
         With ``unclassified``, the tree test (:func:`tree_points`): a point
-        the detection called vegetation, or amid vegetation or amid returns
-        that went on through (half or more of its 10 nearest non-ground
-        points), is a tree's unless those points fit a plane within this
-        RMS (m) or it stands no more than ``tree_rise`` over the building
-        beside it.  A tree's point never joins; any other non-building
+        the detection called vegetation, or one amid vegetation or amid
+        returns that went on through (half or more of its 10 nearest
+        non-ground points) standing more than ``tree_rise`` over the
+        building beside it, is a tree's unless those 10 points fit a plane
+        within this RMS (m).  A tree's point never joins; any other non-building
         point over an ``"ok"`` footprint or in its band may (vegetation then
         joins like unclassified points that touch the building: a roof
         under a tree's edge, a lower roof part the detection's eigen-entropy
@@ -160,8 +160,9 @@ class FootprintOptions:
         trees, and nothing else is (the rule before the test).
     tree_rise : float, default 2.0
         Height (m) over the highest of the 5 nearest building points (plan)
-        above which a vegetation-like point that is no plane is a tree's: a
-        crown stands metres over the roof it shades, a roof's clutter and
+        above which a point amid vegetation or porous returns that is no
+        plane is a tree's, though the detection did not call it vegetation:
+        a crown stands metres over the roof it shades, a roof's clutter and
         chimneys within a metre or two of it.
     """
 
@@ -541,7 +542,7 @@ def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: in
 def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray, planar: float, *,
                 through: np.ndarray | None = None, rise: np.ndarray | None = None, min_rise: float = 0.0,
                 k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
-    """Which of ``points`` are a tree's: vegetation or amid vegetation or porous returns, and not on a plane.
+    """Which of ``points`` are a tree's: vegetation, or high amid vegetation or porous returns; not on a plane.
 
     Parameters
     ----------
@@ -562,10 +563,11 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
         (or past an edge).  None when the cloud has no return numbers.
     rise : ndarray of shape (len(points),), float64, optional
         Height (m) of each point over the building beside it (the highest
-        of its nearest building points in plan); with it only points
-        standing more than ``min_rise`` over the building are a tree's
-        (a crown stands metres over the roof it shades, the roof's own
-        clutter at its level).
+        of its nearest building points in plan); with it a point the
+        detection did not call vegetation is a tree's only when it stands
+        more than ``min_rise`` over the building (a crown stands metres
+        over the roof it shades; a roof's clutter, porous at its edges, at
+        its level).
     min_rise : float
         See ``rise``.
     k : int
@@ -575,9 +577,10 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     -------
     ndarray of shape (len(points),), bool
         True for a tree's point: the detection called it vegetation, or
-        half or more of its ``k`` nearest non-ground points, or half or more
-        of them are returns that went on through, and those points fit no
-        plane within ``planar``.
+        half or more of its ``k`` nearest non-ground points are vegetation
+        or returns that went on through and it stands more than
+        ``min_rise`` over the building; and those points fit no plane
+        within ``planar``.
         A roof under a tree's edge or a lower roof part the eigen-entropy
         test called vegetation lies on a plane; a chimney's top amid the
         roof's single returns is none; a crown, even where the detection
@@ -593,10 +596,9 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     amid = np.mean(classification[nb] == ASPRS.HIGH_VEGETATION, axis=1) >= 0.5
     if through is not None:
         amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
-    tree = (leafy | amid) & ~(spread <= planar)
     if rise is not None:
-        tree &= ~(np.asarray(rise) <= min_rise)
-    return tree
+        amid &= ~(np.asarray(rise) <= min_rise)
+    return (leafy | amid) & ~(spread <= planar)
 
 
 def _rise(xyz: np.ndarray, points: np.ndarray, building_id: np.ndarray, k: int = 5) -> np.ndarray:
