@@ -23,8 +23,7 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 
 Neither of the last two takes a tree's points (:func:`tree_points`: the
 detection's vegetation, or points amid vegetation or amid returns that went
-on through standing more than ``tree_rise`` over the building, whose
-neighbourhood is no plane).  So every non-ground point over an
+on through, whose neighbourhood is no plane).  So every non-ground point over an
 ``"ok"`` footprint is either in its building or left out for a reason of
 :data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
 tree's, or detached from the building's points.
@@ -72,8 +71,8 @@ STATUSES = {
 LEFT_OUT = {
     "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
     "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
-            "non-ground points vegetation or returns that went on through and more than tree_rise over the "
-            "building beside it; those 10 points no plane within planar_vegetation",
+            "non-ground points vegetation or returns that went on through, and those 10 points no plane within "
+            "planar_vegetation",
     "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
                 "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
     "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
@@ -150,20 +149,13 @@ class FootprintOptions:
         With ``unclassified``, the tree test (:func:`tree_points`): a point
         the detection called vegetation, or one amid vegetation or amid
         returns that went on through (half or more of its 10 nearest
-        non-ground points) standing more than ``tree_rise`` over the
-        building beside it, is a tree's unless those 10 points fit a plane
+        non-ground points), is a tree's unless those 10 points fit a plane
         within this RMS (m).  A tree's point never joins; any other non-building
         point over an ``"ok"`` footprint or in its band may (vegetation then
         joins like unclassified points that touch the building: a roof
         under a tree's edge, a lower roof part the detection's eigen-entropy
         test called vegetation).  0: the detection's vegetation is the
         trees, and nothing else is (the rule before the test).
-    tree_rise : float, default 2.0
-        Height (m) over the highest of the 5 nearest building points (plan)
-        above which a point amid vegetation or porous returns that is no
-        plane is a tree's, though the detection did not call it vegetation:
-        a crown stands metres over the roof it shades, a roof's clutter and
-        chimneys within a metre or two of it.
     """
 
     section = "footprints"
@@ -173,7 +165,6 @@ class FootprintOptions:
     min_height: float = 2.0
     unclassified: bool = True
     planar_vegetation: float = 0.05
-    tree_rise: float = 2.0
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -184,8 +175,6 @@ class FootprintOptions:
             raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
         if not np.isfinite(self.planar_vegetation) or self.planar_vegetation < 0:
             raise ValueError(f"footprints.planar_vegetation must be >= 0 metres, got {self.planar_vegetation!r}")
-        if not np.isfinite(self.tree_rise):
-            raise ValueError(f"footprints.tree_rise must be a number of metres, got {self.tree_rise!r}")
 
 
 
@@ -440,8 +429,7 @@ def assign_footprints(
                                & (hag >= options.min_height / 2))
         where = _near_ok_footprint(other, xyz, all_owner, ok, polygons, tree, options.overhang)
         other, where = other[where >= 0], where[where >= 0]
-        tree_like = tree_points(xyz, other, classification, options.planar_vegetation, through=through,
-                                rise=_rise(xyz, other, building_id), min_rise=options.tree_rise)
+        tree_like = tree_points(xyz, other, classification, options.planar_vegetation, through=through)
         trees = other[tree_like]
         # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
         standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
@@ -460,8 +448,7 @@ def assign_footprints(
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
                                        "min_height": options.min_height, "unclassified": options.unclassified,
-                                       "planar_vegetation": options.planar_vegetation,
-                                       "tree_rise": options.tree_rise},
+                                       "planar_vegetation": options.planar_vegetation},
                                touching=touching, left_out=left_out)
 
 
@@ -540,9 +527,8 @@ def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: in
 
 
 def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray, planar: float, *,
-                through: np.ndarray | None = None, rise: np.ndarray | None = None, min_rise: float = 0.0,
-                k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
-    """Which of ``points`` are a tree's: vegetation, or high amid vegetation or porous returns; not on a plane.
+                through: np.ndarray | None = None, k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
+    """Which of ``points`` are a tree's: vegetation, or amid vegetation or porous returns; and not on a plane.
 
     Parameters
     ----------
@@ -561,15 +547,6 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
         Per point, whether its pulse had a later return (return number
         under the number of returns): the pulse went on through a crown
         (or past an edge).  None when the cloud has no return numbers.
-    rise : ndarray of shape (len(points),), float64, optional
-        Height (m) of each point over the building beside it (the highest
-        of its nearest building points in plan); with it a point the
-        detection did not call vegetation is a tree's only when it stands
-        more than ``min_rise`` over the building (a crown stands metres
-        over the roof it shades; a roof's clutter, porous at its edges, at
-        its level).
-    min_rise : float
-        See ``rise``.
     k : int
         Neighbours.
 
@@ -578,8 +555,7 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     ndarray of shape (len(points),), bool
         True for a tree's point: the detection called it vegetation, or
         half or more of its ``k`` nearest non-ground points are vegetation
-        or returns that went on through and it stands more than
-        ``min_rise`` over the building; and those points fit no plane
+        or returns that went on through; and those points fit no plane
         within ``planar``.
         A roof under a tree's edge or a lower roof part the eigen-entropy
         test called vegetation lies on a plane; a chimney's top amid the
@@ -596,19 +572,7 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     amid = np.mean(classification[nb] == ASPRS.HIGH_VEGETATION, axis=1) >= 0.5
     if through is not None:
         amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
-    if rise is not None:
-        amid &= ~(np.asarray(rise) <= min_rise)
     return (leafy | amid) & ~(spread <= planar)
-
-
-def _rise(xyz: np.ndarray, points: np.ndarray, building_id: np.ndarray, k: int = 5) -> np.ndarray:
-    """Height (m) of each point over the highest of its ``k`` nearest building points (plan); inf without any."""
-    members = np.flatnonzero(building_id > 0)
-    if len(members) == 0 or len(points) == 0:
-        return np.full(len(points), np.inf)
-    k = min(k, len(members))
-    _, j = cKDTree(xyz[members, :2]).query(xyz[points, :2], k=k)
-    return xyz[points, 2] - xyz[members[j.reshape(len(points), k)], 2].max(axis=1)
 
 
 def _left_out(classification: np.ndarray, building_id: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
