@@ -555,8 +555,9 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     ndarray of shape (len(points),), bool
         True for a tree's point: the detection called it vegetation, or
         half or more of its ``k`` nearest non-ground points are vegetation
-        or returns that went on through; and those points fit no plane
-        within ``planar``.
+        or returns that went on through; and neither those points nor its
+        ``k`` nearest non-ground points the detection did not call
+        building fit a plane within ``planar``.
         A roof under a tree's edge or a lower roof part the eigen-entropy
         test called vegetation lies on a plane; a chimney's top amid the
         roof's single returns is none; a crown, even where the detection
@@ -566,9 +567,12 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     leafy = classification[points] == ASPRS.HIGH_VEGETATION
     if planar <= 0 or len(points) == 0:
         return leafy
-    spread, nb = _neighbourhood(xyz, points, ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE)), k)
+    solid = ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE))
+    spread, nb = _neighbourhood(xyz, points, solid, k)
     if nb.shape[1] == 0:
         return leafy
+    # a lower roof part's edge mixes its points with the roof's above it: its plane shows without them
+    spread = np.minimum(spread, planar_spread(xyz, points, solid & (classification != ASPRS.BUILDING), k))
     amid = np.mean(classification[nb] == ASPRS.HIGH_VEGETATION, axis=1) >= 0.5
     if through is not None:
         amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
