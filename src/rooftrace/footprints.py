@@ -81,7 +81,7 @@ LEFT_OUT = {
 #: nearest building points a candidate of :func:`touching_points` looks among for its own building's
 TOUCH_NEIGHBOURS = 8
 
-#: neighbours of a vegetation point whose plane fit decides whether it is a roof (``planar_vegetation``)
+#: neighbours whose plane fit decides whether a point is on a roof or in a crown (``planar_vegetation``)
 PLANAR_NEIGHBOURS = 10
 
 
