@@ -420,14 +420,14 @@ def test_points_on_no_plane_stand_on_the_plane_just_under_them():
     """A point on no plane joins the face partition with the plane of its neighbours it stands on (at
     most ``rise`` above it, at most ``max_dz`` under it): a coping 0.3 m over the upper level, a gutter
     on the lower one; a wall point between the levels, or a point under both, joins none."""
-    from rooftrace.roof.faces import _attached
+    from rooftrace.roof.faces import attached_points
 
     planes = np.array([[0.0, 0.0, 1.0, -5.0], [0.0, 0.0, 1.0, -8.0]])  # lower level at 5 m, upper at 8 m
     g = np.stack(np.meshgrid(np.arange(0.0, 4.0, 0.5), np.arange(0.0, 4.0, 0.5)), -1).reshape(-1, 2)
     P = np.vstack([np.column_stack([g, np.full(len(g), 5.0)]), np.column_stack([g + [4.0, 0.0], np.full(len(g), 8.0)])])
     lab = np.repeat([0, 1], len(g))
     U = np.array([[4.0, 2.0, 8.3], [3.9, 2.0, 5.2], [4.0, 1.0, 6.5], [4.0, 3.0, 4.0]])
-    xyz, which = _attached(U, P, lab, planes, 8, 0.1, 0.5)
+    xyz, which = attached_points(U, P, lab, planes, 8, 0.1, 0.5)
     assert xyz.tolist() == U[:2].tolist() and which.tolist() == [1, 0]
 
 

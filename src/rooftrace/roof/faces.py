@@ -44,7 +44,8 @@ from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points,
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges",
-           "points_off_their_faces", "points_on_their_faces", "claim_points", "hidden_under", "eaves"]
+           "points_off_their_faces", "points_on_their_faces", "claim_points", "hidden_under", "eaves",
+           "attached_points", "points_in_faces"]
 
 log = logging.getLogger(__name__)
 
@@ -148,13 +149,13 @@ def _under_fitting_face(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, own
     fits = np.zeros(len(xy), dtype=bool)
     if not len(faces) or not len(xy):
         return cover, fits
-    at, f = _points_in(faces, xy)
+    at, f = points_in_faces(faces, xy)
     cover[at] = pids[f]
     fits[at[np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz]] = True
     return cover, fits
 
 
-def _points_in(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def points_in_faces(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pairs (point, polygon) of the points ``xy`` in (or on) each polygon, as an STR tree's query gives them.
 
     Polygon by polygon on the points in its box (:func:`points_in_boxes`),
@@ -333,7 +334,7 @@ def points_on_their_faces(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray,
         return out
     xy, lab = xyz[sel, :2], labels[sel]
     own_z = plane_height(planes[lab], xy)
-    at, f = _points_in(faces, xy)
+    at, f = points_in_faces(faces, xy)
     fit = np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) <= max_dz
     if margin > 0:
         fit &= shapely.distance(shapely.boundary(faces[f]), shapely.points(xy[at])) >= margin
@@ -415,7 +416,7 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     wedge[out] = shapely.intersection(hull[out], outline)
     # a wedge must not put another level's point under its face: a point that fits where it is and would not
     # fit under the target's plane
-    q, wi = _points_in(wedge, xy)
+    q, wi = points_in_faces(wedge, xy)
     harm = fits[q] & (np.abs(plane_height(planes[pids[target[wi]]], xy[q]) - own_z[q]) > max_dz)
     if under_eave is not None and harm.any():
         # a point under the claiming level's eave: no 2.5D roof puts it under its own plane there
@@ -733,7 +734,7 @@ def _face_labels(faces: np.ndarray, arcs: np.ndarray, sides: np.ndarray) -> np.n
     return out
 
 
-def _attached(U: np.ndarray, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, k: int,
+def attached_points(U: np.ndarray, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, k: int,
               max_dz: float, rise: float) -> tuple[np.ndarray, np.ndarray]:
     """The points ``U`` on no plane that stand on one of their neighbours' planes, and that plane.
 
@@ -974,7 +975,7 @@ def partition_outline(
         simplification's point checks, as a point of the plane it stands
         on: of its ``k`` nearest labelled points' planes, the one it stands
         least high above, at most ``rise`` (m) above and ``max_dz`` under
-        (:func:`_attached`); one standing higher (a chimney, a flat block's
+        (:func:`attached_points`); one standing higher (a chimney, a flat block's
         business) or under them all (a wall) takes no part.  None: only
         labelled points take part.
     kept_planes : ndarray of shape (K,), bool, optional
@@ -997,7 +998,7 @@ def partition_outline(
         return [], []
     if rise is not None and max_dz is not None and (~sel).any():
         # the points on no plane take part as points of the plane they stand on
-        extra, on = _attached(np.asarray(xyz)[~sel], P, lab, planes, k, max_dz, rise)
+        extra, on = attached_points(np.asarray(xyz)[~sel], P, lab, planes, k, max_dz, rise)
         P, lab = np.vstack([P, extra]), np.concatenate([lab, on])
     minx, miny, maxx, maxy = outline.bounds
     area = (maxx - minx + 20 * cell) * (maxy - miny + 20 * cell)

@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.roof.faces import _attached, _points_in, eaves, hidden_under
+from rooftrace.roof.faces import attached_points, eaves, hidden_under, points_in_faces
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["separating_line", "fit_step_boundaries"]
@@ -303,7 +303,7 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
         return faces, list(plane_ids)
     if rise is not None and (~sel).any():
         # the points on no plane that stand on one (a coping, a gutter) count as its points, as in the partition
-        extra, on = _attached(np.asarray(xyz, dtype=np.float64)[~sel], P, lab, planes, 8, max_dz, rise)
+        extra, on = attached_points(np.asarray(xyz, dtype=np.float64)[~sel], P, lab, planes, 8, max_dz, rise)
         P, lab = np.vstack([P, extra]), np.concatenate([lab, on])
     roofish = eaves(planes) if overhanging is None else eaves(planes) & np.asarray(overhanging, dtype=bool)
     xy = P[:, :2]
@@ -312,7 +312,7 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
     arr = np.asarray(faces, dtype=object)
     # (face, plane) of every labelled point under a face more than max_dz off its plane: only a pair of faces
     # one of which holds a point of the other's plane can gain
-    at, f = _points_in(arr, xy)
+    at, f = points_in_faces(arr, xy)
     off = np.abs(plane_height(planes[pids[f]], xy[at]) - own_z[at]) > max_dz
     wrong_in = set(zip(f[off].tolist(), lab[at[off]].tolist()))
     changed: set[int] = set()

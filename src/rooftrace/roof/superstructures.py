@@ -112,7 +112,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
         return labels, fit
     # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it;
     # one standing at most ``rise`` above (``max_dz`` under) a plane of its ``k`` nearest labelled points is that
-    # plane's in the face partition (``faces._attached``: a coping, a gutter), not a block's
+    # plane's in the face partition (``faces.attached_points``: a coping, a gutter), not a block's
     _, nearest = cKDTree(xyz[on, :2]).query(xyz[un, :2], k=int(min(k, len(on))))
     nearest = nearest.reshape(len(un), -1)
     cand_planes = labels[on[nearest]]
