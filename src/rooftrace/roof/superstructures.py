@@ -21,18 +21,52 @@ roof in the model: a box, however few its points.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height, with_horizontal_planes
 
-__all__ = ["block_planes", "block_supported"]
+__all__ = ["block_planes", "block_supported", "superstructures", "Superstructures"]
+
+
+@dataclass
+class Superstructures:
+    """What :func:`superstructures` finds on a roof.
+
+    Attributes
+    ----------
+    labels : ndarray of shape (N,), int64
+        Plane per point, the blocks numbered after the roof planes.
+    fit : PlaneFit
+        The planes with the blocks appended.
+    tops : ndarray of shape (M,), int64
+        The top points of what stands on the roof: the points of the blocks
+        and the lone points (layers of fewer than ``min_points``) that the
+        evidence admits, sorted.  The model puts a box under any of them the
+        roof faces leave more than ``rise`` under it
+        (:func:`rooftrace.model.superstructures.with_boxes`).
+    """
+
+    labels: np.ndarray
+    fit: PlaneFit
+    tops: np.ndarray
 
 
 def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
                  rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
                  k: int = 8, max_dz: float = 0.1):
+    """The labels and planes of :func:`superstructures` (its blocks; no lone points)."""
+    found = superstructures(xyz, labels, fit, spacing, min_points=min_points, rise=rise, link=link,
+                            min_density=min_density, stray_points=stray_points, k=k, max_dz=max_dz)
+    return found.labels, found.fit
+
+
+def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
+                    rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
+                    k: int = 8, max_dz: float = 0.1, lone_height: float = 0.0) -> Superstructures:
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
     First the points a plane holds apart from the rest of it (groups of
@@ -47,7 +81,10 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     higher, is in a block whose height
     is within ``rise`` of its own, unless its layer has fewer than
     ``min_points`` points, is scattered (``min_density``), or is not
-    supported against the roof (:func:`block_supported`).
+    supported against the roof (:func:`block_supported`).  With
+    ``lone_height``, such a point in a layer of fewer than ``min_points``
+    is one of ``tops`` unless it stands more than ``lone_height`` above the
+    roof plane under it (a bird, a wire).
 
     Parameters
     ----------
@@ -79,16 +116,18 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
         plane of its ``k`` nearest labelled points is left to the face
         partition, which puts it with that plane
         (``partition_outline(rise=...)``, same ``k`` and ``max_dz``).
+    lone_height : float
+        Highest a lone top point may stand above the roof plane under it
+        (m) to be one of ``tops``; 0: no ``tops`` at all.
 
     Returns
     -------
-    labels : ndarray of shape (N,), int64
-        With the blocks numbered after the planes of ``fit``, the stray
-        points of a plane ``-1`` unless in a block.
-    fit : PlaneFit
-        ``fit`` with the blocks appended (``p = q = 0``, ``r`` the mean
-        height, ``sigma`` with ``n - 1`` degrees of freedom and only
-        ``var(r) = sigma² / n``).
+    Superstructures
+        ``labels`` with the blocks numbered after the planes of ``fit``, the
+        stray points of a plane ``-1`` unless in a block; ``fit`` with the
+        blocks appended (``p = q = 0``, ``r`` the mean height, ``sigma``
+        with ``n - 1`` degrees of freedom and only ``var(r) = sigma² / n``);
+        ``tops`` the blocks' points and the lone top points.
 
     Examples
     --------
@@ -102,14 +141,20 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3, min_points=1)
     >>> lab2[-5:].tolist(), fit2.planes[1:].round(2).tolist()
     ([1, 1, 1, 1, 2], [[0.0, 0.0, 1.0, -6.2], [0.0, 0.0, 1.0, -5.9]])
+    >>> found = superstructures(xyz, lab, fit_planes(xyz, lab), 0.3, lone_height=3.0)
+    >>> found.labels[-5:].tolist(), (found.tops - len(xyz) + 5).tolist()
+    ([1, 1, 1, 1, -1], [0, 1, 2, 3, 4])
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
     link = link or 2.5 * spacing
     labels = _stray_points_released(xyz, labels, link, stray_points)
+    none = np.zeros(0, dtype=np.int64)
     un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
-    if len(un) < max(min_points, 1) or not len(on):
-        return labels, fit
+    lone = lone_height > 0
+    fewest = 1 if lone else max(min_points, 1)
+    if len(un) < fewest or not len(on):
+        return Superstructures(labels, fit, none)
     # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it;
     # one standing at most ``rise`` above (``max_dz`` under) a plane of its ``k`` nearest labelled points is that
     # plane's in the face partition (``faces._attached``: a coping, a gutter), not a block's
@@ -125,19 +170,24 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
         z = np.r_[xyz[:, 2], -np.inf][idx]
         high[high] = ~(z > xyz[un[high], 2:3] + rise).any(axis=1)
     cand = np.flatnonzero(high)
-    if len(cand) < max(min_points, 1):
-        return labels, fit
+    if len(cand) < fewest:
+        return Superstructures(labels, fit, none)
     comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
     order = np.argsort(comp, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
-    blocks = []
+    blocks, singles = [], []
     for cluster in np.split(cand[order], starts[1:]):
         # cut from the top, a layer of ``rise`` at a time: a sloping coping, a gable's top in steps
-        while len(cluster) >= max(min_points, 1):
+        while len(cluster) >= fewest:
             z = xyz[un[cluster], 2]
             top = z >= z.max() - rise
             layer, cluster = cluster[top], cluster[~top]
             if len(layer) < min_points:
+                # a lone return may be a bird, a wire or an echo as well as a vent pipe: only one standing at
+                # most ``lone_height`` above the roof, which its height supports against the roof's noise
+                if lone:
+                    singles.extend(un[layer[(above[layer] <= lone_height) & _supported_each(
+                        above[layer], fit.sigma[roof[layer]])]])
                 continue
             pts, n = xyz[un[layer]], len(layer)
             # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
@@ -145,9 +195,16 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
                                             True)
             if dense and block_supported(above[layer], pts[:, 2], fit.sigma[roof[layer]]):
                 blocks.append(un[layer])
-    if not blocks:
-        return labels, fit
-    return with_horizontal_planes(xyz, labels, fit, blocks)
+    if blocks:
+        labels, fit = with_horizontal_planes(xyz, labels, fit, blocks)
+    tops = np.sort(np.concatenate([*blocks, np.asarray(singles, dtype=np.int64)])) if lone else none
+    return Superstructures(labels, fit, tops.astype(np.int64))
+
+
+def _supported_each(above: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """:func:`block_supported` of each point as a block of its own: ``(above / σ)² > 2``."""
+    sigma = np.maximum(np.where(np.isfinite(sigma), sigma, 0.0), 1e-3)
+    return (np.asarray(above) / sigma) ** 2 > 2.0
 
 
 def block_supported(above: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> bool:
