@@ -30,19 +30,24 @@ BOX_REASONS = ("at a roof edge", "beside a higher box", "crowded by lower points
 
 
 def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndarray | None = None, rise: float = 0.5,
-               grid: float = 1e-3, snap: float = 0.01, max_tilt: float = 10.0) -> tuple[Solid, dict[str, int]]:
+               grid: float = 1e-3, snap: float = 0.01, max_tilt: float = 10.0) -> tuple[Solid, np.ndarray]:
     """``solid`` with a box under each of ``points`` that stands more than ``rise`` above its roof.
 
-    Guarantee: every one of ``points`` over a roof surface of ``solid`` lies
-    within ``rise`` (m) of the returned solid's roof, unless one of
-    :data:`BOX_REASONS` holds for it: its square (``side`` wide, centred on
-    it) is not inside one roof surface at least two lattice steps from its
-    edges ("across a roof edge": a chimney on a ridge), it overlaps the
-    square of a higher point standing more than ``rise`` higher or outside
-    that point's square ("beside a higher box"), or its height is not two
-    lattice steps above the surface at every corner.  Points whose squares
-    overlap and whose heights are within ``rise`` of the highest make one
-    box (their squares' convex hull) at the highest one's height.
+    Guarantee: every one of ``points`` over a roof surface of ``solid``
+    lies within ``rise`` (m) under the returned solid's roof, or above it,
+    unless one of :data:`BOX_REASONS` holds for it: its box, cut to the
+    roof surface it stands on two lattice steps inside that surface's edges,
+    does not hold it ("at a roof edge": a vent at the eaves, a chimney on a
+    ridge); it meets the box of a higher point ("beside a higher box"); a
+    point of ``others`` standing more than ``rise`` lower lies within two
+    lattice steps of it ("crowded by lower points"); the surface is within
+    two lattice steps under the box's top at one of its corners ("too low
+    above the surface"); the hole would make the roof surface's triangles
+    tilt more than ``max_tilt`` apart ("would tilt its roof surface").  A
+    box is the hull of the squares, ``side`` wide (less where a point of
+    ``others`` standing more than ``rise`` lower would be under it), of the
+    points beside each other on one surface within ``rise`` under the
+    highest of them, at that one's height.
 
     Parameters
     ----------
@@ -52,17 +57,24 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         Top points of superstructures (m).
     side : float
         Side of a box's square (m): the point spacing.
+    others : ndarray of shape (M, 3), optional
+        The building's points, which a box must not stand over by more
+        than ``rise`` (m).
     rise : float
         A point within this (m) above or under the roof needs no box.
     grid, snap : float
         Vertex grid and plan lattice (m), as the solid was built.
+    max_tilt : float
+        Largest angle (degrees) between the triangles of a roof surface with
+        holes (half of val3dity's 20, as :func:`rooftrace.model.solid.prism_solid`).
 
     Returns
     -------
     solid : Solid
         A new solid (``solid`` itself when no box was added).
-    skipped : dict of str to int
-        Points left without a box, by reason.
+    why : ndarray of shape (N,), object
+        Per point, why it is left more than ``rise`` under the roof (one of
+        :data:`BOX_REASONS`), ``""`` for the others.
 
     Examples
     --------
@@ -72,14 +84,14 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     >>> from rooftrace.model.measure import roof_height_at
     >>> house = prism_solid([(shapely.box(0, 0, 10, 6), horizontal_plane(8.0))], 2.0)
     >>> vent = np.array([[3.0, 3.0, 9.1]])
-    >>> boxed, skipped = with_boxes(house, vent, 0.4)
-    >>> solid_errors(boxed), skipped, len(boxed.surfaces) - len(house.surfaces)
-    ([], {}, 5)
+    >>> boxed, why = with_boxes(house, vent, 0.4)
+    >>> solid_errors(boxed), why.tolist(), len(boxed.surfaces) - len(house.surfaces)
+    ([], [''], 5)
     >>> roof_height_at([boxed], vent[:, :2]).round(3).tolist()
     [9.1]
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    skipped: dict[str, int] = {}
+    skipped = np.full(len(points), "", dtype=object)
     roof_at = [k for k, s in enumerate(solid.surfaces) if s.kind == "RoofSurface"]
     if not len(points) or not roof_at:
         return solid, skipped
@@ -100,9 +112,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     best = np.lexsort((zs, pt_at))
     last = np.r_[pt_at[best][1:] != pt_at[best][:-1], True][:len(best)]
     surface_of[pt_at[best][last]] = surf[best][last]
-    skipped_none = int(np.isnan(height).sum())
-    if skipped_none:
-        skipped["on no roof surface"] = skipped_none
+    skipped[np.isnan(height)] = "on no roof surface"
     need = np.flatnonzero(points[:, 2] - height > rise)
     if not len(need):
         return solid, skipped
@@ -110,7 +120,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     half = _half_sides(points[need], side, others, rise, snap) * lattice  # grid units
     crowded = half < 2 * lattice
     if crowded.any():
-        _count(skipped, "crowded by lower points", int(crowded.sum()))
+        skipped[need[crowded]] = "crowded by lower points"
         need, half = need[~crowded], half[~crowded]
     centre_g = np.round(points[need, :2] / snap).astype(np.int64) * lattice
     top_g = np.round(points[need, 2] / grid).astype(np.int64)
@@ -144,10 +154,10 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         if plan_m.geom_type != "Polygon" or plan_m.is_empty or len(plan_m.interiors) or \
                 not shapely.contains(shapely.buffer(plans[k], -snap, join_style="mitre"), plan_m) or \
                 not shapely.contains(plan_m, own).any():
-            _count(skipped, "at a roof edge", len(members))
+            skipped[need[members]] = "at a roof edge"
             continue
         if any(shapely.intersects(plan_m, p) for p in placed):
-            _count(skipped, "beside a higher box", len(members))
+            skipped[need[members]] = "beside a higher box"
             continue
         ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
         if not shapely.is_ccw(plan_m.exterior):
@@ -155,7 +165,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         foot = np.round(_plane_z(np.repeat(normal[k:k + 1], len(ring), 0), np.repeat(centre[k:k + 1], len(ring), 0),
                                  ring * grid) / grid).astype(np.int64)
         if top - foot.max() < 2 * lattice:
-            _count(skipped, "too low above the surface", len(members))
+            skipped[need[members]] = "too low above the surface"
             continue
         placed.append(plan_m)
         n = len(ring)
@@ -165,10 +175,8 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             wall = np.array([[*ring[a], foot[a]], [*ring[b], foot[b]], [*ring[b], top], [*ring[a], top]])
             box.append(Surface([wall * grid], "WallSurface"))
         # a hole: clockwise seen from above
-        on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, len(members)))
-        outside = int((~shapely.contains(plan_m, own)).sum())
-        if outside:
-            _count(skipped, "at a roof edge", outside)
+        on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, need[members]))
+        skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
     holed = {k: Surface(list(roofs[k].rings) + [hole for hole, _, _ in boxes], "RoofSurface")
@@ -177,7 +185,8 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     # triangles between them may tilt beyond what a validator takes (val3dity's 204); that surface keeps no hole
     tilted = surface_tilt(list(holed.values()), max_tilt) > max_tilt
     for k in np.asarray(list(holed))[tilted].tolist():
-        _count(skipped, "would tilt its roof surface", sum(n for _, _, n in on_roof.pop(k)))
+        for _, _, at in on_roof.pop(k):
+            skipped[at] = "would tilt its roof surface"
     if not on_roof:
         return solid, skipped
     by_index = {roof_at[k]: holed[k] for k in on_roof}
@@ -202,10 +211,6 @@ def _half_sides(points: np.ndarray, side: float, others: np.ndarray | None, rise
             d = np.abs(others[low, :2] - points[j, :2]).max(axis=1).min()
             half[j] = min(half[j], int(np.floor(d / snap)) - 1)
     return half
-
-
-def _count(counts: dict[str, int], reason: str, n: int) -> None:
-    counts[reason] = counts.get(reason, 0) + n
 
 
 def _plane_z(normal: np.ndarray, centre: np.ndarray, xy: np.ndarray) -> np.ndarray:
