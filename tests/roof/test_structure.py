@@ -258,7 +258,7 @@ def test_small_chimneys_and_vents_become_blocks():
     plane stands more than ``step_height`` above the roof, the ridge is the only line and the solids are valid,
     at one face per box; without blocks the box points are 0.7-1.7 m off.  At the default ``min_block_points``
     (2) a box of one point (the vent pipe) is no block, but a box the model builds under its point
-    (``lone_block_height``), with no face: off (0), it stands 0.7 m over the roof."""
+    (``box_height``), with no face: off (0), it stands 0.7 m over the roof."""
     from scipy.spatial import cKDTree
 
     from rooftrace.graph import components
@@ -273,7 +273,7 @@ def test_small_chimneys_and_vents_become_blocks():
         alone = np.bincount(of)[of] == 1
         dz = {}
         for points, lone in ((0, 3.0), (1, 3.0), (2, 0.0), (2, 3.0)):
-            roof = roof_structure(xyz, m.outline, RoofOptions(min_block_points=points, lone_block_height=lone))
+            roof = roof_structure(xyz, m.outline, RoofOptions(min_block_points=points, box_height=lone))
             solids = [p.lods["2.2"] for p in build_model(m.outline, roof, xyz, 0.0).parts]
             assert all(solid_errors(s) == [] for s in solids)
             assert roof.ridge_kind == ["ridge"] and (~roof.plane_detail).sum() == 2 and len(roof.faces) <= 2 + 4

@@ -332,7 +332,7 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             why["1.3"] = str(exc)
     if "2.2" in lods:
         try:
-            part.lods["2.2"] = _with_boxes(_checked(prism_solid(cells, ground, **kw), options), tops, xyz, options)
+            part.lods["2.2"] = _checked_with_boxes(prism_solid(cells, ground, **kw), tops, xyz, options)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
@@ -340,19 +340,20 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
     return part, why
 
 
-def _with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions) -> Solid:
-    """``solid`` with boxes under the top points it leaves more than ``box_rise`` under it, if still valid."""
-    if tops is None or not len(tops[0]):
-        return solid
-    boxed, _ = with_boxes(solid, tops[0], tops[1], others=xyz, rise=options.box_rise, grid=options.grid,
-                          snap=options.snap)
-    if boxed is solid:
-        return solid
-    try:
-        return _checked(boxed, options)
-    except GeometryError as exc:  # the solid without its boxes was valid: keep it whole
-        log.warning("boxes left out (%s)", exc)
-        return solid
+def _checked_with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions) -> Solid:
+    """``solid`` with boxes under the top points it leaves more than ``box_rise`` under it, checked.
+
+    The boxed solid is checked (once: the boxes change no other surface); should it fail, the solid without them is.
+    """
+    if tops is not None and len(tops[0]):
+        boxed, _ = with_boxes(solid, tops[0], tops[1], others=xyz, rise=options.box_rise, grid=options.grid,
+                              snap=options.snap)
+        if boxed is not solid:
+            try:
+                return _checked(boxed, options)
+            except GeometryError as exc:
+                log.warning("boxes left out (%s)", exc)
+    return _checked(solid, options)
 
 
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3

@@ -19,6 +19,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
+from rooftrace.model.solid import _split_tilted
 from rooftrace.model.types import Solid, Surface
 from rooftrace.model.validity import surface_normals, surface_polygons, surface_tilt
 
@@ -147,12 +148,16 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         corners = np.concatenate([c + hm * [-1, -1], c + hm * [1, -1], c + hm * [1, 1], c + hm * [-1, 1]])
         # the squares' hull cut to the roof surface two lattice steps inside its edges (a vent at the eaves, a
         # chimney at a ridge: the box stops there), its vertices put back on the lattice
-        inner = shapely.buffer(plans[k], -2 * snap, join_style="mitre")
         hull = shapely.convex_hull(shapely.multipoints(corners.astype(np.float64) * grid))
-        plan_m = shapely.set_precision(shapely.intersection(hull, inner), snap)
+        # (the surface cut to the hull's box first: a roof's whole outline is slow to buffer, and the cut's own
+        # edges lie three steps beyond the hull, out of the buffers' reach)
+        x0, y0, x1, y1 = hull.bounds
+        local = shapely.clip_by_rect(plans[k], x0 - 3 * snap, y0 - 3 * snap, x1 + 3 * snap, y1 + 3 * snap)
+        plan_m = shapely.set_precision(shapely.intersection(hull, shapely.buffer(local, -2 * snap, join_style="mitre")),
+                                       snap)
         own = shapely.points(points[need[members], :2])
         if plan_m.geom_type != "Polygon" or plan_m.is_empty or len(plan_m.interiors) or \
-                not shapely.contains(shapely.buffer(plans[k], -snap, join_style="mitre"), plan_m) or \
+                not shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m) or \
                 not shapely.contains(plan_m, own).any():
             skipped[need[members]] = "at a roof edge"
             continue
@@ -179,20 +184,29 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
-    holed = {k: Surface(list(roofs[k].rings) + [hole for hole, _, _ in boxes], "RoofSurface")
+    holed = {k: [Surface(list(roofs[k].rings) + [hole for hole, _, _ in boxes], "RoofSurface")]
              for k, boxes in on_roof.items()}
     # a roof surface's own vertices lie on its plane to the tolerance of its heights, its holes' exactly: thin
-    # triangles between them may tilt beyond what a validator takes (val3dity's 204); that surface keeps no hole
-    tilted = surface_tilt(list(holed.values()), max_tilt) > max_tilt
-    for k in np.asarray(list(holed))[tilted].tolist():
-        for _, _, at in on_roof.pop(k):
-            skipped[at] = "would tilt its roof surface"
+    # triangles between them may tilt beyond what a validator takes (val3dity's 204); such a surface is written as
+    # its triangles, as the solid builder writes one
+    # (a horizontal surface's triangles cannot tilt)
+    keys = [k for k in holed if np.ptp(roofs[k].rings[0][:, 2]) > 0]
+    tilted = np.asarray(keys, dtype=np.int64)[surface_tilt([holed[k][0] for k in keys], max_tilt) > max_tilt].tolist() \
+        if keys else []
+    for k in tilted:
+        triangles = _split_tilted([[np.round(r / grid).astype(np.int64) for r in holed[k][0].rings]], max_tilt)
+        if len(triangles) > 1:
+            holed[k] = [Surface([np.asarray(r, dtype=np.float64) * grid for r in tri], "RoofSurface")
+                        for tri in triangles]
+        else:  # not cut: that surface keeps no box
+            for _, _, at in on_roof.pop(k):
+                skipped[at] = "would tilt its roof surface"
     if not on_roof:
         return solid, skipped
     by_index = {roof_at[k]: holed[k] for k in on_roof}
-    surfaces = [by_index.get(i, s) for i, s in enumerate(solid.surfaces)]
+    surfaces = [t for i, s in enumerate(solid.surfaces) for t in by_index.get(i, [s])]
     added = [face for k in sorted(on_roof) for _, box, _ in on_roof[k] for face in box]
-    roof_end = max(roof_at) + 1
+    roof_end = max(roof_at) + 1 + sum(len(v) - 1 for v in by_index.values())
     return Solid(surfaces[:roof_end] + added + surfaces[roof_end:]), skipped
 
 
@@ -203,9 +217,14 @@ def _half_sides(points: np.ndarray, side: float, others: np.ndarray | None, rise
     if others is None or not len(others) or not len(points):
         return half
     others = np.asarray(others, dtype=np.float64).reshape(-1, 3)
-    near = cKDTree(others[:, :2]).query_ball_point(points[:, :2], r=side / 2, p=np.inf)
-    for j, idx in enumerate(near):
-        idx = np.asarray(idx, dtype=np.int64)
+    # a few points against a building's many: each looks at the slice of them sorted by x within its square
+    order = np.argsort(others[:, 0], kind="stable")
+    xs = others[order, 0]
+    lo = np.searchsorted(xs, points[:, 0] - side / 2, side="left")
+    hi = np.searchsorted(xs, points[:, 0] + side / 2, side="right")
+    for j in range(len(points)):
+        idx = order[lo[j]:hi[j]]
+        idx = idx[np.abs(others[idx, 1] - points[j, 1]) <= side / 2]
         low = idx[others[idx, 2] < points[j, 2] - rise]
         if len(low):
             d = np.abs(others[low, :2] - points[j, :2]).max(axis=1).min()

@@ -93,14 +93,16 @@ class RoofOptions:
         lines.  A lone return (a bird, a wire, a multipath echo, or a vent
         pipe) is no block at the default 2.  0 or ``None`` turns it off (and the
         low blocks).
-    lone_block_height : float
-        With ``min_block_points``, a top point of such a layer of fewer
-        points standing at most this high (m) above the roof plane under it
-        is a superstructure too (a vent pipe, a chimney, a roof light at the
-        spacing; higher, a bird or a wire).  It gets no face: the model
-        builds a box of the spacing's side under it, as under a block's
-        point its face left far under the roof
-        (``RoofStructure.top_points``, :func:`rooftrace.model.superstructures.with_boxes`).
+    box_height : float
+        With ``min_block_points``: a point on no plane with no point within
+        the spacing standing ``step_height`` higher (a top point: a vent
+        pipe, a chimney or a roof light of one or two returns, a coping the
+        faces put under a lower level) standing at most this high (m) above
+        the roof plane under it (higher, a bird or a wire), and every flat
+        block's point, is one of ``RoofStructure.top_points``; where the
+        LoD 2.2 roof faces leave one more than ``[model] box_rise`` under
+        it, the model builds a box of the spacing's side under it, with no
+        face of the partition (:func:`rooftrace.model.superstructures.with_boxes`).
         0 turns the boxes off.
     low_blocks : bool
         With ``min_block_points``, the mirror of the flat blocks for what
@@ -168,7 +170,7 @@ class RoofOptions:
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
     min_block_points: int | None = 2
-    lone_block_height: float = 3.0
+    box_height: float = 3.0
     low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
@@ -196,7 +198,7 @@ class RoofOptions:
         for name in ("ridge_max_slope", "max_slope"):
             if not 0 <= getattr(self, name) < 90:
                 raise ValueError(f"{name} must be in [0, 90) degrees, got {getattr(self, name)}")
-        for name in ("min_area", "min_ridge_length", "step_height", "lone_block_height"):
+        for name in ("min_area", "min_ridge_length", "step_height", "box_height"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.face_boundaries not in ("each", "held", "free"):
@@ -254,7 +256,7 @@ class RoofStructure:
         Mean point spacing used (m).
     top_points : ndarray of shape (M, 3), float64
         The top points of what stands on the roof (the flat blocks' points
-        and lone points, :func:`rooftrace.roof.superstructures.superstructures`):
+        and top points on no plane, :func:`rooftrace.roof.superstructures.superstructures`):
         the model puts a box under those its faces leave far under them.
     status : str
         ``ok``, or why the structure is empty or partial (``too_few_points``,
@@ -424,7 +426,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if opt.min_block_points:
         n_planes = len(fit.planes)
         found = superstructures(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
-                                link=opt.adjacency_radius or link, lone_height=opt.lone_block_height)
+                                link=opt.adjacency_radius or link, box_height=opt.box_height)
         labels, fit, tops = found.labels, found.fit, found.tops
         n_blocks = len(fit.planes)
         if opt.low_blocks:

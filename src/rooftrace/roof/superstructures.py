@@ -43,9 +43,9 @@ class Superstructures:
     fit : PlaneFit
         The planes with the blocks appended.
     tops : ndarray of shape (M,), int64
-        The top points of what stands on the roof: the points of the blocks
-        and the lone points (layers of fewer than ``min_points``) that the
-        evidence admits, sorted.  The model puts a box under any of them the
+        The top points of what stands on the roof, sorted: the points of
+        the blocks, and the points on no plane with none standing ``rise``
+        higher within the spacing, at most ``box_height`` above the roof.  The model puts a box under any of them the
         roof faces leave more than ``rise`` under it
         (:func:`rooftrace.model.superstructures.with_boxes`).
     """
@@ -66,7 +66,7 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
 
 def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
                     rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
-                    k: int = 8, max_dz: float = 0.1, lone_height: float = 0.0) -> Superstructures:
+                    k: int = 8, max_dz: float = 0.1, box_height: float = 0.0) -> Superstructures:
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
     First the points a plane holds apart from the rest of it (groups of
@@ -82,9 +82,10 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
     is within ``rise`` of its own, unless its layer has fewer than
     ``min_points`` points, is scattered (``min_density``), or is not
     supported against the roof (:func:`block_supported`).  With
-    ``lone_height``, such a point in a layer of fewer than ``min_points``
-    is one of ``tops`` unless it stands more than ``lone_height`` above the
-    roof plane under it (a bird, a wire).
+    ``box_height``, every point on no plane with no point within
+    ``spacing`` standing ``rise`` higher (a top point) is one of ``tops``
+    unless it stands more than ``box_height`` above the roof plane under it
+    (a bird, a wire), and so is every block's point.
 
     Parameters
     ----------
@@ -116,9 +117,9 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
         plane of its ``k`` nearest labelled points is left to the face
         partition, which puts it with that plane
         (``partition_outline(rise=...)``, same ``k`` and ``max_dz``).
-    lone_height : float
-        Highest a lone top point may stand above the roof plane under it
-        (m) to be one of ``tops``; 0: no ``tops`` at all.
+    box_height : float
+        Highest a top point on no plane may stand above the roof plane
+        under it (m) to be one of ``tops``; 0: no ``tops`` at all.
 
     Returns
     -------
@@ -127,7 +128,7 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
         stray points of a plane ``-1`` unless in a block; ``fit`` with the
         blocks appended (``p = q = 0``, ``r`` the mean height, ``sigma``
         with ``n - 1`` degrees of freedom and only ``var(r) = sigma² / n``);
-        ``tops`` the blocks' points and the lone top points.
+        ``tops`` the blocks' points and the top points on no plane.
 
     Examples
     --------
@@ -141,7 +142,7 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
     >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3, min_points=1)
     >>> lab2[-5:].tolist(), fit2.planes[1:].round(2).tolist()
     ([1, 1, 1, 1, 2], [[0.0, 0.0, 1.0, -6.2], [0.0, 0.0, 1.0, -5.9]])
-    >>> found = superstructures(xyz, lab, fit_planes(xyz, lab), 0.3, lone_height=3.0)
+    >>> found = superstructures(xyz, lab, fit_planes(xyz, lab), 0.3, box_height=3.0)
     >>> found.labels[-5:].tolist(), (found.tops - len(xyz) + 5).tolist()
     ([1, 1, 1, 1, -1], [0, 1, 2, 3, 4])
     """
@@ -151,9 +152,7 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
     labels = _stray_points_released(xyz, labels, link, stray_points)
     none = np.zeros(0, dtype=np.int64)
     un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
-    lone = lone_height > 0
-    fewest = 1 if lone else max(min_points, 1)
-    if len(un) < fewest or not len(on):
+    if len(un) < (1 if box_height > 0 else max(min_points, 1)) or not len(on):
         return Superstructures(labels, fit, none)
     # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it;
     # one standing at most ``rise`` above (``max_dz`` under) a plane of its ``k`` nearest labelled points is that
@@ -164,47 +163,50 @@ def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing:
     over = xyz[un, 2:3] - plane_height(fit.planes[cand_planes], xyz[un, None, :2])
     roof, above = cand_planes[:, 0], over[:, 0]
     high = (above > rise) & ~((over >= -max_dz) & (over <= rise)).any(axis=1)
-    if high.any():
-        # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
-        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[high], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
+    # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
+    test = np.ones(len(un), dtype=bool) if box_height > 0 else high
+    surface = np.zeros(len(un), dtype=bool)
+    if test.any():
+        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[test], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
         z = np.r_[xyz[:, 2], -np.inf][idx]
-        high[high] = ~(z > xyz[un[high], 2:3] + rise).any(axis=1)
+        surface[test] = ~(z > xyz[un[test], 2:3] + rise).any(axis=1)
+    high &= surface
     cand = np.flatnonzero(high)
-    if len(cand) < fewest:
-        return Superstructures(labels, fit, none)
-    comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
-    order = np.argsort(comp, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
-    blocks, singles = [], []
-    for cluster in np.split(cand[order], starts[1:]):
+    blocks = []
+    if len(cand) >= max(min_points, 1):
+        comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
+        order = np.argsort(comp, kind="stable")
+        starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
+        blocks = _layers_as_blocks(xyz, un, np.split(cand[order], starts[1:]), above, fit.sigma[roof], spacing,
+                                   min_points, rise, min_density)
+    # the top points: the blocks', and those on no plane that stand at most ``box_height`` above the roof (a
+    # higher lone return is a bird or a wire); the model boxes any of them its faces leave far under them
+    tops = np.unique(np.concatenate([*blocks, un[surface & (above <= box_height)]])) if box_height > 0 else none
+    if blocks:
+        labels, fit = with_horizontal_planes(xyz, labels, fit, blocks)
+    return Superstructures(labels, fit, tops.astype(np.int64))
+
+
+def _layers_as_blocks(xyz: np.ndarray, un: np.ndarray, clusters: list, above: np.ndarray, sigma: np.ndarray,
+                      spacing: float, min_points: int, rise: float, min_density: float) -> list[np.ndarray]:
+    """The points (indices into ``xyz``) of each block: the layers of ``clusters`` (indices into ``un``) that
+    have ``min_points``, are dense and supported (:func:`superstructures`)."""
+    blocks = []
+    for cluster in clusters:
         # cut from the top, a layer of ``rise`` at a time: a sloping coping, a gable's top in steps
-        while len(cluster) >= fewest:
+        while len(cluster) >= max(min_points, 1):
             z = xyz[un[cluster], 2]
             top = z >= z.max() - rise
             layer, cluster = cluster[top], cluster[~top]
             if len(layer) < min_points:
-                # a lone return may be a bird, a wire or an echo as well as a vent pipe: only one standing at
-                # most ``lone_height`` above the roof, which its height supports against the roof's noise
-                if lone:
-                    singles.extend(un[layer[(above[layer] <= lone_height) & _supported_each(
-                        above[layer], fit.sigma[roof[layer]])]])
                 continue
             pts, n = xyz[un[layer]], len(layer)
             # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
             dense = n < 3 or hull_area_test(pts, plan_hull_area(pts), lambda a, n=n: n >= min_density * a / spacing**2,
                                             True)
-            if dense and block_supported(above[layer], pts[:, 2], fit.sigma[roof[layer]]):
+            if dense and block_supported(above[layer], pts[:, 2], sigma[layer]):
                 blocks.append(un[layer])
-    if blocks:
-        labels, fit = with_horizontal_planes(xyz, labels, fit, blocks)
-    tops = np.sort(np.concatenate([*blocks, np.asarray(singles, dtype=np.int64)])) if lone else none
-    return Superstructures(labels, fit, tops.astype(np.int64))
-
-
-def _supported_each(above: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """:func:`block_supported` of each point as a block of its own: ``(above / σ)² > 2``."""
-    sigma = np.maximum(np.where(np.isfinite(sigma), sigma, 0.0), 1e-3)
-    return (np.asarray(above) / sigma) ** 2 > 2.0
+    return blocks
 
 
 def block_supported(above: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> bool:
