@@ -97,6 +97,22 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     if not len(points) or not roof_at:
         return solid, skipped
     roofs = [solid.surfaces[k] for k in roof_at]
+    # a building's top points against one of its parts: only those in the part's box are looked at
+    xy = np.concatenate([s.rings[0][:, :2] for s in roofs])
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    near = np.flatnonzero(((points[:, :2] >= lo) & (points[:, :2] <= hi)).all(axis=1))
+    skipped[:] = "on no roof surface"
+    if not len(near):
+        return solid, skipped
+    if others is not None:
+        others = np.asarray(others, dtype=np.float64).reshape(-1, 3)
+        others = others[((others[:, :2] >= lo - side) & (others[:, :2] <= hi + side)).all(axis=1)]
+    if len(near) < len(points):
+        boxed, why = with_boxes(solid, points[near], side, others=others, rise=rise, grid=grid, snap=snap,
+                                max_tilt=max_tilt)
+        skipped[near] = why
+        return boxed, skipped
+    skipped[:] = ""
     normal, centre = surface_normals(roofs)
     plans = surface_polygons(roofs, plan=True)
     up = np.abs(normal[:, 2]) > 1e-9 * np.maximum(np.linalg.norm(normal, axis=1), 1e-300)
