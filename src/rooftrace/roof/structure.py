@@ -170,7 +170,7 @@ class RoofOptions:
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
     min_block_points: int | None = 2
-    box_height: float = 3.0
+    box_height: float = 10.0
     low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
