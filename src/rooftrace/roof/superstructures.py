@@ -16,7 +16,11 @@ least-squares horizontal) when its points support it against the roof
 under them (:func:`block_supported`).  The face partition gives each block
 the plan region its points own (their nearest-point cells), kept whatever
 its area (``partition_outline(kept_planes=...)``), with walls down to the
-roof in the model: a box, however few its points.
+roof in the model: a box, however few its points.  A top point no block
+holds (a vent pipe of one return) or whose block's face the partition lost
+is named as one of the roof's top points; the model builds a box under it
+when its faces leave it far under the roof, without a face of its own
+(:func:`rooftrace.model.superstructures.with_boxes`).
 """
 
 from __future__ import annotations
@@ -45,9 +49,9 @@ class Superstructures:
     tops : ndarray of shape (M,), int64
         The top points of what stands on the roof, sorted: the points of
         the blocks, and the points on no plane with none standing ``rise``
-        higher within the spacing, at most ``box_height`` above the roof.  The model puts a box under any of them the
-        roof faces leave more than ``rise`` under it
-        (:func:`rooftrace.model.superstructures.with_boxes`).
+        higher within the spacing, at most ``box_height`` above the roof.
+        The model puts a box under any of them the roof faces leave more
+        than ``rise`` under it (:func:`rooftrace.model.superstructures.with_boxes`).
     """
 
     labels: np.ndarray
