@@ -149,7 +149,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     rise_g = rise / grid
     taken = np.zeros(len(need), dtype=bool)
     on_roof: dict[int, list[tuple]] = {}  # per roof surface: its boxes' holes, surfaces and points
-    placed = []
+    placed: dict[int, list] = {}
     for j in order.tolist():
         if taken[j]:
             continue
@@ -169,15 +169,18 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         # edges lie three steps beyond the hull, out of the buffers' reach)
         x0, y0, x1, y1 = hull.bounds
         local = shapely.clip_by_rect(plans[k], x0 - 3 * snap, y0 - 3 * snap, x1 + 3 * snap, y1 + 3 * snap)
-        plan_m = shapely.set_precision(shapely.intersection(hull, shapely.buffer(local, -2 * snap, join_style="mitre")),
-                                       snap)
+        inner = shapely.buffer(local, -2 * snap, join_style="mitre")
+        # (the hull of lattice points is on the lattice; only a cut one needs putting back on it)
+        plan_m = hull if shapely.contains(inner, hull) else shapely.set_precision(shapely.intersection(hull, inner),
+                                                                                  snap)
         own = shapely.points(points[need[members], :2])
         if plan_m.geom_type != "Polygon" or plan_m.is_empty or len(plan_m.interiors) or \
-                not shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m) or \
-                not shapely.contains(plan_m, own).any():
+                not (plan_m is hull or shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m)) \
+                or not shapely.contains(plan_m, own).any():
             skipped[need[members]] = "at a roof edge"
             continue
-        if any(shapely.intersects(plan_m, p) for p in placed):
+        # (surfaces do not overlap in plan: only boxes on the same one can meet)
+        if any(shapely.intersects(plan_m, p) for p in placed.get(k, ())):
             skipped[need[members]] = "beside a higher box"
             continue
         ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
@@ -188,13 +191,14 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         if top - foot.max() < 2 * lattice:
             skipped[need[members]] = "too low above the surface"
             continue
-        placed.append(plan_m)
+        placed.setdefault(k, []).append(plan_m)
         n = len(ring)
+        nxt = np.r_[1:n, 0]
+        walls = np.stack([np.column_stack([ring, foot]), np.column_stack([ring[nxt], foot[nxt]]),
+                          np.column_stack([ring[nxt], np.full(n, top)]), np.column_stack([ring, np.full(n, top)])],
+                         axis=1) * grid
         box = [Surface([np.column_stack([ring, np.full(n, top)]) * grid], "RoofSurface")]
-        for a in range(n):
-            b = (a + 1) % n
-            wall = np.array([[*ring[a], foot[a]], [*ring[b], foot[b]], [*ring[b], top], [*ring[a], top]])
-            box.append(Surface([wall * grid], "WallSurface"))
+        box.extend(Surface([w], "WallSurface") for w in walls)
         # a hole: clockwise seen from above
         on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, need[members]))
         skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
@@ -205,8 +209,9 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     # a roof surface's own vertices lie on its plane to the tolerance of its heights, its holes' exactly: thin
     # triangles between them may tilt beyond what a validator takes (val3dity's 204); such a surface is written as
     # its triangles, as the solid builder writes one
-    # (a horizontal surface's triangles cannot tilt)
-    keys = [k for k in holed if np.ptp(roofs[k].rings[0][:, 2]) > 0]
+    # (a surface whose own vertices lie within a grid step of its plane cannot tilt: the holes stand two lattice
+    # steps inside it)
+    keys = [k for k in holed if _off_plane(roofs[k].rings[0], normal[k], centre[k]) > grid]
     tilted = np.asarray(keys, dtype=np.int64)[surface_tilt([holed[k][0] for k in keys], max_tilt) > max_tilt].tolist() \
         if keys else []
     for k in tilted:
@@ -246,6 +251,11 @@ def _half_sides(points: np.ndarray, side: float, others: np.ndarray | None, rise
             d = np.abs(others[low, :2] - points[j, :2]).max(axis=1).min()
             half[j] = min(half[j], int(np.floor(d / snap)) - 1)
     return half
+
+
+def _off_plane(ring: np.ndarray, normal: np.ndarray, centre: np.ndarray) -> float:
+    """Largest distance (m) of the vertices of ``ring`` from the plane through ``centre`` with ``normal``."""
+    return float(np.abs((ring - centre) @ (normal / np.linalg.norm(normal))).max())
 
 
 def _plane_z(normal: np.ndarray, centre: np.ndarray, xy: np.ndarray) -> np.ndarray:
