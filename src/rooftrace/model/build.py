@@ -11,7 +11,9 @@ planes and faces, the roof points) and the ground height, and returns a
   where their shared edges do not jump more than ``level_step``, each level
   at the ``roof_percentile`` of its points;
 - **LoD 2.2**: the roof faces on their planes, walls under every step
-  between faces and around the footprint, down to the ground.
+  between faces and around the footprint, down to the ground; a box under
+  each superstructure top point the faces leave more than ``box_rise``
+  under them (:func:`rooftrace.model.superstructures.with_boxes`).
 
 Every solid comes from :func:`rooftrace.model.solid.prism_solid` and is
 checked by :func:`rooftrace.model.validity.solid_errors`; a level that
