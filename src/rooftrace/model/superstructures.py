@@ -209,9 +209,8 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     # a roof surface's own vertices lie on its plane to the tolerance of its heights, its holes' exactly: thin
     # triangles between them may tilt beyond what a validator takes (val3dity's 204); such a surface is written as
     # its triangles, as the solid builder writes one
-    # (a surface whose own vertices lie within a grid step of its plane cannot tilt: the holes stand two lattice
-    # steps inside it)
-    keys = [k for k in holed if _off_plane(roofs[k].rings[0], normal[k], centre[k]) > grid]
+    # (a horizontal surface's triangles cannot tilt)
+    keys = [k for k in holed if np.ptp(roofs[k].rings[0][:, 2]) > 0]
     tilted = np.asarray(keys, dtype=np.int64)[surface_tilt([holed[k][0] for k in keys], max_tilt) > max_tilt].tolist() \
         if keys else []
     for k in tilted:
@@ -251,11 +250,6 @@ def _half_sides(points: np.ndarray, side: float, others: np.ndarray | None, rise
             d = np.abs(others[low, :2] - points[j, :2]).max(axis=1).min()
             half[j] = min(half[j], int(np.floor(d / snap)) - 1)
     return half
-
-
-def _off_plane(ring: np.ndarray, normal: np.ndarray, centre: np.ndarray) -> float:
-    """Largest distance (m) of the vertices of ``ring`` from the plane through ``centre`` with ``normal``."""
-    return float(np.abs((ring - centre) @ (normal / np.linalg.norm(normal))).max())
 
 
 def _plane_z(normal: np.ndarray, centre: np.ndarray, xy: np.ndarray) -> np.ndarray:
