@@ -179,8 +179,9 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
                 or not shapely.contains(plan_m, own).any():
             skipped[need[members]] = "at a roof edge"
             continue
-        # (surfaces do not overlap in plan: only boxes on the same one can meet)
-        if any(shapely.intersects(plan_m, p) for p in placed.get(k, ())):
+        # (surfaces do not overlap in plan: only boxes on the same one can meet; within half a lattice step, as
+        # the hull's coordinates and a cut one's, both on the lattice, may differ in their last bits)
+        if any(shapely.dwithin(plan_m, p, 0.5 * snap) for p in placed.get(k, ())):
             skipped[need[members]] = "beside a higher box"
             continue
         ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
