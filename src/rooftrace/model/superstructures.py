@@ -19,7 +19,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from rooftrace.model.solid import _split_tilted
+from rooftrace.model.solid import split_tilted
 from rooftrace.model.types import Solid, Surface
 from rooftrace.model.validity import surface_normals, surface_polygons, surface_tilt
 
@@ -215,7 +215,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     tilted = np.asarray(keys, dtype=np.int64)[surface_tilt([holed[k][0] for k in keys], max_tilt) > max_tilt].tolist() \
         if keys else []
     for k in tilted:
-        triangles = _split_tilted([[np.round(r / grid).astype(np.int64) for r in holed[k][0].rings]], max_tilt)
+        triangles = split_tilted([[np.round(r / grid).astype(np.int64) for r in holed[k][0].rings]], max_tilt)
         if len(triangles) > 1:
             holed[k] = [Surface([np.asarray(r, dtype=np.float64) * grid for r in tri], "RoofSurface")
                         for tri in triangles]
