@@ -11,7 +11,9 @@ planes and faces, the roof points) and the ground height, and returns a
   where their shared edges do not jump more than ``level_step``, each level
   at the ``roof_percentile`` of its points;
 - **LoD 2.2**: the roof faces on their planes, walls under every step
-  between faces and around the footprint, down to the ground.  A roof
+  between faces and around the footprint, down to the ground; a box under
+  each superstructure top point the faces leave more than ``box_rise``
+  under them (:func:`rooftrace.model.superstructures.with_boxes`).  A roof
   point that the faces hold under its own plane stays under it in the
   solid: where the plan lattice moved a face edge across it, it gets the
   lattice square around it (:func:`_points_kept`).
@@ -43,6 +45,7 @@ import shapely
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
+from rooftrace.model.superstructures import with_boxes
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
 from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
 
@@ -80,6 +83,10 @@ class ModelOptions:
         validity check (val3dity's default).
     validate : bool
         Check every solid and leave out the invalid ones (with a reason).
+    box_rise : float
+        LoD 2.2: a top point of a superstructure (``RoofStructure.top_points``)
+        standing more than this (m) above the roof faces gets a box of the
+        point spacing's side (:func:`rooftrace.model.superstructures.with_boxes`).
     """
 
     section = "model"
@@ -92,12 +99,13 @@ class ModelOptions:
     z_tolerance: float = 0.01
     planarity: float = 0.01
     validate: bool = True
+    box_rise: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("roof_percentile", "ground_percentile"):
             if not 0 <= getattr(self, name) <= 100:
                 raise ValueError(f"{name} must be in [0, 100], got {getattr(self, name)}")
-        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity"):
+        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity", "box_rise"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
         if self.snap < self.grid or abs(self.snap / self.grid - round(self.snap / self.grid)) > 1e-6:
@@ -296,10 +304,11 @@ def _inside(poly, xyz: np.ndarray) -> np.ndarray:
 
 
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
-          options: ModelOptions, lods: tuple[str, ...] = LODS,
+          options: ModelOptions, lods: tuple[str, ...] = LODS, tops: tuple | None = None,
           own_z: np.ndarray | None = None, held_by: list | None = None) -> tuple[PartModel, dict[str, str]]:
     """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing.
 
+    ``tops``: the superstructures' top points and the side of their boxes (m), for LoD 2.2.
     ``own_z``: per point the height of its own roof plane (NaN on none), and ``held_by``: the roof faces
     as they were before the parts were cut on the lattice (default ``cells``), for :func:`_points_kept`.
     """
@@ -346,11 +355,11 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
                                                         kw["footprint"], options)
         try:
             try:
-                part.lods["2.2"] = _checked(prism_solid(kept, ground, **kw), options)
+                part.lods["2.2"] = _checked_with_boxes(prism_solid(kept, ground, **kw), tops, xyz, options)
             except _FAILURES:
                 if kept is cells:
                     raise
-                part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
+                part.lods["2.2"] = _checked_with_boxes(prism_solid(cells, ground, **kw), tops, xyz, options)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
@@ -434,6 +443,22 @@ def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, 
             if g.geom_type == "Polygon" and g.area > 0]
 
 
+def _checked_with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions) -> Solid:
+    """``solid`` with boxes under the top points it leaves more than ``box_rise`` under it, checked.
+
+    The boxed solid is checked (once: the boxes change no other surface); should it fail, the solid without them is.
+    """
+    if tops is not None and len(tops[0]):
+        boxed, _ = with_boxes(solid, tops[0], tops[1], others=xyz, rise=options.box_rise, grid=options.grid,
+                              snap=options.snap)
+        if boxed is not solid:
+            try:
+                return _checked(boxed, options)
+            except GeometryError as exc:
+                log.warning("boxes left out (%s)", exc)
+    return _checked(solid, options)
+
+
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
 FLAT = "flat, the LoD 1.3 roof: "
 
@@ -459,8 +484,8 @@ def _volumes(part: PartModel) -> None:
 
 
 def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
-                       options: ModelOptions, rounds: int = 3, own_z: np.ndarray | None = None,
-                       held_by: list | None = None) -> None:
+                       options: ModelOptions, rounds: int = 3, tops: tuple | None = None,
+                       own_z: np.ndarray | None = None, held_by: list | None = None) -> None:
     """Rebuild the solids of parts that overlap a neighbour, their party wall bent as the neighbour's.
 
     Cut from one arrangement, two parts start with the same party wall; but
@@ -508,8 +533,8 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
                 ref = shapely.multipoints(np.vstack(points))
                 fp, cells = bases[j]
                 bases[j] = (shapely.snap(fp, ref, tol), [(shapely.snap(c, ref, tol), plane) for c, plane in cells])
-                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,), own_z=own_z,
-                                 held_by=held_by)
+                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,), tops,
+                                 own_z=own_z, held_by=held_by)
                 if lod in again.lods:
                     parts[j].lods[lod] = again.lods[lod]
                     parts[j].attributes[f"volume_lod{lod.replace('.', '')}"] = again.attributes[
@@ -570,10 +595,13 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     own_z = _own_heights(roof, xyz)
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
     cut = _cut(footprints, cells, opt.snap)
+    top_points = getattr(roof, "top_points", None)
+    tops = (top_points, float(roof.spacing)) if top_points is not None and len(top_points) else None
     whys = []
     plain = None
     for k, (fp, part_cells) in enumerate(cut, start=1):
-        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, own_z=own_z, held_by=cells)
+        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, tops=tops, own_z=own_z,
+                          held_by=cells)
         if "1.3" in why or "2.2" in why:
             # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
             # outline): the part's solids without the superstructures, when that gives more levels or a planar
@@ -584,7 +612,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
             if len(plain) == len(cut) and plain[k - 1][1]:
                 try:
                     again, why_again = _part(k, plain[k - 1][0], plain[k - 1][1], xyz, float(ground), roof_status,
-                                             opt)
+                                             opt, tops=tops)
                 except _FAILURES:
                     again = None
                 if again is not None and (len(again.lods), -len(why_again)) > (len(part.lods), -len(why)):
@@ -594,7 +622,8 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         model.parts.append(part)
         whys.append(why)
     if len(model.parts) > 1:
-        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt, own_z=own_z, held_by=cells)
+        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt, tops=tops, own_z=own_z,
+                           held_by=cells)
     reasons: list[str] = []
     for k, why in enumerate(whys, start=1):
         for lod, reason in sorted(why.items()):
