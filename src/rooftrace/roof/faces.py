@@ -41,10 +41,11 @@ from shapely.geometry import LineString
 
 from rooftrace.graph import components
 from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points, points_in_boxes, simplify_arcs
+from rooftrace.roof.lowparts import open_to_sky
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges",
-           "points_off_their_faces", "claim_points"]
+           "points_off_their_faces", "claim_points", "faces_off_their_points", "fit_faces"]
 
 log = logging.getLogger(__name__)
 
@@ -1207,3 +1208,216 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     if lines:
         lines = list(lift_to_plane(np.array(lines, dtype=object), planes[[up for up, _ in pairs]]))
     return lines, pairs
+
+
+def _answered_points(xyz: np.ndarray, labels: np.ndarray, spacing: float, rise: float) -> np.ndarray:
+    """Indices of the points a face answers for: the labelled ones, and those on no plane that nothing covers.
+
+    A point on no plane with a point of the building within ``spacing``
+    (plan) standing more than ``rise`` over it (a wall under the eaves, a
+    floor under a canopy) is under something: no roof face is to fit it.
+    """
+    un = np.flatnonzero(labels < 0)
+    keep = labels >= 0
+    if len(un) and len(un) < len(labels):
+        keep[un[open_to_sky(xyz, un, spacing, rise)]] = True
+    return np.flatnonzero(keep)
+
+
+class _FaceFit:
+    """A roof's faces with the answered points under each, their neighbours, and the planes that fit them."""
+
+    def __init__(self, polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, spacing: float,
+                 rise: float):
+        self.faces = np.array(list(polys), dtype=object)
+        self.pids = np.asarray(list(plane_ids), dtype=np.int64).copy()
+        self.planes, self.rise = planes, rise
+        labels = np.asarray(labels)
+        pts = _answered_points(xyz, labels, spacing, rise) if len(self.faces) else np.zeros(0, np.int64)
+        self.P, self.lab = xyz[pts], labels[pts]
+        at, of = _points_in(self.faces, self.P[:, :2]) if len(pts) else (np.zeros(0, np.int64),) * 2
+        # a point on a shared edge is under both faces
+        order = np.argsort(of, kind="stable")
+        self.members = np.split(at[order], np.searchsorted(of[order], np.arange(1, len(self.faces))))
+        self.alive = np.ones(len(self.faces), dtype=bool)
+        self.box = shapely.bounds(self.faces)
+        self.edges = shapely.boundary(self.faces)
+
+    def fitted(self, i: int, plane: int) -> tuple[int, float]:
+        """How many of face ``i``'s points ``plane`` lies within ``rise`` of, and minus their squared residuals."""
+        m = self.members[i]
+        r = self.P[m, 2] - plane_height(self.planes[plane], self.P[m, :2])
+        near = np.abs(r) <= self.rise
+        return int(near.sum()), -float(np.sum(r[near] ** 2))
+
+    def neighbours(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The live faces sharing an edge with face ``i``, and the shared length (m)."""
+        b = self.box
+        near = np.flatnonzero(self.alive & (b[:, 0] <= b[i, 2]) & (b[:, 2] >= b[i, 0]) & (b[:, 1] <= b[i, 3])
+                              & (b[:, 3] >= b[i, 1]))
+        near = near[near != i]
+        if not len(near):
+            return near, np.zeros(0)
+        shared = shapely.length(shapely.intersection(self.edges[i], self.edges[near]))
+        return near[shared > 0], shared[shared > 0]
+
+    def better_plane(self, i: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """The plane fitting face ``i``'s points best among its neighbours' and its labelled points' own planes,
+        when the face's plane fits fewer than half of them and that one fits more; else -1.  With the neighbours."""
+        nb, shared = self.neighbours(i)
+        m = self.members[i]
+        now = self.fitted(i, self.pids[i])
+        if not len(m) or 2 * now[0] >= len(m):
+            return -1, nb, shared
+        own = self.lab[m]
+        cand = np.unique(np.concatenate([self.pids[nb], own[own >= 0]]))
+        best, score = -1, now
+        for c in cand:  # (lowest plane first: ties keep it)
+            s = self.fitted(i, int(c))
+            if s > score:
+                best, score = int(c), s
+        return (best if score[0] > now[0] else -1), nb, shared
+
+    def merge(self, i: int, j: int) -> bool:
+        """Face ``i`` joined to face ``j``, when that makes one polygon with no new hole (also on the centimetre grid)."""
+        u = shapely.union(self.faces[j], self.faces[i])
+        holes = shapely.get_num_interior_rings(self.faces[j]) + shapely.get_num_interior_rings(self.faces[i])
+        coarse = shapely.set_precision(u, 0.01)
+        if (u.geom_type != "Polygon" or not u.is_valid or shapely.get_num_interior_rings(u) > holes
+                or coarse.geom_type != "Polygon" or shapely.get_num_interior_rings(coarse) > holes):
+            return False
+        self.faces[j], self.box[j], self.edges[j] = u, u.bounds, u.boundary
+        self.members[j] = np.union1d(self.members[j], self.members[i])
+        self.alive[i] = False
+        return True
+
+
+def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                           spacing: float, rise: float = 0.5) -> np.ndarray:
+    """The faces whose plane fits fewer than half of the points under them while a plane at hand fits more.
+
+    The faces' promise to the points under them: of the points a face
+    answers for (the labelled points under it, and the points on no plane
+    under it that no point of the building within ``spacing`` stands more
+    than ``rise`` over), its plane lies within ``rise`` of at least half,
+    unless no plane at hand (a neighbouring face's, sharing an edge, or a
+    labelled point's own under it) lies within ``rise`` of more.
+    :func:`fit_faces` keeps it.
+
+    Parameters
+    ----------
+    polys : sequence of shapely Polygon
+        Faces tiling the outline (Z ignored).
+    plane_ids : sequence of int
+        Plane of each face.
+    xyz : ndarray of shape (N, 3)
+        The building's points (m).
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none.
+    planes : ndarray of shape (K, 4)
+    spacing : float
+        Mean point spacing ``s`` (m): the plan radius within which a higher point covers a point on no plane.
+    rise : float
+        Height (m) within which a plane fits a point (the roof's ``step_height``).
+
+    Returns
+    -------
+    ndarray of shape (len(polys),), bool
+        The faces that break the promise.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> notch = shapely.box(3.5, 1.5, 4, 2.5)  # a sliver of the lower level over a point of the upper one
+    >>> faces = [shapely.box(0, 0, 4, 4) - notch, shapely.box(4, 0, 8, 4), notch]
+    >>> xyz = np.array([[2.0, 2.0, 8.0], [6.0, 2.0, 5.0], [3.8, 2.0, 8.0]])
+    >>> faces_off_their_points(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5).tolist()
+    [False, False, True]
+    """
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise)
+    return np.array([fit.better_plane(i)[0] >= 0 for i in range(len(fit.faces))], dtype=bool)
+
+
+def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+              spacing: float, rise: float = 0.5) -> tuple[list, list]:
+    """Faces whose plane fits the points under them: each face that fits fewer than half of them given away.
+
+    The raster, the sliver merging and the claim of the step edges work on
+    the points near a boundary; where several levels' points interleave (a
+    roof seen through a tree or under a higher part's edge, a messy corner
+    of small planes) they can leave a face of a few tenths of a m² whose
+    plane lies metres above or below the one to three points under it.  Such
+    a face (its plane within ``rise`` of fewer than half of the points it
+    answers for: see :func:`faces_off_their_points`) takes the plane that
+    fits most of them, within ``rise`` (ties: the smaller sum of squared
+    residuals), among the planes of the faces sharing an edge with it and
+    the own planes of its labelled points; it is merged into the neighbour
+    of that plane sharing most edge, or, with none (or when the union would
+    not be one polygon without a new hole, also on the centimetre grid),
+    keeps its outline under the new plane.  A face under which no point is
+    answered for (a sliver a claim or a kept block left) is merged into the
+    neighbour sharing most edge on the same terms.  Faces are taken
+    smallest first, three rounds at most.
+
+    What it guarantees, on any data: the faces still tile what they tiled,
+    none is added, and afterwards :func:`faces_off_their_points` finds none
+    (every face's plane lies within ``rise`` of at least half of the points
+    it answers for, or no plane at hand fits more of them).  The faces of
+    the small steep planes fitted to a messy corner, which cover another
+    level's points rather than their own, go to that level.
+
+    Parameters
+    ----------
+    polys : list of shapely Polygon
+        Faces tiling the outline (2D).
+    plane_ids : list of int
+        Plane of each face.
+    xyz : ndarray of shape (N, 3)
+        The building's points (m).
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none.
+    planes : ndarray of shape (K, 4)
+    spacing : float
+        Mean point spacing ``s`` (m).
+    rise : float
+        Height (m) within which a plane fits a point (the roof's ``step_height``).
+
+    Returns
+    -------
+    polygons : list of shapely Polygon
+    plane_ids : list of int
+        The faces left, in their order.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> notch = shapely.box(3.5, 1.5, 4, 2.5)  # a sliver of the lower level over a point of the upper one
+    >>> faces = [shapely.box(0, 0, 4, 4) - notch, shapely.box(4, 0, 8, 4), notch]
+    >>> xyz = np.array([[2.0, 2.0, 8.0], [6.0, 2.0, 5.0], [3.8, 2.0, 8.0]])
+    >>> polys, ids = fit_faces(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5)
+    >>> ids, [p.area for p in polys]
+    ([0, 1], [16.0, 16.0])
+    """
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise)
+    if len(fit.faces) < 2:
+        return list(polys), list(plane_ids)
+    for _ in range(3):
+        changed = False
+        for i in np.argsort(shapely.area(fit.faces), kind="stable"):
+            if not fit.alive[i]:
+                continue
+            best, nb, shared = fit.better_plane(i)
+            if not len(fit.members[i]):
+                changed |= bool(len(nb)) and fit.merge(i, int(nb[np.argmax(shared)]))
+                continue
+            if best < 0:
+                continue
+            mine = fit.pids[nb] == best
+            if not (mine.any() and fit.merge(i, int(nb[mine][np.argmax(shared[mine])]))):
+                fit.pids[i] = best
+            changed = True
+        if not changed:
+            break
+    return list(fit.faces[fit.alive]), fit.pids[fit.alive].tolist()

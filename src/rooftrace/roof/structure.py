@@ -10,7 +10,9 @@
    (:func:`rooftrace.roof.ridges.intersection_lines`);
 4. split the outline into one face per plane, Z from the plane
    (:func:`rooftrace.roof.faces.partition_outline`);
-5. step edges where neighbouring faces are at different heights
+5. give each face that fits fewer than half of the points under it to the
+   plane at hand that fits more (:func:`rooftrace.roof.faces.fit_faces`);
+6. step edges where neighbouring faces are at different heights
    (:func:`rooftrace.roof.faces.step_edges`).
 
 :func:`rooftrace.roof.layers.faces_layer` and :func:`rooftrace.roof.layers.ridges_layer`
@@ -31,6 +33,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.roof.adjacency import plane_adjacency
 from rooftrace.roof.faces import (
     claim_points,
+    fit_faces,
     lift_to_plane,
     merge_close_vertices,
     partition_outline,
@@ -448,6 +451,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         polys = snap_to_lines(polys, lines.lines, outline2d, 2.0 * cell)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
         polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
+        # the faces left over points of another level (a sliver merged into a small neighbour, a messy corner)
+        polys, pids = fit_faces(polys, pids, xyz, labels, fit.planes, spacing=s, rise=opt.step_height)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
