@@ -18,7 +18,7 @@ import numpy as np
 import shapely
 from threadpoolctl import threadpool_limits
 
-from rooftrace.cloud import PointCloud
+from rooftrace.cloud import ASPRS, PointCloud
 from rooftrace.config import RunOptions
 from rooftrace.errors import GeometryError
 from rooftrace.footprints import FootprintAssignment, Footprints
@@ -162,7 +162,9 @@ def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, options: RoofOptions,
-                     mean_spacing: float, reporter: Reporter) -> list:
+                     mean_spacing: float, reporter: Reporter, covering: np.ndarray | None = None) -> list:
+    """The roof structure of every outlined building; ``covering`` (bool per cloud point): the points that may
+    hide a point under them from the roof faces (default all)."""
     from rooftrace.roof import roof_structure
 
     structures = []
@@ -176,7 +178,8 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                 continue
             try:
                 structures.append(roof_structure(cloud.xyz[idx], outline.polygon, options,
-                                                 mean_spacing=mean_spacing, building_id=outline.building_id))
+                                                 mean_spacing=mean_spacing, building_id=outline.building_id,
+                                                 covering=None if covering is None else covering[idx]))
             except GeometryError as exc:
                 log.debug("building %d: no roof planes (%s)", outline.building_id, exc)
             except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
@@ -436,7 +439,11 @@ def run_pipeline(
     structures: list = []
     if options.planes and outlines:
         clock.start()
-        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
+        # with footprints a building also holds points the detection left unclassified (a tree's crown over a
+        # roof among them): only the detection's building points hide a point under them from the roof faces
+        covering = None if assignment is None else detection.classification == ASPRS.BUILDING
+        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter,
+                                      covering)
         clock.stop("roof_planes")
 
     clock.start()

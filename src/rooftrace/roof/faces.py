@@ -1210,31 +1210,28 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     return lines, pairs
 
 
-def _answered_points(xyz: np.ndarray, labels: np.ndarray, spacing: float, rise: float) -> np.ndarray:
-    """Indices of the points a face answers for: the labelled ones, and those on no plane that nothing covers.
+def _answered_points(xyz: np.ndarray, spacing: float, rise: float, covering: np.ndarray | None) -> np.ndarray:
+    """Indices of the points a roof face answers for: those no point within ``spacing`` (plan) stands ``rise`` over.
 
-    A point on no plane with a point of the building within ``spacing``
-    (plan) standing more than ``rise`` over it (a wall under the eaves, a
-    floor under a canopy) is under something: no roof face is to fit it.
+    The LoD 2.2 roof is the top surface: a point with a point of the
+    building (of ``covering``, default all) standing more than ``rise`` over
+    it within the spacing (a wall or a lower roof's edge under the eaves, a
+    floor under a canopy) is under something, labelled or not.
     """
-    un = np.flatnonzero(labels < 0)
-    keep = labels >= 0
-    if len(un) and len(un) < len(labels):
-        keep[un[open_to_sky(xyz, un, spacing, rise)]] = True
-    return np.flatnonzero(keep)
+    allp = np.arange(len(xyz))
+    return allp[open_to_sky(xyz, allp, spacing, rise, by=covering)] if len(allp) else allp
 
 
 class _FaceFit:
     """A roof's faces with the answered points under each, their neighbours, and the planes that fit them."""
 
     def __init__(self, polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, spacing: float,
-                 rise: float):
+                 rise: float, covering: np.ndarray | None = None):
         self.faces = np.array(list(polys), dtype=object)
         self.pids = np.asarray(list(plane_ids), dtype=np.int64).copy()
         self.planes, self.rise = planes, rise
-        labels = np.asarray(labels)
-        pts = _answered_points(xyz, labels, spacing, rise) if len(self.faces) else np.zeros(0, np.int64)
-        self.P, self.lab = xyz[pts], labels[pts]
+        pts = _answered_points(xyz, spacing, rise, covering) if len(self.faces) else np.zeros(0, np.int64)
+        self.P, self.lab = xyz[pts], np.asarray(labels)[pts]
         at, of = _points_in(self.faces, self.P[:, :2]) if len(pts) else (np.zeros(0, np.int64),) * 2
         # a point on a shared edge is under both faces
         order = np.argsort(of, kind="stable")
@@ -1293,16 +1290,16 @@ class _FaceFit:
 
 
 def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-                           spacing: float, rise: float = 0.5) -> np.ndarray:
+                           spacing: float, rise: float = 0.5, covering: np.ndarray | None = None) -> np.ndarray:
     """The faces whose plane fits fewer than half of the points under them while a plane at hand fits more.
 
     The faces' promise to the points under them: of the points a face
-    answers for (the labelled points under it, and the points on no plane
-    under it that no point of the building within ``spacing`` stands more
-    than ``rise`` over), its plane lies within ``rise`` of at least half,
-    unless no plane at hand (a neighbouring face's, sharing an edge, or a
-    labelled point's own under it) lies within ``rise`` of more.
-    :func:`fit_faces` keeps it.
+    answers for (the points under it that no point of the building within
+    ``spacing`` in plan stands more than ``rise`` over: the top surface,
+    labelled or not), its plane lies within ``rise`` of at least half,
+    unless no plane at hand (a neighbouring face's, sharing an edge, or the
+    own plane of a labelled one of those points) lies within ``rise`` of
+    more.  :func:`fit_faces` keeps it.
 
     Parameters
     ----------
@@ -1319,6 +1316,8 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
         Mean point spacing ``s`` (m): the plan radius within which a higher point covers a point on no plane.
     rise : float
         Height (m) within which a plane fits a point (the roof's ``step_height``).
+    covering : ndarray of shape (N,), bool, optional
+        The points that may stand over another; default all.
 
     Returns
     -------
@@ -1335,24 +1334,26 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     >>> faces_off_their_points(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5).tolist()
     [False, False, True]
     """
-    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise)
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, covering)
     return np.array([fit.better_plane(i)[0] >= 0 for i in range(len(fit.faces))], dtype=bool)
 
 
 def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-              spacing: float, rise: float = 0.5) -> tuple[list, list]:
+              spacing: float, rise: float = 0.5, covering: np.ndarray | None = None) -> tuple[list, list]:
     """Faces whose plane fits the points under them: each face that fits fewer than half of them given away.
 
     The raster, the sliver merging and the claim of the step edges work on
-    the points near a boundary; where several levels' points interleave (a
-    roof seen through a tree or under a higher part's edge, a messy corner
-    of small planes) they can leave a face of a few tenths of a m² whose
-    plane lies metres above or below the one to three points under it.  Such
-    a face (its plane within ``rise`` of fewer than half of the points it
-    answers for: see :func:`faces_off_their_points`) takes the plane that
-    fits most of them, within ``rise`` (ties: the smaller sum of squared
-    residuals), among the planes of the faces sharing an edge with it and
-    the own planes of its labelled points; it is merged into the neighbour
+    the labelled points near a boundary, each level's own; where several
+    levels' points interleave (the foot of a wall under a higher roof's
+    eaves, a messy corner of small planes) they can leave a face of a few
+    tenths of a m² whose plane lies metres above or below the one to three
+    points of the top surface under it.  Such a face (its plane within
+    ``rise`` of fewer than half of the points it answers for, those no point
+    within ``spacing`` stands ``rise`` over: see
+    :func:`faces_off_their_points`) takes the plane that fits most of them,
+    within ``rise`` (ties: the smaller sum of squared residuals), among the
+    planes of the faces sharing an edge with it and the own planes of its
+    labelled points; it is merged into the neighbour
     of that plane sharing most edge, or, with none (or when the union would
     not be one polygon without a new hole, also on the centimetre grid),
     keeps its outline under the new plane.  A face under which no point is
@@ -1382,6 +1383,9 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
         Mean point spacing ``s`` (m).
     rise : float
         Height (m) within which a plane fits a point (the roof's ``step_height``).
+    covering : ndarray of shape (N,), bool, optional
+        The points that may stand over another (hide it from the faces);
+        default all.
 
     Returns
     -------
@@ -1400,7 +1404,7 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
     >>> ids, [p.area for p in polys]
     ([0, 1], [16.0, 16.0])
     """
-    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise)
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, covering)
     if len(fit.faces) < 2:
         return list(polys), list(plane_ids)
     for _ in range(3):

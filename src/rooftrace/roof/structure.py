@@ -332,7 +332,7 @@ def _empty(building_id, n, status, spacing=float("nan"), outline=None) -> RoofSt
 
 
 def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mean_spacing: float | None = None,
-                   building_id: int = 0) -> RoofStructure:
+                   building_id: int = 0, covering: np.ndarray | None = None) -> RoofStructure:
     """Roof planes, faces and ridge lines of one building.
 
     Parameters
@@ -346,6 +346,12 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     mean_spacing : float, optional
         Mean point spacing ``s`` (m); default ``sqrt(hull area / N)``.
     building_id : int
+    covering : ndarray of shape (N,), bool, optional
+        The points that hide a point under them from the roof faces (a
+        face answers for the top surface: :func:`rooftrace.roof.faces.fit_faces`);
+        default all.  The pipeline gives the points the detection calls
+        building, so that the crown of a tree a footprint took in does not
+        hide the roof under it.
 
     Returns
     -------
@@ -368,6 +374,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if not np.isfinite(xyz).all():
         raise ValueError("xyz holds NaN or infinite coordinates")
     n = len(xyz)
+    if covering is not None and np.shape(covering) != (n,):
+        raise ValueError(f"covering must have shape ({n},), got {np.shape(covering)}")
     if n < max(10, opt.k_neighbours):
         return _empty(building_id, n, "too_few_points")
     try:
@@ -452,7 +460,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
         polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
         # the faces left over points of another level (a sliver merged into a small neighbour, a messy corner)
-        polys, pids = fit_faces(polys, pids, xyz, labels, fit.planes, spacing=s, rise=opt.step_height)
+        polys, pids = fit_faces(polys, pids, xyz, labels, fit.planes, spacing=s, rise=opt.step_height,
+                                covering=covering)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
