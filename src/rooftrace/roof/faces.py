@@ -1247,6 +1247,17 @@ class _FaceFit:
         near = np.abs(r) <= self.rise
         return int(near.sum()), -float(np.sum(r[near] ** 2))
 
+    def unfit(self) -> np.ndarray:
+        """The live faces whose plane fits fewer than half of their points, or that have none, smallest first."""
+        live = np.flatnonzero(self.alive)
+        sizes = np.array([len(self.members[i]) for i in live], dtype=np.int64)
+        at = np.concatenate([self.members[i] for i in live]) if len(live) else np.zeros(0, np.int64)
+        of = np.repeat(live, sizes)
+        near = np.abs(self.P[at, 2] - plane_height(self.planes[self.pids[of]], self.P[at, :2])) <= self.rise
+        fits = np.bincount(of, weights=near, minlength=len(self.faces))[live]
+        out = live[(2 * fits < sizes) | (sizes == 0)]
+        return out[np.argsort(shapely.area(self.faces[out]), kind="stable")]
+
     def neighbours(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """The live faces sharing an edge with face ``i``, and the shared length (m)."""
         b = self.box
@@ -1335,7 +1346,10 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     [False, False, True]
     """
     fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, covering)
-    return np.array([fit.better_plane(i)[0] >= 0 for i in range(len(fit.faces))], dtype=bool)
+    out = np.zeros(len(fit.faces), dtype=bool)
+    for i in fit.unfit():
+        out[i] = fit.better_plane(i)[0] >= 0
+    return out
 
 
 def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
@@ -1409,7 +1423,7 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
         return list(polys), list(plane_ids)
     for _ in range(3):
         changed = False
-        for i in np.argsort(shapely.area(fit.faces), kind="stable"):
+        for i in fit.unfit():
             if not fit.alive[i]:
                 continue
             best, nb, shared = fit.better_plane(i)
