@@ -162,9 +162,9 @@ def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, options: RoofOptions,
-                     mean_spacing: float, reporter: Reporter, covering: np.ndarray | None = None) -> list:
-    """The roof structure of every outlined building; ``covering`` (bool per cloud point): the points that may
-    hide a point under them from the roof faces (default all)."""
+                     mean_spacing: float, reporter: Reporter, detected: np.ndarray | None = None) -> list:
+    """The roof structure of every outlined building; ``detected`` (bool per cloud point): the points the
+    detection calls building (default all; ``roof_structure(detected=)``)."""
     from rooftrace.roof import roof_structure
 
     structures = []
@@ -179,7 +179,7 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
             try:
                 structures.append(roof_structure(cloud.xyz[idx], outline.polygon, options,
                                                  mean_spacing=mean_spacing, building_id=outline.building_id,
-                                                 covering=None if covering is None else covering[idx]))
+                                                 detected=None if detected is None else detected[idx]))
             except GeometryError as exc:
                 log.debug("building %d: no roof planes (%s)", outline.building_id, exc)
             except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
@@ -440,10 +440,10 @@ def run_pipeline(
     if options.planes and outlines:
         clock.start()
         # with footprints a building also holds points the detection left unclassified (a tree's crown over a
-        # roof among them): only the detection's building points hide a point under them from the roof faces
-        covering = None if assignment is None else detection.classification == ASPRS.BUILDING
+        # roof among them): the detection's building points decide what the roof faces fit
+        detected = None if assignment is None else detection.classification == ASPRS.BUILDING
         structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter,
-                                      covering)
+                                      detected)
         clock.stop("roof_planes")
 
     clock.start()

@@ -519,7 +519,7 @@ def test_a_face_over_another_levels_points_goes_to_that_level():
     assert not faces_off_their_points(faces, ids, covered, np.r_[labels, -1], planes, spacing=0.5)[3]
     # ... unless that point may not hide it (a tree's crown a footprint took in)
     by = np.r_[np.ones(len(xyz), bool), False]
-    assert faces_off_their_points(faces, ids, covered, np.r_[labels, -1], planes, spacing=0.5, covering=by)[3]
+    assert faces_off_their_points(faces, ids, covered, np.r_[labels, -1], planes, spacing=0.5, detected=by)[3]
 
 
 @pytest.mark.parametrize("model", [models.terraced(angle=17), models.flat_annex(stair_house=True, angle=11),
@@ -563,3 +563,25 @@ def test_every_face_fits_the_points_under_it(model):
         for f, k in zip(polys, out):
             after[shapely.contains_xy(f, xyz[:, 0], xyz[:, 1])] = k
         assert np.array_equal(before, after)
+
+
+def test_the_detected_points_decide_what_a_small_face_fits():
+    """A roof at 3 m under a tree's crown at 9 m, both planes: a small face of the crown over three crown
+    points and two roof points goes to the roof when only the roof's points are the detection's building
+    points (a footprint took the crown in), stays the crown's when all are; the crown's main face stays."""
+    from rooftrace.roof.faces import faces_off_their_points, fit_faces
+
+    planes = np.array([[0.0, 0.0, 1.0, -3.0], [0.0, 0.0, 1.0, -9.0]])
+    small = shapely.box(4, 0, 5, 1)
+    faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4) - small, small]
+    xyz = np.array([[1.0, 1.0, 3.0], [2.0, 3.0, 3.0],  # the roof
+                    [6.0, 2.0, 9.0], [7.0, 3.0, 9.0], [6.0, 3.5, 9.0], [5.5, 2.5, 9.0], [7.0, 1.0, 3.0],  # crown, roof
+                    [4.2, 0.2, 9.0], [4.8, 0.8, 9.0], [4.5, 0.2, 9.0], [4.2, 0.8, 3.0], [4.8, 0.5, 3.0]])
+    labels = np.array([0, 0, 1, 1, 1, 1, 0, 1, 1, 1, 0, 0])
+    detected = labels == 0
+    ids = [0, 1, 1]
+    assert not faces_off_their_points(faces, ids, xyz, labels, planes, spacing=0.1).any()
+    assert faces_off_their_points(faces, ids, xyz, labels, planes, spacing=0.1, detected=detected).tolist() == \
+        [False, False, True]
+    polys, out = fit_faces(faces, ids, xyz, labels, planes, spacing=0.1, detected=detected)
+    assert out == [0, 1] and polys[0].equals(shapely.box(0, 0, 4, 4).union(small))

@@ -64,19 +64,25 @@ def test_ign_pitched_roof_without_outline():
     assert found >= 1
 
 
+def _bgt_building(index: int):
+    """The AHN3 class-6 points of the first Delft tile within BGT feature ``index`` grown by 0.5 m, and that outline."""
+    from rooftrace.io.points import read_points
+    from rooftrace.io.vector import read_layer
+
+    pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
+    b = pc.xyz[pc.fields["classification"] == 6]
+    outline = shapely.force_2d(read_layer(need(DELFT / "bgt_pand.geojson")).geometries[index]).buffer(0.5, join_style="mitre")
+    return b[shapely.contains_xy(outline, b[:, 0], b[:, 1])], outline
+
+
 def test_delft_step_edges_hold_their_levels_points(monkeypatch):
     """Delft BGT feature 80 (roof levels in steps): every labelled point with a face of its own plane within
     the point spacing lies under a face of its plane or of one within 0.1 m of it; without the claim of
     ``roof.faces.claim_points`` the raster and the sliver merging leave a dozen of them under another level."""
     import rooftrace.roof.structure as structure
-    from rooftrace.io.points import read_points
-    from rooftrace.io.vector import read_layer
     from rooftrace.roof.faces import points_off_their_faces
 
-    pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
-    b = pc.xyz[pc.fields["classification"] == 6]
-    outline = shapely.force_2d(read_layer(need(DELFT / "bgt_pand.geojson")).geometries[80]).buffer(0.5, join_style="mitre")
-    xyz = b[shapely.contains_xy(outline, b[:, 0], b[:, 1])]
+    xyz, outline = _bgt_building(80)
 
     def breaks():
         roof = roof_structure(xyz, outline, building_id=80)
@@ -124,16 +130,11 @@ def test_delft_faces_fit_the_points_under_them(monkeypatch):
     ``roof.faces.fit_faces`` a few small faces lie metres off the points under them.  The step merges faces
     (never adds one) and the top points' RMSE to the faces does not grow."""
     import rooftrace.roof.structure as structure
-    from rooftrace.io.points import read_points
-    from rooftrace.io.vector import read_layer
     from rooftrace.roof.faces import faces_off_their_points
     from rooftrace.roof.planes import plane_height
     from tests.roof.test_structure import _top
 
-    pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
-    b = pc.xyz[pc.fields["classification"] == 6]
-    outline = shapely.force_2d(read_layer(need(DELFT / "bgt_pand.geojson")).geometries[126]).buffer(0.5, join_style="mitre")
-    xyz = b[shapely.contains_xy(outline, b[:, 0], b[:, 1])]
+    xyz, outline = _bgt_building(126)
 
     def faces():
         roof = roof_structure(xyz, outline, building_id=126)

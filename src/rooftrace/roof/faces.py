@@ -1210,52 +1210,71 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     return lines, pairs
 
 
-def _answered_points(xyz: np.ndarray, spacing: float, rise: float, covering: np.ndarray | None) -> np.ndarray:
+def _answered_points(xyz: np.ndarray, spacing: float, rise: float, detected: np.ndarray | None) -> np.ndarray:
     """Indices of the points a roof face answers for: those no point within ``spacing`` (plan) stands ``rise`` over.
 
     The LoD 2.2 roof is the top surface: a point with a point of the
-    building (of ``covering``, default all) standing more than ``rise`` over
+    building (of ``detected``, default all) standing more than ``rise`` over
     it within the spacing (a wall or a lower roof's edge under the eaves, a
     floor under a canopy) is under something, labelled or not.
     """
     allp = np.arange(len(xyz))
-    return allp[open_to_sky(xyz, allp, spacing, rise, by=covering)] if len(allp) else allp
+    return allp[open_to_sky(xyz, allp, spacing, rise, by=detected)] if len(allp) else allp
 
 
 class _FaceFit:
-    """A roof's faces with the answered points under each, their neighbours, and the planes that fit them."""
+    """A roof's faces with the answered points under each, their neighbours, and the planes that fit them.
+
+    A face is judged by the detection's building points under it when it
+    has any (the others break ties), unless it is its plane's main face
+    (holding most of its plane's answered points), judged by all.
+    """
 
     def __init__(self, polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, spacing: float,
-                 rise: float, covering: np.ndarray | None = None):
+                 rise: float, detected: np.ndarray | None = None):
         self.faces = np.array(list(polys), dtype=object)
         self.pids = np.asarray(list(plane_ids), dtype=np.int64).copy()
         self.planes, self.rise = planes, rise
-        pts = _answered_points(xyz, spacing, rise, covering) if len(self.faces) else np.zeros(0, np.int64)
+        pts = _answered_points(xyz, spacing, rise, detected) if len(self.faces) else np.zeros(0, np.int64)
         self.P, self.lab = xyz[pts], np.asarray(labels)[pts]
+        self.detected = np.ones(len(pts), dtype=bool) if detected is None else np.asarray(detected, dtype=bool)[pts]
         at, of = _points_in(self.faces, self.P[:, :2]) if len(pts) else (np.zeros(0, np.int64),) * 2
         # a point on a shared edge is under both faces
         order = np.argsort(of, kind="stable")
         self.members = np.split(at[order], np.searchsorted(of[order], np.arange(1, len(self.faces))))
         self.alive = np.ones(len(self.faces), dtype=bool)
+        per_plane = np.bincount(self.lab[self.lab >= 0], minlength=len(planes))
+        own = np.array([np.count_nonzero(self.lab[m] == k) for m, k in zip(self.members, self.pids)], dtype=np.int64)
+        self.main = 2 * own > per_plane[self.pids]
         self.box = shapely.bounds(self.faces)
         self.edges = shapely.boundary(self.faces)
 
-    def fitted(self, i: int, plane: int) -> tuple[int, float]:
-        """How many of face ``i``'s points ``plane`` lies within ``rise`` of, and minus their squared residuals."""
+    def _decisive(self, i: int, m: np.ndarray) -> np.ndarray:
+        """Which of the points ``m`` under face ``i`` decide its fit (all, for a main face or with no detected one)."""
+        sure = self.detected[m] | self.main[i]
+        return sure if sure.any() else np.ones(len(m), dtype=bool)
+
+    def fitted(self, i: int, plane: int) -> tuple[int, int, float]:
+        """How many of face ``i``'s deciding points and of all its points ``plane`` lies within ``rise`` of, and
+        minus the squared residuals of the latter."""
         m = self.members[i]
         r = self.P[m, 2] - plane_height(self.planes[plane], self.P[m, :2])
         near = np.abs(r) <= self.rise
-        return int(near.sum()), -float(np.sum(r[near] ** 2))
+        return int(np.count_nonzero(near & self._decisive(i, m))), int(near.sum()), -float(np.sum(r[near] ** 2))
 
     def unfit(self) -> np.ndarray:
-        """The live faces whose plane fits fewer than half of their points, or that have none, smallest first."""
+        """The live faces whose plane fits fewer than half of their deciding points, or that have none, smallest first."""
         live = np.flatnonzero(self.alive)
         sizes = np.array([len(self.members[i]) for i in live], dtype=np.int64)
         at = np.concatenate([self.members[i] for i in live]) if len(live) else np.zeros(0, np.int64)
         of = np.repeat(live, sizes)
         near = np.abs(self.P[at, 2] - plane_height(self.planes[self.pids[of]], self.P[at, :2])) <= self.rise
-        fits = np.bincount(of, weights=near, minlength=len(self.faces))[live]
-        out = live[(2 * fits < sizes) | (sizes == 0)]
+        sure = self.detected[at] | self.main[of]
+        n_sure = np.bincount(of, weights=sure, minlength=len(self.faces))[live]
+        fit_sure = np.bincount(of, weights=near & sure, minlength=len(self.faces))[live]
+        fit_all = np.bincount(of, weights=near, minlength=len(self.faces))[live]
+        off = np.where(n_sure > 0, 2 * fit_sure < n_sure, 2 * fit_all < sizes)
+        out = live[off | (sizes == 0)]
         return out[np.argsort(shapely.area(self.faces[out]), kind="stable")]
 
     def neighbours(self, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1271,11 +1290,12 @@ class _FaceFit:
 
     def better_plane(self, i: int) -> tuple[int, np.ndarray, np.ndarray]:
         """The plane fitting face ``i``'s points best among its neighbours' and its labelled points' own planes,
-        when the face's plane fits fewer than half of them and that one fits more; else -1.  With the neighbours."""
+        when the face's plane fits fewer than half of its deciding points and that one fits more of them (or as
+        many and more of all); else -1.  With the neighbours."""
         nb, shared = self.neighbours(i)
         m = self.members[i]
         now = self.fitted(i, self.pids[i])
-        if not len(m) or 2 * now[0] >= len(m):
+        if not len(m) or 2 * now[0] >= np.count_nonzero(self._decisive(i, m)):
             return -1, nb, shared
         own = self.lab[m]
         cand = np.unique(np.concatenate([self.pids[nb], own[own >= 0]]))
@@ -1284,7 +1304,7 @@ class _FaceFit:
             s = self.fitted(i, int(c))
             if s > score:
                 best, score = int(c), s
-        return (best if score[0] > now[0] else -1), nb, shared
+        return (best if score[:2] > now[:2] else -1), nb, shared
 
     def merge(self, i: int, j: int) -> bool:
         """Face ``i`` joined to face ``j``, when that makes one polygon with no new hole (also on the centimetre grid)."""
@@ -1301,7 +1321,7 @@ class _FaceFit:
 
 
 def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-                           spacing: float, rise: float = 0.5, covering: np.ndarray | None = None) -> np.ndarray:
+                           spacing: float, rise: float = 0.5, detected: np.ndarray | None = None) -> np.ndarray:
     """The faces whose plane fits fewer than half of the points under them while a plane at hand fits more.
 
     The faces' promise to the points under them: of the points a face
@@ -1310,7 +1330,9 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     labelled or not), its plane lies within ``rise`` of at least half,
     unless no plane at hand (a neighbouring face's, sharing an edge, or the
     own plane of a labelled one of those points) lies within ``rise`` of
-    more.  :func:`fit_faces` keeps it.
+    more.  With ``detected``, "half" and "more" count the detection's
+    building points under the face when it holds any, but on a plane's
+    main face.  :func:`fit_faces` keeps it.
 
     Parameters
     ----------
@@ -1324,11 +1346,14 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
         Plane per point, ``-1`` on none.
     planes : ndarray of shape (K, 4)
     spacing : float
-        Mean point spacing ``s`` (m): the plan radius within which a higher point covers a point on no plane.
+        Mean point spacing ``s`` (m): the plan radius within which a higher point covers another.
     rise : float
         Height (m) within which a plane fits a point (the roof's ``step_height``).
-    covering : ndarray of shape (N,), bool, optional
-        The points that may stand over another; default all.
+    detected : ndarray of shape (N,), bool, optional
+        The points the detection calls building (default all): only they
+        hide a point under them, and where a face holds any they decide its
+        fit (the others break ties), but on its plane's main face (the one
+        holding most of its plane's answered points).
 
     Returns
     -------
@@ -1345,7 +1370,7 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
     >>> faces_off_their_points(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5).tolist()
     [False, False, True]
     """
-    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, covering)
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, detected)
     out = np.zeros(len(fit.faces), dtype=bool)
     for i in fit.unfit():
         out[i] = fit.better_plane(i)[0] >= 0
@@ -1353,7 +1378,7 @@ def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray
 
 
 def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
-              spacing: float, rise: float = 0.5, covering: np.ndarray | None = None) -> tuple[list, list]:
+              spacing: float, rise: float = 0.5, detected: np.ndarray | None = None) -> tuple[list, list]:
     """Faces whose plane fits the points under them: each face that fits fewer than half of them given away.
 
     The raster, the sliver merging and the claim of the step edges work on
@@ -1367,7 +1392,8 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
     :func:`faces_off_their_points`) takes the plane that fits most of them,
     within ``rise`` (ties: the smaller sum of squared residuals), among the
     planes of the faces sharing an edge with it and the own planes of its
-    labelled points; it is merged into the neighbour
+    labelled points (with ``detected``, the detection's building points
+    under it count first: :func:`faces_off_their_points`); it is merged into the neighbour
     of that plane sharing most edge, or, with none (or when the union would
     not be one polygon without a new hole, also on the centimetre grid),
     keeps its outline under the new plane.  A face under which no point is
@@ -1397,9 +1423,9 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
         Mean point spacing ``s`` (m).
     rise : float
         Height (m) within which a plane fits a point (the roof's ``step_height``).
-    covering : ndarray of shape (N,), bool, optional
-        The points that may stand over another (hide it from the faces);
-        default all.
+    detected : ndarray of shape (N,), bool, optional
+        The points the detection calls building, as in
+        :func:`faces_off_their_points`; default all.
 
     Returns
     -------
@@ -1418,7 +1444,7 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
     >>> ids, [p.area for p in polys]
     ([0, 1], [16.0, 16.0])
     """
-    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, covering)
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, detected)
     if len(fit.faces) < 2:
         return list(polys), list(plane_ids)
     for _ in range(3):

@@ -332,7 +332,7 @@ def _empty(building_id, n, status, spacing=float("nan"), outline=None) -> RoofSt
 
 
 def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mean_spacing: float | None = None,
-                   building_id: int = 0, covering: np.ndarray | None = None) -> RoofStructure:
+                   building_id: int = 0, detected: np.ndarray | None = None) -> RoofStructure:
     """Roof planes, faces and ridge lines of one building.
 
     Parameters
@@ -346,12 +346,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     mean_spacing : float, optional
         Mean point spacing ``s`` (m); default ``sqrt(hull area / N)``.
     building_id : int
-    covering : ndarray of shape (N,), bool, optional
-        The points that hide a point under them from the roof faces (a
-        face answers for the top surface: :func:`rooftrace.roof.faces.fit_faces`);
-        default all.  The pipeline gives the points the detection calls
-        building, so that the crown of a tree a footprint took in does not
-        hide the roof under it.
+    detected : ndarray of shape (N,), bool, optional
+        The points the detection calls building (default all); with
+        footprints a building also holds points it left unclassified.  Only
+        the detected points hide a point under them from the roof faces,
+        and they decide a face's fit first
+        (:func:`rooftrace.roof.faces.fit_faces`): the crown of a tree a
+        footprint took in does not take the roof under it.
 
     Returns
     -------
@@ -374,8 +375,8 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     if not np.isfinite(xyz).all():
         raise ValueError("xyz holds NaN or infinite coordinates")
     n = len(xyz)
-    if covering is not None and np.shape(covering) != (n,):
-        raise ValueError(f"covering must have shape ({n},), got {np.shape(covering)}")
+    if detected is not None and np.shape(detected) != (n,):
+        raise ValueError(f"detected must have shape ({n},), got {np.shape(detected)}")
     if n < max(10, opt.k_neighbours):
         return _empty(building_id, n, "too_few_points")
     try:
@@ -461,7 +462,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=s, width=cell)
         # the faces left over points of another level (a sliver merged into a small neighbour, a messy corner)
         polys, pids = fit_faces(polys, pids, xyz, labels, fit.planes, spacing=s, rise=opt.step_height,
-                                covering=covering)
+                                detected=detected)
         polys = merge_close_vertices(polys, outline2d, MIN_FACE_EDGE)
     except (GeometryError, shapely.errors.GEOSException, ValueError) as exc:
         log.warning("building %s: no roof faces (%s)", building_id, exc)
