@@ -1,5 +1,7 @@
 """Roof structure on real clouds (skipped when ../shared/data is absent)."""
 
+import functools
+
 import numpy as np
 import pytest
 import shapely
@@ -64,14 +66,20 @@ def test_ign_pitched_roof_without_outline():
     assert found >= 1
 
 
-def _bgt_building(index: int):
-    """The AHN3 class-6 points of the first Delft tile within BGT feature ``index`` grown by 0.5 m, and that outline."""
+@functools.lru_cache(maxsize=1)
+def _delft_class6():
+    """The AHN3 class-6 points of the first Delft tile and the BGT footprints (read once for the tests here)."""
     from rooftrace.io.points import read_points
     from rooftrace.io.vector import read_layer
 
     pc = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:28992")
-    b = pc.xyz[pc.fields["classification"] == 6]
-    outline = shapely.force_2d(read_layer(need(DELFT / "bgt_pand.geojson")).geometries[index]).buffer(0.5, join_style="mitre")
+    return pc.xyz[pc.fields["classification"] == 6], read_layer(need(DELFT / "bgt_pand.geojson")).geometries
+
+
+def _bgt_building(index: int):
+    """The AHN3 class-6 points of the first Delft tile within BGT feature ``index`` grown by 0.5 m, and that outline."""
+    b, footprints = _delft_class6()
+    outline = shapely.force_2d(footprints[index]).buffer(0.5, join_style="mitre")
     return b[shapely.contains_xy(outline, b[:, 0], b[:, 1])], outline
 
 
