@@ -1410,22 +1410,8 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
 
     Parameters
     ----------
-    polys : list of shapely Polygon
-        Faces tiling the outline (2D).
-    plane_ids : list of int
-        Plane of each face.
-    xyz : ndarray of shape (N, 3)
-        The building's points (m).
-    labels : ndarray of shape (N,), int
-        Plane per point, ``-1`` on none.
-    planes : ndarray of shape (K, 4)
-    spacing : float
-        Mean point spacing ``s`` (m).
-    rise : float
-        Height (m) within which a plane fits a point (the roof's ``step_height``).
-    detected : ndarray of shape (N,), bool, optional
-        The points the detection calls building, as in
-        :func:`faces_off_their_points`; default all.
+    polys, plane_ids, xyz, labels, planes, spacing, rise, detected
+        As in :func:`faces_off_their_points` (``polys`` 2D, tiling the outline).
 
     Returns
     -------
@@ -1437,11 +1423,11 @@ def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray,
     --------
     >>> import shapely
     >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
-    >>> notch = shapely.box(3.5, 1.5, 4, 2.5)  # a sliver of the lower level over a point of the upper one
-    >>> faces = [shapely.box(0, 0, 4, 4) - notch, shapely.box(4, 0, 8, 4), notch]
-    >>> xyz = np.array([[2.0, 2.0, 8.0], [6.0, 2.0, 5.0], [3.8, 2.0, 8.0]])
-    >>> polys, ids = fit_faces(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5)
-    >>> ids, [p.area for p in polys]
+    >>> notch, empty = shapely.box(3.5, 1.5, 4, 2.5), shapely.box(7.5, 0, 8, 0.5)
+    >>> faces = [shapely.box(0, 0, 4, 4) - notch, notch, shapely.box(4, 0, 8, 4) - empty, empty]
+    >>> xyz = np.array([[2.0, 2.0, 8.0], [3.8, 2.0, 8.0], [6.0, 2.0, 5.0]])  # an upper point under the notch
+    >>> polys, ids = fit_faces(faces, [0, 1, 1, 0], xyz, np.array([0, 0, 1]), planes, spacing=0.5)
+    >>> ids, [p.area for p in polys]  # the notch to the upper face, the face over no point to the lower one
     ([0, 1], [16.0, 16.0])
     """
     fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, detected)
