@@ -32,6 +32,25 @@ def need(path: Path) -> Path:
     return path
 
 
+def delft_around(footprint_id, margin: float):
+    """The west AHN3 Delft tile around one BGT footprint: the footprints within ``margin`` metres of its box,
+    the points within 5 m of theirs, and the footprint's index among them (``(cloud, footprints, index)``)."""
+    import shapely
+
+    from rooftrace.footprints import Footprints
+    from rooftrace.io.footprints import read_footprints
+    from rooftrace.io.points import read_points
+
+    cloud = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:7415")
+    fps = read_footprints(need(DELFT / "bgt_pand.sqlite"), cloud.crs)
+    box = shapely.box(*fps.polygons[fps.ids.index(footprint_id)].bounds).buffer(margin)
+    keep = [i for i, p in enumerate(fps.polygons) if p.intersects(box)]
+    near = Footprints(tuple(fps.polygons[i] for i in keep), tuple(fps.ids[i] for i in keep), fps.id_field)
+    x0, y0, x1, y1 = shapely.total_bounds(np.asarray(near.polygons, dtype=object)) + [-5, -5, 5, 5]
+    cloud = cloud.subset((cloud.x >= x0) & (cloud.x <= x1) & (cloud.y >= y0) & (cloud.y <= y1))
+    return cloud, near, near.ids.index(footprint_id)
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)

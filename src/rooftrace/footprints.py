@@ -12,12 +12,21 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 * the points inside it that the detection left unclassified and that stand
   ``min_height`` above the ground (chimneys, parapets, roof clutter too rough
   or too small for its roof test), when it has building points, and
-* the unclassified points inside it or in its band, ``min_height / 2`` above
-  the ground, that touch its building's points (within ``2.5 s`` in 3D, or
-  of one that joined so, three links deep): clutter along the eaves, a
-  chimney's top, a shed roof under ``min_height``.  They are roof points but
-  not outline points (:attr:`FootprintAssignment.touching`): traced with
-  them, an outline reached out over lower roofs beyond the building.
+* the other non-building points inside it or in its band, ``min_height / 2``
+  above the ground, that touch its building's points (within ``2.5 s`` in
+  3D, or of one that joined so, three links deep): clutter along the eaves,
+  a chimney's top, a shed roof under ``min_height``, a roof under a tree's
+  edge or a lower roof part the detection called vegetation.  They are roof
+  points but not outline points (:attr:`FootprintAssignment.touching`):
+  traced with them, an outline reached out over lower roofs beyond the
+  building.
+
+Neither of the last two takes a tree's points (:func:`tree_points`: the
+detection's vegetation, or points amid vegetation or amid returns that went
+on through, whose neighbourhood is no plane).  So every non-ground point over an
+``"ok"`` footprint is either in its building or left out for a reason of
+:data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
+tree's, or detached from the building's points.
 
 A detected building spanning several footprints (a terraced row) is thereby
 split along the footprints: a point inside footprint A goes to A, a point in
@@ -45,7 +54,8 @@ from scipy.spatial import cKDTree
 from rooftrace.cloud import ASPRS
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
-           "footprint_attributes", "touching_points", "STATUSES"]
+           "footprint_attributes", "touching_points", "planar_spread", "tree_points",
+           "STATUSES", "LEFT_OUT"]
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +66,23 @@ STATUSES = {
     "no_building_points": "the cloud covers the footprint but no building was detected on it: no model",
     "no_points": "no point of the cloud over the footprint: no model",
 }
+
+#: why a non-ground point over an ``ok`` footprint is not in its building (:attr:`FootprintAssignment.left_out`)
+LEFT_OUT = {
+    "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
+    "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
+            "non-ground points vegetation or returns that went on through, and those 10 points no plane within "
+            "planar_vegetation",
+    "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
+                "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
+    "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
+}
+
+#: nearest building points a candidate of :func:`touching_points` looks among for its own building's
+TOUCH_NEIGHBOURS = 8
+
+#: neighbours whose plane fit decides whether a point is on a roof or in a crown (``planar_vegetation``)
+PLANAR_NEIGHBOURS = 10
 
 
 @dataclass(frozen=True)
@@ -118,6 +145,17 @@ class FootprintOptions:
         ``min_height`` above the ground, that touch the building's points
         (within 2.5 point spacings in 3D): judged by the building's own
         points, not by a class.
+    planar_vegetation : float, default 0.05
+        With ``unclassified``, the tree test (:func:`tree_points`): a point
+        the detection called vegetation, or one amid vegetation or amid
+        returns that went on through (half or more of its 10 nearest
+        non-ground points), is a tree's unless those 10 points fit a plane
+        within this RMS (m).  A tree's point never joins; any other non-building
+        point over an ``"ok"`` footprint or in its band may (vegetation then
+        joins like unclassified points that touch the building: a roof
+        under a tree's edge, a lower roof part the detection's eigen-entropy
+        test called vegetation).  0: the detection's vegetation is the
+        trees, and nothing else is (the rule before the test).
     """
 
     section = "footprints"
@@ -126,6 +164,7 @@ class FootprintOptions:
     min_points: int | None = None
     min_height: float = 2.0
     unclassified: bool = True
+    planar_vegetation: float = 0.05
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -134,6 +173,8 @@ class FootprintOptions:
             raise ValueError(f"footprints.min_points must be >= 1, got {self.min_points!r}")
         if not np.isfinite(self.min_height) or self.min_height < 0:
             raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
+        if not np.isfinite(self.planar_vegetation) or self.planar_vegetation < 0:
+            raise ValueError(f"footprints.planar_vegetation must be >= 0 metres, got {self.planar_vegetation!r}")
 
 
 
@@ -164,6 +205,10 @@ class FootprintAssignment:
         Indices of the points that joined a building by touching its points
         (``unclassified``): roof points, but not for the outline, which they
         would pull out over what lies beyond the building's own points.
+    left_out : dict of str to ndarray of int
+        Per reason of :data:`LEFT_OUT`, the indices of the non-ground,
+        non-noise points inside an ``"ok"`` footprint that are not in its
+        building (sorted); every such point is in exactly one list.
     """
 
     building_id: np.ndarray
@@ -175,6 +220,7 @@ class FootprintAssignment:
     fallback: list[np.ndarray] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
     touching: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    left_out: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _containing(polygons: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -236,6 +282,7 @@ def assign_footprints(
     *,
     hag: np.ndarray | None = None,
     density: float | None = None,
+    through: np.ndarray | None = None,
 ) -> FootprintAssignment:
     """Give every footprint its building points (roof above it plus the overhang band).
 
@@ -255,6 +302,11 @@ def assign_footprints(
         are taken.
     density : float, optional
         d_avg (pts/m²), for the derived ``min_points``.
+    through : ndarray of shape (N,), bool, optional
+        Per point, whether its pulse had a later return
+        (``return_number < number_of_returns``): with it a crown the
+        detection left unclassified is told from roof clutter
+        (:func:`tree_points`).
 
     Returns
     -------
@@ -285,8 +337,8 @@ def assign_footprints(
     n, f = len(xyz), len(footprints)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"assign_footprints: xyz must have shape (N, 3), got {xyz.shape}")
-    if len(classification) != n or len(detected_id) != n or (hag is not None and len(hag) != n):
-        raise ValueError("assign_footprints: classification, detected_id and hag need one value per point")
+    if len(classification) != n or len(detected_id) != n or any(a is not None and len(a) != n for a in (hag, through)):
+        raise ValueError("assign_footprints: classification, detected_id, hag and through need one value per point")
     min_points = options.min_points
     if min_points is None:
         min_points = max(3, int(np.ceil(4.0 * density))) if density and np.isfinite(density) else 10
@@ -368,31 +420,182 @@ def assign_footprints(
                           f"{options.min_height:g} m above the ground")
             fallback.append(np.zeros(0, np.int64))
             building_id[own] = 0
+    ok = np.array([s == "ok" for s in status] + [False])  # index -1: in no footprint
+    trees = np.zeros(0, np.int64)
+    spacing = 1.0 / np.sqrt(density) if density and np.isfinite(density) and density > 0 else 0.5
     if high is not None and options.unclassified:
-        ok = np.array([s == "ok" for s in status] + [False])  # index -1: in no footprint
-        extra = np.flatnonzero(high & (classification == ASPRS.UNCLASSIFIED) & ok[all_owner])
-        building_id[extra] = (all_owner[extra] + 1).astype(np.int32)
-        # unclassified points touching an ok footprint building's own points, in the footprint or its band (a
-        # chimney of a few points, clutter along the eaves, a shed roof under min_height): roof points, not outline
-        rough = (classification == ASPRS.UNCLASSIFIED) & (building_id == 0) & (hag >= options.min_height / 2)
-        cand = np.flatnonzero(rough)
-        where = all_owner[cand]
-        out = where < 0
-        if out.any() and options.overhang > 0:
-            p, f_ = tree.query_nearest(shapely.points(xyz[cand[out], :2]), max_distance=options.overhang,
-                                       all_matches=True)
-            where[out] = _first_per_point(p, f_, int(out.sum()))
-        keep = (where >= 0) & ok[where]
-        spacing = 1.0 / np.sqrt(density) if density and np.isfinite(density) and density > 0 else 0.5
-        joined, to = touching_points(xyz, cand[keep], building_id, 2.5 * spacing, owner=where[keep] + 1)
+        # the points the detection called neither building, ground nor noise, over an ok footprint or in its band
+        other = np.flatnonzero(np.isin(classification, (ASPRS.UNCLASSIFIED, ASPRS.HIGH_VEGETATION))
+                               & (hag >= options.min_height / 2))
+        where = _near_ok_footprint(other, xyz, all_owner, ok, polygons, tree, options.overhang)
+        other, where = other[where >= 0], where[where >= 0]
+        tree_like = tree_points(xyz, other, classification, options.planar_vegetation, through=through)
+        trees = other[tree_like]
+        # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
+        standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
+            & (hag[other] >= options.min_height)
+        building_id[other[standing]] = (where[standing] + 1).astype(np.int32)
+        # the rest joins when it touches the building's own points, in the footprint or its band (a chimney of a
+        # few points, clutter along the eaves, a shed roof under min_height, a roof the detection called
+        # vegetation): roof points, not outline points
+        rest = ~tree_like & ~standing
+        joined, to = touching_points(xyz, other[rest], building_id, 2.5 * spacing, owner=where[rest] + 1)
         building_id[joined] = to.astype(np.int32)
         touching = np.sort(joined)
+    left_out = _left_out(classification, building_id, all_owner, ok, hag, options, trees)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
-                                       "min_height": options.min_height, "unclassified": options.unclassified},
-                               touching=touching)
+                                       "min_height": options.min_height, "unclassified": options.unclassified,
+                                       "planar_vegetation": options.planar_vegetation},
+                               touching=touching, left_out=left_out)
+
+
+def _near_ok_footprint(points: np.ndarray, xyz: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
+                       polygons: np.ndarray, tree: shapely.STRtree, overhang: float) -> np.ndarray:
+    """Per point, the ``"ok"`` footprint it lies in, or else the nearest footprint within ``overhang`` (m) if ok; -1.
+
+    ``ok`` has one more entry than there are footprints (False: index -1).
+    """
+    where = all_owner[points].copy()
+    out = np.flatnonzero(where < 0)
+    if len(out) and overhang > 0:
+        # only points in some ok footprint's band are worth a distance: the bands circumscribe the true
+        # ones (quad_segs 4 chords lie inside a circle), the distance then decides
+        bands = shapely.buffer(polygons[ok[:-1]], overhang / np.cos(np.pi / 16), quad_segs=4)
+        shapely.prepare(bands)
+        out = out[np.unique(_containing(bands, xyz[points[out], :2])[0])]
+    if len(out):
+        p, f_ = tree.query_nearest(shapely.points(xyz[points[out], :2]), max_distance=overhang, all_matches=True)
+        where[out] = _first_per_point(p, f_, len(out))
+    where[~ok[where]] = -1
+    return where
+
+
+def planar_spread(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
+    """RMS distance (m) of each point's ``k`` nearest neighbours (3D) to their best-fitting plane.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    points : ndarray of int
+        Indices of the points to test.
+    among : ndarray of shape (N,), bool
+        The points that count as neighbours (a tested point is one of its
+        own neighbours when it is among them).
+    k : int
+        Neighbours per point.
+
+    Returns
+    -------
+    ndarray of shape (len(points),), float64
+        The square root of the smallest eigenvalue of the neighbours'
+        covariance: a roof's noise (centimetres) on a roof, decimetres in a
+        crown.  ``inf`` where fewer than 3 neighbours exist.
+    """
+    return _neighbourhood(xyz, points, among, k)[0]
+
+
+def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`planar_spread` and the indices (into ``xyz``) of the ``k`` neighbours, shape (len(points), k)."""
+    points = np.asarray(points, dtype=np.int64)
+    pool = np.flatnonzero(among)
+    none = (np.full(len(points), np.inf), np.zeros((len(points), 0), np.int64))
+    if len(points) == 0 or len(pool) < 3:
+        return none
+    # only the pool near the tested points is worth a tree (most of a cloud is far from them): the
+    # 4 m cells around theirs hold every neighbour within 4 m, farther ones say nothing of a roof plane
+    cell = 4.0
+    lo = xyz[points, :2].min(axis=0) - 2 * cell
+    mine = np.floor((xyz[points, :2] - lo) / cell).astype(np.int64)
+    ny = int(mine[:, 1].max()) + 3
+    step = np.array([-1, 0, 1])
+    keys = np.unique((mine[:, 0, None, None] + step[:, None]) * ny + (mine[:, 1, None, None] + step[None, :]))
+    theirs = np.floor((xyz[pool, :2] - lo) / cell).astype(np.int64)
+    inside = (theirs >= 0).all(axis=1) & (theirs[:, 1] < ny)
+    pool = pool[inside][np.isin(theirs[inside, 0] * ny + theirs[inside, 1], keys)]
+    if len(pool) < 3:
+        return none
+    k = min(k, len(pool))
+    _, j = cKDTree(xyz[pool]).query(xyz[points], k=k)
+    j = pool[j.reshape(len(points), k)]
+    nb = xyz[j] - xyz[j].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", nb, nb) / k
+    return np.sqrt(np.clip(np.linalg.eigvalsh(cov)[:, 0], 0.0, None)), j
+
+
+def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray, planar: float, *,
+                through: np.ndarray | None = None, k: int = PLANAR_NEIGHBOURS) -> np.ndarray:
+    """Which of ``points`` are a tree's: vegetation, or amid vegetation or porous returns; and not on a plane.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    points : ndarray of int
+        Indices of the points to judge.
+    classification : ndarray of shape (N,), uint8
+        ASPRS classes of the detection (5 vegetation, 2 ground, 7 noise).
+    planar : float
+        RMS (m) of a plane fit through the ``k`` nearest non-ground,
+        non-noise points (:func:`planar_spread`) within which they are a
+        roof, whatever else is said of them; 0: the vegetation points are a
+        tree's and no other.
+    through : ndarray of shape (N,), bool, optional
+        Per point, whether its pulse had a later return (return number
+        under the number of returns): the pulse went on through a crown
+        (or past an edge).  None when the cloud has no return numbers.
+    k : int
+        Neighbours.
+
+    Returns
+    -------
+    ndarray of shape (len(points),), bool
+        True for a tree's point: the detection called it vegetation, or
+        half or more of its ``k`` nearest non-ground points are vegetation
+        or returns that went on through; and neither those points nor its
+        ``k`` nearest non-ground points the detection did not call
+        building fit a plane within ``planar``.
+        A roof under a tree's edge or a lower roof part the eigen-entropy
+        test called vegetation lies on a plane; a chimney's top amid the
+        roof's single returns is none; a crown, even where the detection
+        left it unclassified, is porous and rough.
+    """
+    points = np.asarray(points, dtype=np.int64)
+    leafy = classification[points] == ASPRS.HIGH_VEGETATION
+    if planar <= 0 or len(points) == 0:
+        return leafy
+    solid = ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE))
+    spread, nb = _neighbourhood(xyz, points, solid, k)
+    if nb.shape[1] == 0:
+        return leafy
+    # a lower roof part's edge mixes its points with the roof's above it: its plane shows without them
+    spread = np.minimum(spread, planar_spread(xyz, points, solid & (classification != ASPRS.BUILDING), k))
+    amid = np.mean(classification[nb] == ASPRS.HIGH_VEGETATION, axis=1) >= 0.5
+    if through is not None:
+        amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
+    return (leafy | amid) & ~(spread <= planar)
+
+
+def _left_out(classification: np.ndarray, building_id: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
+              hag: np.ndarray | None, options: FootprintOptions, trees: np.ndarray) -> dict[str, np.ndarray]:
+    """The non-ground, non-noise points inside an ``"ok"`` footprint not in its building, by reason of :data:`LEFT_OUT`.
+
+    The reasons follow the rules of :func:`assign_footprints`: a building
+    point inside a footprint always joins it; without heights or with
+    ``unclassified`` off nothing else does; then near the ground; a tree's
+    (``trees``, by :func:`tree_points`); any other that did not join was not
+    linked to the building.
+    """
+    over = np.flatnonzero(ok[all_owner] & ~np.isin(classification, (ASPRS.GROUND, ASPRS.NOISE)))
+    out = over[building_id[over] != all_owner[over] + 1]
+    if hag is None or not options.unclassified:
+        return {"not_building": out}
+    low = hag[out] < options.min_height / 2
+    tree_like = ~low & np.isin(out, trees)
+    return {"low": out[low], "tree": out[tree_like], "detached": out[~low & ~tree_like]}
 
 
 def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.ndarray, link: float, *,
@@ -402,7 +605,9 @@ def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.nda
     A candidate touches a building when its nearest point of a building
     (``building_id > 0``) lies within ``link`` (m, 3D), or its nearest
     candidate that joined in the round before does (``rounds`` rounds: a
-    chain of clutter reaches from the roof).
+    chain of clutter reaches from the roof).  With ``owner``, the nearest
+    point of that building among the ``TOUCH_NEIGHBOURS`` nearest counts,
+    though another building's be nearer.
 
     Parameters
     ----------
@@ -432,10 +637,20 @@ def touching_points(xyz: np.ndarray, candidates: np.ndarray, building_id: np.nda
     for _ in range(rounds):
         if not len(candidates) or not len(members):
             break
-        d, j = cKDTree(xyz[members]).query(xyz[candidates], distance_upper_bound=link)
-        hit = np.isfinite(d)
-        if owner is not None:
-            hit[hit] = ids[j[hit]] == owner[hit]
+        if owner is None:
+            d, j = cKDTree(xyz[members]).query(xyz[candidates], distance_upper_bound=link)
+            hit = np.isfinite(d)
+            j = np.where(hit, j, 0)
+        else:
+            # the nearest point of the candidate's own building within the link, though another's be nearer
+            # (a neighbour's roof edge beside a footprint's band)
+            k = min(TOUCH_NEIGHBOURS, len(members))
+            d, jj = cKDTree(xyz[members]).query(xyz[candidates], k=k, distance_upper_bound=link)
+            d, jj = d.reshape(len(candidates), k), jj.reshape(len(candidates), k)
+            mine = np.isfinite(d)
+            mine[mine] = ids[jj[mine]] == np.broadcast_to(owner[:, None], jj.shape)[mine]
+            hit = mine.any(axis=1)
+            j = jj[np.arange(len(candidates)), np.argmax(mine, axis=1)]
         if not hit.any():
             break
         joined.append(candidates[hit])

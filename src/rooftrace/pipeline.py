@@ -152,6 +152,14 @@ class _Clock:
         self.cpu[step] = time.process_time() - self._c0
 
 
+def _went_through(cloud: PointCloud) -> np.ndarray | None:
+    """Per point, whether its pulse had a later return (None without return numbers): the footprints' tree test."""
+    rn, nr = cloud.fields.get("return_number"), cloud.fields.get("number_of_returns")
+    if rn is None or nr is None:
+        return None
+    return np.asarray(rn) < np.asarray(nr)
+
+
 def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
     """Indices of the points of each building (ids > 0), without a Python loop over points."""
     building_id = np.asarray(building_id)
@@ -415,8 +423,8 @@ def run_pipeline(
         clock.start()
         with reporter.stage("footprints"):
             assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
-                                           options.footprints, hag=detection.hag,
-                                           density=detection.density)
+                                           options.footprints, hag=detection.hag, density=detection.density,
+                                           through=_went_through(cloud))
         building_id = assignment.building_id
         clock.stop("footprints")
     if buildings is not None:

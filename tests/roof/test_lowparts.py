@@ -97,25 +97,18 @@ def test_a_delft_roof_has_no_face_over_a_lower_region_of_its_points():
     points (without the low blocks two regions of 78 and 4 points open to the sky, a metre under the roof); with
     them no region of 4 or more of the building's points open to the sky lies more than ``step_height`` under its
     LoD 2.2 roof."""
-    from rooftrace.footprints import Footprints
-    from rooftrace.io.footprints import read_footprints
-    from rooftrace.io.points import read_points
     from rooftrace.model.measure import roof_height_at
     from rooftrace.pipeline import points_by_building, run_pipeline
-    from tests.conftest import DELFT, need
+    from tests.conftest import delft_around
 
-    cloud = read_points([need(DELFT / "ahn3_cropped_1.laz")], crs="EPSG:7415")
-    fps = read_footprints(need(DELFT / "bgt_pand.sqlite"), cloud.crs)
-    target = fps.ids.index(503100000022786)
-    box = shapely.box(*fps.polygons[target].bounds).buffer(3.0)
-    keep = [i for i, p in enumerate(fps.polygons) if p.intersects(box)]
-    fps = Footprints(tuple(fps.polygons[i] for i in keep), tuple(fps.ids[i] for i in keep), fps.id_field)
-    x0, y0, x1, y1 = shapely.total_bounds(np.asarray(fps.polygons, dtype=object)) + [-5, -5, 5, 5]
-    cloud = cloud.subset((cloud.x >= x0) & (cloud.x <= x1) & (cloud.y >= y0) & (cloud.y <= y1))
-    bid = keep.index(target) + 1
+    cloud, fps, target = delft_around(503100000022786, 3.0)
+    bid = target + 1
     found = {}
     for blocks in (False, True):
-        result = run_pipeline(cloud, config={"planes": {"low_blocks": blocks}}, footprints=fps)
+        # the footprints' tree test leaves out 12 of its points (2-return pulses at 4 m) and the faces then fit
+        # the lower roof without the low blocks too: the check without them runs with the rule before that test
+        config = {"planes": {"low_blocks": blocks}, "footprints": {} if blocks else {"planar_vegetation": 0.0}}
+        result = run_pipeline(cloud, config=config, footprints=fps)
         xyz = cloud.xyz[points_by_building(result.building_id)[bid]]
         model = next(m for m in result.models if m.building_id == bid)
         z = roof_height_at([p.lods["2.2"] for p in model.parts], xyz[:, :2])
