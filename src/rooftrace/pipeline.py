@@ -18,7 +18,7 @@ import numpy as np
 import shapely
 from threadpoolctl import threadpool_limits
 
-from rooftrace.cloud import ASPRS, PointCloud
+from rooftrace.cloud import PointCloud
 from rooftrace.config import RunOptions
 from rooftrace.errors import GeometryError
 from rooftrace.footprints import FootprintAssignment, Footprints
@@ -170,9 +170,7 @@ def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
 
 
 def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines: list, options: RoofOptions,
-                     mean_spacing: float, reporter: Reporter, detected: np.ndarray | None = None) -> list:
-    """The roof structure of every outlined building; ``detected`` (bool per cloud point): the points the
-    detection calls building (default all; ``roof_structure(detected=)``)."""
+                     mean_spacing: float, reporter: Reporter) -> list:
     from rooftrace.roof import roof_structure
 
     structures = []
@@ -186,8 +184,7 @@ def _roof_structures(cloud: PointCloud, members: dict[int, np.ndarray], outlines
                 continue
             try:
                 structures.append(roof_structure(cloud.xyz[idx], outline.polygon, options,
-                                                 mean_spacing=mean_spacing, building_id=outline.building_id,
-                                                 detected=None if detected is None else detected[idx]))
+                                                 mean_spacing=mean_spacing, building_id=outline.building_id))
             except GeometryError as exc:
                 log.debug("building %d: no roof planes (%s)", outline.building_id, exc)
             except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
@@ -447,11 +444,7 @@ def run_pipeline(
     structures: list = []
     if options.planes and outlines:
         clock.start()
-        # with footprints a building also holds points the detection left unclassified (a tree's crown over a
-        # roof among them): the detection's building points decide what the roof faces fit
-        detected = None if assignment is None else detection.classification == ASPRS.BUILDING
-        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter,
-                                      detected)
+        structures = _roof_structures(cloud, members, outlines, options.roof, detection.mean_spacing, reporter)
         clock.stop("roof_planes")
 
     clock.start()

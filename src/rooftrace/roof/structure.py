@@ -347,12 +347,13 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
         Mean point spacing ``s`` (m); default ``sqrt(hull area / N)``.
     building_id : int
     detected : ndarray of shape (N,), bool, optional
-        The points the detection calls building (default all); with
-        footprints a building also holds points it left unclassified.  Only
-        the detected points hide a point under them from the roof faces,
-        and they decide a face's fit first
-        (:func:`rooftrace.roof.faces.fit_faces`): the crown of a tree a
-        footprint took in does not take the roof under it.
+        The points the detection calls building (default all), when the
+        building also holds others (points a footprint took in): only the
+        detected points hide a point under them from the roof faces, and
+        they decide a face's fit first
+        (:func:`rooftrace.roof.faces.fit_faces`).  The pipeline does not
+        give it: with the footprints' tree test no crown joins a building,
+        and it measured 0.198 against 0.196 m without (docs/design-notes.md).
 
     Returns
     -------
