@@ -98,13 +98,13 @@ def test_two_vertices_closer_than_validators_snap_are_one_vertex():
 
 
 def test_a_roof_surface_whose_triangles_tilt_is_written_as_its_triangles():
-    from rooftrace.model.solid import _split_tilted
+    from rooftrace.model.solid import split_tilted
     from rooftrace.model.validity import surface_tilt
 
     # grid units (mm): a 10 x 8 m roof at 6 m with a vertex 1 cm beside a corner, 4 mm too high
     ring = [(0, 0, 6000), (10000, 0, 6000), (10000, 8000, 6000), (10, 8000, 6004), (0, 8000, 6000)]
     flat = [[(0, 0, 6000), (5000, 0, 6000), (5000, 4000, 6000)]]
-    out = _split_tilted([[ring], flat], 10.0)
+    out = split_tilted([[ring], flat], 10.0)
     assert out[-1] == flat and len(out) == 1 + 3  # the pentagon's three triangles, the flat one kept
     tris = [np.asarray(r[0], float) for r in out[:-1]]
     assert shapely.union_all([shapely.Polygon(t[:, :2]) for t in tris]).area == pytest.approx(

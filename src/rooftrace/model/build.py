@@ -11,7 +11,9 @@ planes and faces, the roof points) and the ground height, and returns a
   where their shared edges do not jump more than ``level_step``, each level
   at the ``roof_percentile`` of its points;
 - **LoD 2.2**: the roof faces on their planes, walls under every step
-  between faces and around the footprint, down to the ground.
+  between faces and around the footprint, down to the ground; a box under
+  each superstructure top point the faces leave more than ``box_rise``
+  under them (:func:`rooftrace.model.superstructures.with_boxes`).
 
 Every solid comes from :func:`rooftrace.model.solid.prism_solid` and is
 checked by :func:`rooftrace.model.validity.solid_errors`; a level that
@@ -40,6 +42,7 @@ import shapely
 from rooftrace.errors import GeometryError
 from rooftrace.graph import components
 from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
+from rooftrace.model.superstructures import with_boxes
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
 from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
 
@@ -77,6 +80,10 @@ class ModelOptions:
         validity check (val3dity's default).
     validate : bool
         Check every solid and leave out the invalid ones (with a reason).
+    box_rise : float
+        LoD 2.2: a top point of a superstructure (``RoofStructure.top_points``)
+        standing more than this (m) above the roof faces gets a box of the
+        point spacing's side (:func:`rooftrace.model.superstructures.with_boxes`).
     """
 
     section = "model"
@@ -89,12 +96,13 @@ class ModelOptions:
     z_tolerance: float = 0.01
     planarity: float = 0.01
     validate: bool = True
+    box_rise: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("roof_percentile", "ground_percentile"):
             if not 0 <= getattr(self, name) <= 100:
                 raise ValueError(f"{name} must be in [0, 100], got {getattr(self, name)}")
-        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity"):
+        for name in ("level_step", "grid", "snap", "z_tolerance", "planarity", "box_rise"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0 m, got {getattr(self, name)}")
         if self.snap < self.grid or abs(self.snap / self.grid - round(self.snap / self.grid)) > 1e-6:
@@ -280,8 +288,12 @@ def _inside(poly, xyz: np.ndarray) -> np.ndarray:
 
 
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
-          options: ModelOptions, lods: tuple[str, ...] = LODS) -> tuple[PartModel, dict[str, str]]:
-    """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing."""
+          options: ModelOptions, lods: tuple[str, ...] = LODS, tops: tuple | None = None,
+          ) -> tuple[PartModel, dict[str, str]]:
+    """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing.
+
+    ``tops``: the superstructures' top points and the side of their boxes (m), for LoD 2.2.
+    """
     part = PartModel(part_id, footprint)
     why: dict[str, str] = {}
     shapely.prepare(footprint)
@@ -322,12 +334,28 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
             why["1.3"] = str(exc)
     if "2.2" in lods:
         try:
-            part.lods["2.2"] = _checked(prism_solid(cells, ground, **kw), options)
+            part.lods["2.2"] = _checked_with_boxes(prism_solid(cells, ground, **kw), tops, xyz, options)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
     _volumes(part)
     return part, why
+
+
+def _checked_with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions) -> Solid:
+    """``solid`` with boxes under the top points it leaves more than ``box_rise`` under it, checked.
+
+    The boxed solid is checked (once: the boxes change no other surface); should it fail, the solid without them is.
+    """
+    if tops is not None and len(tops[0]):
+        boxed, _ = with_boxes(solid, tops[0], tops[1], others=xyz, rise=options.box_rise, grid=options.grid,
+                              snap=options.snap)
+        if boxed is not solid:
+            try:
+                return _checked(boxed, options)
+            except GeometryError as exc:
+                log.warning("boxes left out (%s)", exc)
+    return _checked(solid, options)
 
 
 #: the prefix of a ``status_reason`` entry whose level was built flat: the roof of LoD 1.3
@@ -355,7 +383,7 @@ def _volumes(part: PartModel) -> None:
 
 
 def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
-                       options: ModelOptions, rounds: int = 3) -> None:
+                       options: ModelOptions, rounds: int = 3, tops: tuple | None = None) -> None:
     """Rebuild the solids of parts that overlap a neighbour, their party wall bent as the neighbour's.
 
     Cut from one arrangement, two parts start with the same party wall; but
@@ -403,7 +431,7 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
                 ref = shapely.multipoints(np.vstack(points))
                 fp, cells = bases[j]
                 bases[j] = (shapely.snap(fp, ref, tol), [(shapely.snap(c, ref, tol), plane) for c, plane in cells])
-                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,))
+                again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,), tops)
                 if lod in again.lods:
                     parts[j].lods[lod] = again.lods[lod]
                     parts[j].attributes[f"volume_lod{lod.replace('.', '')}"] = again.attributes[
@@ -463,10 +491,12 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     cells = _above_ground(_roof_cells(roof), float(ground))
     roof_status = getattr(roof, "status", "no roof structure") if roof is not None else "no roof structure"
     cut = _cut(footprints, cells, opt.snap)
+    top_points = getattr(roof, "top_points", None)
+    tops = (top_points, float(roof.spacing)) if top_points is not None and len(top_points) else None
     whys = []
     plain = None
     for k, (fp, part_cells) in enumerate(cut, start=1):
-        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt)
+        part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, tops=tops)
         if "1.3" in why or "2.2" in why:
             # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
             # outline): the part's solids without the superstructures, when that gives more levels or a planar
@@ -477,7 +507,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
             if len(plain) == len(cut) and plain[k - 1][1]:
                 try:
                     again, why_again = _part(k, plain[k - 1][0], plain[k - 1][1], xyz, float(ground), roof_status,
-                                             opt)
+                                             opt, tops=tops)
                 except _FAILURES:
                     again = None
                 if again is not None and (len(again.lods), -len(why_again)) > (len(part.lods), -len(why)):
@@ -487,7 +517,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         model.parts.append(part)
         whys.append(why)
     if len(model.parts) > 1:
-        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt)
+        _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt, tops=tops)
     reasons: list[str] = []
     for k, why in enumerate(whys, start=1):
         for lod, reason in sorted(why.items()):

@@ -59,7 +59,7 @@ from rooftrace.errors import GeometryError
 from rooftrace.model.types import Solid, Surface
 from rooftrace.model.validity import surface_tilt, surface_triangles
 
-__all__ = ["prism_solid", "horizontal_plane", "party_walls"]
+__all__ = ["prism_solid", "horizontal_plane", "party_walls", "split_tilted"]
 
 
 def horizontal_plane(height: float) -> np.ndarray:
@@ -305,7 +305,7 @@ class _Rings:
         return out
 
 
-def _split_tilted(roofs: list[list], max_tilt: float) -> list[list]:
+def split_tilted(roofs: list[list], max_tilt: float) -> list[list]:
     """Roof surfaces, each one whose triangles tilt apart more than ``max_tilt`` degrees cut into them.
 
     A roof vertex is on its plane only to the grid (and to ``z_tolerance``
@@ -830,7 +830,7 @@ def _prism(cells: list, ground_height: float, footprint, grid: float, snap: floa
     ground = [np.column_stack([xy[np.asarray(r[::-1], dtype=np.int64)], np.full(len(r), g, dtype=np.int64)])
               for r in ground_rings]
 
-    roofs = _split_tilted(roofs, max_tilt)
+    roofs = split_tilted(roofs, max_tilt)
     surfaces = [(r, "RoofSurface") for r in roofs] + [(r, "WallSurface") for r in walls] + [(ground, "GroundSurface")]
     # every vertex of the shell converted in one call (the roofs' are arrays already), then cut into rings
     rings = [r for rs, _ in surfaces for r in rs]

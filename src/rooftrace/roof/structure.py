@@ -44,7 +44,7 @@ from rooftrace.roof.lowparts import low_blocks
 from rooftrace.roof.planes import estimate_spacing, fit_planes, level_untilted
 from rooftrace.roof.ridges import intersection_lines
 from rooftrace.roof.segmentation import detail_planes, point_neighbourhoods, segment_planes
-from rooftrace.roof.superstructures import block_planes
+from rooftrace.roof.superstructures import superstructures
 
 __all__ = ["RoofOptions", "RoofStructure", "roof_structure", "point_hull"]
 
@@ -96,6 +96,17 @@ class RoofOptions:
         lines.  A lone return (a bird, a wire, a multipath echo, or a vent
         pipe) is no block at the default 2.  0 or ``None`` turns it off (and the
         low blocks).
+    box_height : float
+        With ``min_block_points``: a point on no plane with no point within
+        the spacing standing ``step_height`` higher (a top point: a vent
+        pipe, a chimney or a roof light of one or two returns, a coping the
+        faces put under a lower level) standing at most this high (m) above
+        the roof plane under it (higher, a bird or a wire), and every flat
+        block's point, is one of ``RoofStructure.top_points``; where the
+        LoD 2.2 roof faces leave one more than ``[model] box_rise`` under
+        it, the model builds a box of the spacing's side under it, with no
+        face of the partition (:func:`rooftrace.model.superstructures.with_boxes`).
+        0 turns the boxes off.
     low_blocks : bool
         With ``min_block_points``, the mirror of the flat blocks for what
         lies *under* the roof (:func:`rooftrace.roof.lowparts.low_blocks`):
@@ -162,6 +173,7 @@ class RoofOptions:
     min_area: float = 2.0
     min_detail_area: float | None = 0.5
     min_block_points: int | None = 2
+    box_height: float = 10.0
     low_blocks: bool = True
     merge_angle: float = 5.0
     iterations: int = 4
@@ -189,7 +201,7 @@ class RoofOptions:
         for name in ("ridge_max_slope", "max_slope"):
             if not 0 <= getattr(self, name) < 90:
                 raise ValueError(f"{name} must be in [0, 90) degrees, got {getattr(self, name)}")
-        for name in ("min_area", "min_ridge_length", "step_height"):
+        for name in ("min_area", "min_ridge_length", "step_height", "box_height"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.face_boundaries not in ("each", "held", "free"):
@@ -245,6 +257,10 @@ class RoofStructure:
         The plan outline the faces tile.
     spacing : float
         Mean point spacing used (m).
+    top_points : ndarray of shape (M, 3), float64
+        The top points of what stands on the roof (the flat blocks' points
+        and top points on no plane, :func:`rooftrace.roof.superstructures.superstructures`):
+        the model puts a box under those its faces leave far under them.
     status : str
         ``ok``, or why the structure is empty or partial (``too_few_points``,
         ``degenerate``, ``no_planes``; with planes but no lines or faces:
@@ -266,6 +282,7 @@ class RoofStructure:
     ridge_planes: list = field(default_factory=list)
     outline: object = None
     spacing: float = float("nan")
+    top_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     status: str = "ok"
 
     @property
@@ -418,11 +435,12 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     detail = np.arange(len(fit.planes)) >= n_main
     if detail.any():
         fit = level_untilted(xyz, labels, fit, detail)
-    blocks = None
+    blocks, tops = None, np.zeros(0, dtype=np.int64)
     if opt.min_block_points:
         n_planes = len(fit.planes)
-        labels, fit = block_planes(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
-                                   link=opt.adjacency_radius or link)
+        found = superstructures(xyz, labels, fit, s, min_points=opt.min_block_points, rise=opt.step_height,
+                                link=opt.adjacency_radius or link, box_height=opt.box_height)
+        labels, fit, tops = found.labels, found.fit, found.tops
         n_blocks = len(fit.planes)
         if opt.low_blocks:
             # (at their own fewest points, 4: the low blocks were measured so)
@@ -434,7 +452,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
     roof = RoofStructure(
         building_id=building_id, planes=fit.planes, plane_sigma=fit.sigma, plane_cov=fit.cov,
         plane_centre=fit.centre, plane_n=fit.n, labels=labels, outline=outline2d, spacing=s,
-        plane_detail=detail,
+        plane_detail=detail, top_points=xyz[tops],
     )
     radius = opt.adjacency_radius or link
     line_tol = opt.line_tolerance or link

@@ -16,10 +16,16 @@ least-squares horizontal) when its points support it against the roof
 under them (:func:`block_supported`).  The face partition gives each block
 the plan region its points own (their nearest-point cells), kept whatever
 its area (``partition_outline(kept_planes=...)``), with walls down to the
-roof in the model: a box, however few its points.
+roof in the model: a box, however few its points.  A top point no block
+holds (a vent pipe of one return) or whose block's face the partition lost
+is named as one of the roof's top points; the model builds a box under it
+when its faces leave it far under the roof, without a face of its own
+(:func:`rooftrace.model.superstructures.with_boxes`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -27,12 +33,44 @@ from scipy.spatial import cKDTree
 from rooftrace.graph import components
 from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plane_height, with_horizontal_planes
 
-__all__ = ["block_planes", "block_supported"]
+__all__ = ["block_planes", "block_supported", "superstructures", "Superstructures"]
+
+
+@dataclass
+class Superstructures:
+    """What :func:`superstructures` finds on a roof.
+
+    Attributes
+    ----------
+    labels : ndarray of shape (N,), int64
+        Plane per point, the blocks numbered after the roof planes.
+    fit : PlaneFit
+        The planes with the blocks appended.
+    tops : ndarray of shape (M,), int64
+        The top points of what stands on the roof, sorted: the points of
+        the blocks, and the points on no plane with none standing ``rise``
+        higher within the spacing, at most ``box_height`` above the roof.
+        The model puts a box under any of them the roof faces leave more
+        than ``rise`` under it (:func:`rooftrace.model.superstructures.with_boxes`).
+    """
+
+    labels: np.ndarray
+    fit: PlaneFit
+    tops: np.ndarray
 
 
 def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
                  rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
                  k: int = 8, max_dz: float = 0.1):
+    """The labels and planes of :func:`superstructures` (its blocks; no lone points)."""
+    found = superstructures(xyz, labels, fit, spacing, min_points=min_points, rise=rise, link=link,
+                            min_density=min_density, stray_points=stray_points, k=k, max_dz=max_dz)
+    return found.labels, found.fit
+
+
+def superstructures(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: float, *, min_points: int = 2,
+                    rise: float = 0.5, link: float | None = None, min_density: float = 0.25, stray_points: int = 4,
+                    k: int = 8, max_dz: float = 0.1, box_height: float = 0.0) -> Superstructures:
     """Horizontal planes for the layers of the clusters of points on no plane that stand above the roof.
 
     First the points a plane holds apart from the rest of it (groups of
@@ -47,7 +85,11 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     higher, is in a block whose height
     is within ``rise`` of its own, unless its layer has fewer than
     ``min_points`` points, is scattered (``min_density``), or is not
-    supported against the roof (:func:`block_supported`).
+    supported against the roof (:func:`block_supported`).  With
+    ``box_height``, every point on no plane with no point within
+    ``spacing`` standing ``rise`` higher (a top point) is one of ``tops``
+    unless it stands more than ``box_height`` above the roof plane under it
+    (a bird, a wire), and so is every block's point.
 
     Parameters
     ----------
@@ -79,16 +121,18 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
         plane of its ``k`` nearest labelled points is left to the face
         partition, which puts it with that plane
         (``partition_outline(rise=...)``, same ``k`` and ``max_dz``).
+    box_height : float
+        Highest a top point on no plane may stand above the roof plane
+        under it (m) to be one of ``tops``; 0: no ``tops`` at all.
 
     Returns
     -------
-    labels : ndarray of shape (N,), int64
-        With the blocks numbered after the planes of ``fit``, the stray
-        points of a plane ``-1`` unless in a block.
-    fit : PlaneFit
-        ``fit`` with the blocks appended (``p = q = 0``, ``r`` the mean
-        height, ``sigma`` with ``n - 1`` degrees of freedom and only
-        ``var(r) = sigma² / n``).
+    Superstructures
+        ``labels`` with the blocks numbered after the planes of ``fit``, the
+        stray points of a plane ``-1`` unless in a block; ``fit`` with the
+        blocks appended (``p = q = 0``, ``r`` the mean height, ``sigma``
+        with ``n - 1`` degrees of freedom and only ``var(r) = sigma² / n``);
+        ``tops`` the blocks' points and the top points on no plane.
 
     Examples
     --------
@@ -102,14 +146,18 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     >>> lab2, fit2 = block_planes(xyz, lab, fit_planes(xyz, lab), 0.3, min_points=1)
     >>> lab2[-5:].tolist(), fit2.planes[1:].round(2).tolist()
     ([1, 1, 1, 1, 2], [[0.0, 0.0, 1.0, -6.2], [0.0, 0.0, 1.0, -5.9]])
+    >>> found = superstructures(xyz, lab, fit_planes(xyz, lab), 0.3, box_height=3.0)
+    >>> found.labels[-5:].tolist(), (found.tops - len(xyz) + 5).tolist()
+    ([1, 1, 1, 1, -1], [0, 1, 2, 3, 4])
     """
     xyz = np.asarray(xyz, dtype=np.float64)
     labels = np.asarray(labels, dtype=np.int64)
     link = link or 2.5 * spacing
     labels = _stray_points_released(xyz, labels, link, stray_points)
+    none = np.zeros(0, dtype=np.int64)
     un, on = np.flatnonzero(labels < 0), np.flatnonzero(labels >= 0)
-    if len(un) < max(min_points, 1) or not len(on):
-        return labels, fit
+    if len(un) < (1 if box_height > 0 else max(min_points, 1)) or not len(on):
+        return Superstructures(labels, fit, none)
     # the roof under a leftover point: the plane of its nearest labelled point, as the face partition will put it;
     # one standing at most ``rise`` above (``max_dz`` under) a plane of its ``k`` nearest labelled points is that
     # plane's in the face partition (``faces._attached``: a coping, a gutter), not a block's
@@ -119,19 +167,36 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
     over = xyz[un, 2:3] - plane_height(fit.planes[cand_planes], xyz[un, None, :2])
     roof, above = cand_planes[:, 0], over[:, 0]
     high = (above > rise) & ~((over >= -max_dz) & (over <= rise)).any(axis=1)
-    if high.any():
-        # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
-        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[high], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
+    # a point with another standing ``rise`` higher beside it is a side or a wall, not a top surface
+    test = np.ones(len(un), dtype=bool) if box_height > 0 else high
+    surface = np.zeros(len(un), dtype=bool)
+    if test.any():
+        _, idx = cKDTree(xyz[:, :2]).query(xyz[un[test], :2], k=int(min(9, len(xyz))), distance_upper_bound=spacing)
         z = np.r_[xyz[:, 2], -np.inf][idx]
-        high[high] = ~(z > xyz[un[high], 2:3] + rise).any(axis=1)
+        surface[test] = ~(z > xyz[un[test], 2:3] + rise).any(axis=1)
+    high &= surface
     cand = np.flatnonzero(high)
-    if len(cand) < max(min_points, 1):
-        return labels, fit
-    comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
-    order = np.argsort(comp, kind="stable")
-    starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
     blocks = []
-    for cluster in np.split(cand[order], starts[1:]):
+    if len(cand) >= max(min_points, 1):
+        comp = components(len(cand), cKDTree(xyz[un[cand]]).query_pairs(link, output_type="ndarray"))
+        order = np.argsort(comp, kind="stable")
+        starts = np.flatnonzero(np.r_[True, np.diff(comp[order]) != 0])
+        blocks = _layers_as_blocks(xyz, un, np.split(cand[order], starts[1:]), above, fit.sigma[roof], spacing,
+                                   min_points, rise, min_density)
+    # the top points: the blocks', and those on no plane that stand at most ``box_height`` above the roof (a
+    # higher lone return is a bird or a wire); the model boxes any of them its faces leave far under them
+    tops = np.unique(np.concatenate([*blocks, un[surface & (above <= box_height)]])) if box_height > 0 else none
+    if blocks:
+        labels, fit = with_horizontal_planes(xyz, labels, fit, blocks)
+    return Superstructures(labels, fit, tops.astype(np.int64))
+
+
+def _layers_as_blocks(xyz: np.ndarray, un: np.ndarray, clusters: list, above: np.ndarray, sigma: np.ndarray,
+                      spacing: float, min_points: int, rise: float, min_density: float) -> list[np.ndarray]:
+    """The points (indices into ``xyz``) of each block: the layers of ``clusters`` (indices into ``un``) that
+    have ``min_points``, are dense and supported (:func:`superstructures`)."""
+    blocks = []
+    for cluster in clusters:
         # cut from the top, a layer of ``rise`` at a time: a sloping coping, a gable's top in steps
         while len(cluster) >= max(min_points, 1):
             z = xyz[un[cluster], 2]
@@ -143,11 +208,9 @@ def block_planes(xyz: np.ndarray, labels: np.ndarray, fit: PlaneFit, spacing: fl
             # Qhull finds no hull for a chain of points (a parapet's coping seen by one scan line): area 0
             dense = n < 3 or hull_area_test(pts, plan_hull_area(pts), lambda a, n=n: n >= min_density * a / spacing**2,
                                             True)
-            if dense and block_supported(above[layer], pts[:, 2], fit.sigma[roof[layer]]):
+            if dense and block_supported(above[layer], pts[:, 2], sigma[layer]):
                 blocks.append(un[layer])
-    if not blocks:
-        return labels, fit
-    return with_horizontal_planes(xyz, labels, fit, blocks)
+    return blocks
 
 
 def block_supported(above: np.ndarray, z: np.ndarray, sigma: np.ndarray) -> bool:
