@@ -492,3 +492,103 @@ def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkey
     if model.name == "terraced":  # without the claim, a party-wall step leaves points under the other roof
         monkeypatch.setattr(structure, "claim_points", lambda polys, ids, *a, **k: (polys, ids))
         assert breaks() > 0  # measured: 5 points (seed 2)
+
+
+def test_a_face_over_another_levels_points_goes_to_that_level():
+    """Upper level 8 m, lower level 5 m, a block at 11 m.  A sliver of the lower level over an upper point is
+    merged into the upper face around it; a face of the block over a lone lower point, with no face of the
+    lower level beside it, takes the lower plane; a face over no point joins the neighbour sharing most edge;
+    a point covered by a higher one counts for no face.  The faces still tile the outline."""
+    from rooftrace.roof.faces import faces_off_their_points, fit_faces
+
+    planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0], [0.0, 0.0, 1.0, -11.0]])
+    outline = shapely.box(0, 0, 12, 6)
+    sliver, block, empty = shapely.box(3.5, 1.5, 4, 2.5), shapely.box(1, 4, 2, 5), shapely.box(6, 0, 6.5, 0.4)
+    faces = [shapely.box(0, 0, 4, 6) - sliver - block, shapely.box(4, 0, 8, 6) - empty, sliver, block,
+             shapely.box(8, 0, 12, 6), empty]
+    ids = [0, 2, 1, 2, 1, 0]
+    xyz = np.array([[2.0, 2.0, 8.0], [3.8, 2.0, 8.0],  # the upper level, one point under the lower sliver
+                    [6.0, 3.0, 11.0],  # the block
+                    [1.5, 4.5, 5.0],  # a lower point under a face of the block
+                    [10.0, 3.0, 5.0], [10.1, 3.0, 1.0]])  # the lower level, and a point under it (a wall's foot)
+    labels = np.array([0, 0, 2, 1, 1, -1])
+    before = faces_off_their_points(faces, ids, xyz, labels, planes, spacing=0.5)
+    assert before.tolist() == [False, False, True, True, False, False]
+    polys, out = fit_faces(faces, ids, xyz, labels, planes, spacing=0.5)
+    assert not faces_off_their_points(polys, out, xyz, labels, planes, spacing=0.5).any()
+    assert out == [0, 2, 1, 1]  # the sliver and the empty face merged, the block's face now the lower plane's
+    assert polys[0].equals(shapely.box(0, 0, 4, 6) - block) and polys[1].equals(shapely.box(4, 0, 8, 6))
+    assert sum(p.area for p in polys) == pytest.approx(outline.area, rel=1e-12)
+    assert shapely.union_all(polys).area == pytest.approx(outline.area, rel=1e-12)
+    # the lower point counts for no face once a point stands over it (a branch, 0.3 m off in plan) ...
+    covered = np.vstack([xyz, [[2.2, 4.5, 11.0]]])
+    covered[3, 0] = 1.9
+    assert not faces_off_their_points(faces, ids, covered, np.r_[labels, -1], planes, spacing=0.5)[3]
+    # ... unless that point may not hide it (a tree's crown a footprint took in)
+    by = np.r_[np.ones(len(xyz), bool), False]
+    assert faces_off_their_points(faces, ids, covered, np.r_[labels, -1], planes, spacing=0.5, detected=by)[3]
+
+
+@pytest.mark.parametrize("model", [models.terraced(angle=17), models.flat_annex(stair_house=True, angle=11),
+                                   models.gable_dormer(), models.hip(), models.gable(chimney=True),
+                                   models.gable(vents=True)],
+                         ids=["terraced", "stair_house", "dormer", "hip", "chimney", "vents"])
+def test_every_face_fits_the_points_under_it(model):
+    """Simulated roofs (three seeds): every face's plane lies within the step height of at least half of
+    the top-surface points under it.  Carved in, small faces of another level over a few of a face's
+    points (as a sliver merged into a small neighbour leaves them) break it; the step gives them back, the
+    faces still tile the outline and the LoD 2.2 heights at the points are those of the roof before."""
+    from rooftrace.roof.faces import faces_off_their_points, fit_faces
+
+    for seed in (1, 2, 3):
+        xyz, _ = models.sample_roof(model, 10, 0.03, seed=seed)
+        roof = roof_structure(xyz, model.outline)
+        faces = [shapely.force_2d(f) for f in roof.faces]
+        assert not faces_off_their_points(faces, roof.face_plane, xyz, roof.labels, roof.planes,
+                                          spacing=roof.spacing).any()
+        # three squares of 0.3 m around points of the largest face, given to the plane farthest from them
+        rng = np.random.default_rng(seed)
+        big = int(np.argmax([f.area for f in faces]))
+        inside = np.flatnonzero(shapely.contains_xy(faces[big].buffer(-0.5), xyz[:, 0], xyz[:, 1]))
+        carved, ids = list(faces), list(roof.face_plane)
+        for p in rng.choice(inside, 3, replace=False):
+            sq = shapely.box(*(xyz[p, :2] - 0.15), *(xyz[p, :2] + 0.15))
+            far = int(np.argmax(np.abs(plane_height(roof.planes, xyz[p, :2][None])[0] - xyz[p, 2])))
+            carved[big] = carved[big] - sq
+            carved.append(sq)
+            ids.append(far)
+        off = faces_off_their_points(carved, ids, xyz, roof.labels, roof.planes, spacing=roof.spacing)
+        assert off[len(faces):].all()
+        polys, out = fit_faces(carved, ids, xyz, roof.labels, roof.planes, spacing=roof.spacing)
+        assert not faces_off_their_points(polys, out, xyz, roof.labels, roof.planes, spacing=roof.spacing).any()
+        assert len(polys) == len(faces)
+        assert shapely.union_all(polys).area == pytest.approx(model.outline.area, rel=1e-9)
+        # the faces are the roof's again: the same plane over every point
+        before, after = np.full(len(xyz), -1), np.full(len(xyz), -1)
+        for f, k in zip(faces, roof.face_plane):
+            before[shapely.contains_xy(f, xyz[:, 0], xyz[:, 1])] = k
+        for f, k in zip(polys, out):
+            after[shapely.contains_xy(f, xyz[:, 0], xyz[:, 1])] = k
+        assert np.array_equal(before, after)
+
+
+def test_the_detected_points_decide_what_a_small_face_fits():
+    """A roof at 3 m under a tree's crown at 9 m, both planes: a small face of the crown over three crown
+    points and two roof points goes to the roof when only the roof's points are the detection's building
+    points (a footprint took the crown in), stays the crown's when all are; the crown's main face stays."""
+    from rooftrace.roof.faces import faces_off_their_points, fit_faces
+
+    planes = np.array([[0.0, 0.0, 1.0, -3.0], [0.0, 0.0, 1.0, -9.0]])
+    small = shapely.box(4, 0, 5, 1)
+    faces = [shapely.box(0, 0, 4, 4), shapely.box(4, 0, 8, 4) - small, small]
+    xyz = np.array([[1.0, 1.0, 3.0], [2.0, 3.0, 3.0],  # the roof
+                    [6.0, 2.0, 9.0], [7.0, 3.0, 9.0], [6.0, 3.5, 9.0], [5.5, 2.5, 9.0], [7.0, 1.0, 3.0],  # crown, roof
+                    [4.2, 0.2, 9.0], [4.8, 0.8, 9.0], [4.5, 0.2, 9.0], [4.2, 0.8, 3.0], [4.8, 0.5, 3.0]])
+    labels = np.array([0, 0, 1, 1, 1, 1, 0, 1, 1, 1, 0, 0])
+    detected = labels == 0
+    ids = [0, 1, 1]
+    assert not faces_off_their_points(faces, ids, xyz, labels, planes, spacing=0.1).any()
+    assert faces_off_their_points(faces, ids, xyz, labels, planes, spacing=0.1, detected=detected).tolist() == \
+        [False, False, True]
+    polys, out = fit_faces(faces, ids, xyz, labels, planes, spacing=0.1, detected=detected)
+    assert out == [0, 1] and polys[0].equals(shapely.box(0, 0, 4, 4).union(small))

@@ -41,11 +41,12 @@ from shapely.geometry import LineString
 
 from rooftrace.graph import components
 from rooftrace.roof.face_kernels import cell_choice, cell_lines, nearest_points, points_in_boxes, simplify_arcs
+from rooftrace.roof.lowparts import open_to_sky
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["partition_outline", "snap_to_lines", "merge_close_vertices", "lift_to_plane", "step_edges",
            "points_off_their_faces", "points_on_their_faces", "claim_points", "hidden_under", "eaves",
-           "attached_points", "points_in_faces"]
+           "attached_points", "points_in_faces", "faces_off_their_points", "fit_faces"]
 
 log = logging.getLogger(__name__)
 
@@ -1325,3 +1326,246 @@ def step_edges(polys: list, plane_ids: list, planes: np.ndarray, *, step_height:
     if lines:
         lines = list(lift_to_plane(np.array(lines, dtype=object), planes[[up for up, _ in pairs]]))
     return lines, pairs
+
+
+def _answered_points(xyz: np.ndarray, spacing: float, rise: float, detected: np.ndarray | None) -> np.ndarray:
+    """Indices of the points a roof face answers for: those no point within ``spacing`` (plan) stands ``rise`` over.
+
+    The LoD 2.2 roof is the top surface: a point with a point of the
+    building (of ``detected``, default all) standing more than ``rise`` over
+    it within the spacing (a wall or a lower roof's edge under the eaves, a
+    floor under a canopy) is under something, labelled or not.
+    """
+    allp = np.arange(len(xyz))
+    return allp[open_to_sky(xyz, allp, spacing, rise, by=detected)] if len(allp) else allp
+
+
+class _FaceFit:
+    """A roof's faces with the answered points under each, their neighbours, and the planes that fit them.
+
+    A face is judged by the detection's building points under it when it
+    has any (the others break ties), unless it is its plane's main face
+    (holding most of its plane's answered points), judged by all.
+    """
+
+    def __init__(self, polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, spacing: float,
+                 rise: float, detected: np.ndarray | None = None):
+        self.faces = np.array(list(polys), dtype=object)
+        self.pids = np.asarray(list(plane_ids), dtype=np.int64).copy()
+        self.planes, self.rise = planes, rise
+        pts = _answered_points(xyz, spacing, rise, detected) if len(self.faces) else np.zeros(0, np.int64)
+        self.P, self.lab = xyz[pts], np.asarray(labels)[pts]
+        self.detected = np.ones(len(pts), dtype=bool) if detected is None else np.asarray(detected, dtype=bool)[pts]
+        at, of = points_in_faces(self.faces, self.P[:, :2]) if len(pts) else (np.zeros(0, np.int64),) * 2
+        # a point on a shared edge is under both faces
+        order = np.argsort(of, kind="stable")
+        self.members = np.split(at[order], np.searchsorted(of[order], np.arange(1, len(self.faces))))
+        self.alive = np.ones(len(self.faces), dtype=bool)
+        per_plane = np.bincount(self.lab[self.lab >= 0], minlength=len(planes))
+        own = np.array([np.count_nonzero(self.lab[m] == k) for m, k in zip(self.members, self.pids)], dtype=np.int64)
+        self.main = 2 * own > per_plane[self.pids]
+        self.box = shapely.bounds(self.faces)
+        self.edges = shapely.boundary(self.faces)
+
+    def _decisive(self, i: int, m: np.ndarray) -> np.ndarray:
+        """Which of the points ``m`` under face ``i`` decide its fit (all, for a main face or with no detected one)."""
+        sure = self.detected[m] | self.main[i]
+        return sure if sure.any() else np.ones(len(m), dtype=bool)
+
+    def fitted(self, i: int, plane: int) -> tuple[int, int, float]:
+        """How many of face ``i``'s deciding points and of all its points ``plane`` lies within ``rise`` of, and
+        minus the squared residuals of the latter."""
+        m = self.members[i]
+        r = self.P[m, 2] - plane_height(self.planes[plane], self.P[m, :2])
+        near = np.abs(r) <= self.rise
+        return int(np.count_nonzero(near & self._decisive(i, m))), int(near.sum()), -float(np.sum(r[near] ** 2))
+
+    def unfit(self) -> np.ndarray:
+        """The live faces whose plane fits fewer than half of their deciding points, or that have none, smallest first."""
+        live = np.flatnonzero(self.alive)
+        sizes = np.array([len(self.members[i]) for i in live], dtype=np.int64)
+        at = np.concatenate([self.members[i] for i in live]) if len(live) else np.zeros(0, np.int64)
+        of = np.repeat(live, sizes)
+        near = np.abs(self.P[at, 2] - plane_height(self.planes[self.pids[of]], self.P[at, :2])) <= self.rise
+        sure = self.detected[at] | self.main[of]
+        n_sure = np.bincount(of, weights=sure, minlength=len(self.faces))[live]
+        fit_sure = np.bincount(of, weights=near & sure, minlength=len(self.faces))[live]
+        fit_all = np.bincount(of, weights=near, minlength=len(self.faces))[live]
+        off = np.where(n_sure > 0, 2 * fit_sure < n_sure, 2 * fit_all < sizes)
+        out = live[off | (sizes == 0)]
+        return out[np.argsort(shapely.area(self.faces[out]), kind="stable")]
+
+    def neighbours(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The live faces sharing an edge with face ``i``, and the shared length (m)."""
+        b = self.box
+        near = np.flatnonzero(self.alive & (b[:, 0] <= b[i, 2]) & (b[:, 2] >= b[i, 0]) & (b[:, 1] <= b[i, 3])
+                              & (b[:, 3] >= b[i, 1]))
+        near = near[near != i]
+        if not len(near):
+            return near, np.zeros(0)
+        shared = shapely.length(shapely.intersection(self.edges[i], self.edges[near]))
+        return near[shared > 0], shared[shared > 0]
+
+    def better_plane(self, i: int) -> tuple[int, np.ndarray, np.ndarray]:
+        """The plane fitting face ``i``'s points best among its neighbours' and its labelled points' own planes,
+        when the face's plane fits fewer than half of its deciding points and that one fits more of them (or as
+        many and more of all); else -1.  With the neighbours."""
+        nb, shared = self.neighbours(i)
+        m = self.members[i]
+        now = self.fitted(i, self.pids[i])
+        if not len(m) or 2 * now[0] >= np.count_nonzero(self._decisive(i, m)):
+            return -1, nb, shared
+        own = self.lab[m]
+        cand = np.unique(np.concatenate([self.pids[nb], own[own >= 0]]))
+        best, score = -1, now
+        for c in cand:  # (lowest plane first: ties keep it)
+            s = self.fitted(i, int(c))
+            if s > score:
+                best, score = int(c), s
+        return (best if score[:2] > now[:2] else -1), nb, shared
+
+    def merge(self, i: int, j: int) -> bool:
+        """Face ``i`` joined to face ``j``, when that makes one polygon with no new hole (also on the centimetre grid)."""
+        u = shapely.union(self.faces[j], self.faces[i])
+        holes = shapely.get_num_interior_rings(self.faces[j]) + shapely.get_num_interior_rings(self.faces[i])
+        coarse = shapely.set_precision(u, 0.01)
+        if (u.geom_type != "Polygon" or not u.is_valid or shapely.get_num_interior_rings(u) > holes
+                or coarse.geom_type != "Polygon" or shapely.get_num_interior_rings(coarse) > holes):
+            return False
+        self.faces[j], self.box[j], self.edges[j] = u, u.bounds, u.boundary
+        self.members[j] = np.union1d(self.members[j], self.members[i])
+        self.alive[i] = False
+        return True
+
+
+def faces_off_their_points(polys, plane_ids, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+                           spacing: float, rise: float = 0.5, detected: np.ndarray | None = None) -> np.ndarray:
+    """The faces whose plane fits fewer than half of the points under them while a plane at hand fits more.
+
+    The faces' promise to the points under them: of the points a face
+    answers for (the points under it that no point of the building within
+    ``spacing`` in plan stands more than ``rise`` over: the top surface,
+    labelled or not), its plane lies within ``rise`` of at least half,
+    unless no plane at hand (a neighbouring face's, sharing an edge, or the
+    own plane of a labelled one of those points) lies within ``rise`` of
+    more.  With ``detected``, "half" and "more" count the detection's
+    building points under the face when it holds any, but on a plane's
+    main face.  :func:`fit_faces` keeps it.
+
+    Parameters
+    ----------
+    polys : sequence of shapely Polygon
+        Faces tiling the outline (Z ignored).
+    plane_ids : sequence of int
+        Plane of each face.
+    xyz : ndarray of shape (N, 3)
+        The building's points (m).
+    labels : ndarray of shape (N,), int
+        Plane per point, ``-1`` on none.
+    planes : ndarray of shape (K, 4)
+    spacing : float
+        Mean point spacing ``s`` (m): the plan radius within which a higher point covers another.
+    rise : float
+        Height (m) within which a plane fits a point (the roof's ``step_height``).
+    detected : ndarray of shape (N,), bool, optional
+        The points the detection calls building (default all): only they
+        hide a point under them, and where a face holds any they decide its
+        fit (the others break ties), but on its plane's main face (the one
+        holding most of its plane's answered points).
+
+    Returns
+    -------
+    ndarray of shape (len(polys),), bool
+        The faces that break the promise.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> notch = shapely.box(3.5, 1.5, 4, 2.5)  # a sliver of the lower level over a point of the upper one
+    >>> faces = [shapely.box(0, 0, 4, 4) - notch, shapely.box(4, 0, 8, 4), notch]
+    >>> xyz = np.array([[2.0, 2.0, 8.0], [6.0, 2.0, 5.0], [3.8, 2.0, 8.0]])
+    >>> faces_off_their_points(faces, [0, 1, 1], xyz, np.array([0, 1, 0]), planes, spacing=0.5).tolist()
+    [False, False, True]
+    """
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, detected)
+    out = np.zeros(len(fit.faces), dtype=bool)
+    for i in fit.unfit():
+        out[i] = fit.better_plane(i)[0] >= 0
+    return out
+
+
+def fit_faces(polys: list, plane_ids: list, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
+              spacing: float, rise: float = 0.5, detected: np.ndarray | None = None) -> tuple[list, list]:
+    """Faces whose plane fits the points under them: each face that fits fewer than half of them given away.
+
+    The raster, the sliver merging and the claim of the step edges work on
+    the labelled points near a boundary, each level's own; where several
+    levels' points interleave (the foot of a wall under a higher roof's
+    eaves, a messy corner of small planes) they can leave a face of a few
+    tenths of a m² whose plane lies metres above or below the one to three
+    points of the top surface under it.  Such a face (its plane within
+    ``rise`` of fewer than half of the points it answers for, those no point
+    within ``spacing`` stands ``rise`` over: see
+    :func:`faces_off_their_points`) takes the plane that fits most of them,
+    within ``rise`` (ties: the smaller sum of squared residuals), among the
+    planes of the faces sharing an edge with it and the own planes of its
+    labelled points (with ``detected``, the detection's building points
+    under it count first: :func:`faces_off_their_points`); it is merged into the neighbour
+    of that plane sharing most edge, or, with none (or when the union would
+    not be one polygon without a new hole, also on the centimetre grid),
+    keeps its outline under the new plane.  A face under which no point is
+    answered for (a sliver a claim or a kept block left) is merged into the
+    neighbour sharing most edge on the same terms.  Faces are taken
+    smallest first, three rounds at most.
+
+    What it guarantees, on any data: the faces still tile what they tiled,
+    none is added, and afterwards :func:`faces_off_their_points` finds none
+    (every face's plane lies within ``rise`` of at least half of the points
+    it answers for, or no plane at hand fits more of them).  The faces of
+    the small steep planes fitted to a messy corner, which cover another
+    level's points rather than their own, go to that level.
+
+    Parameters
+    ----------
+    polys, plane_ids, xyz, labels, planes, spacing, rise, detected
+        As in :func:`faces_off_their_points` (``polys`` 2D, tiling the outline).
+
+    Returns
+    -------
+    polygons : list of shapely Polygon
+    plane_ids : list of int
+        The faces left, in their order.
+
+    Examples
+    --------
+    >>> import shapely
+    >>> planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
+    >>> notch, empty = shapely.box(3.5, 1.5, 4, 2.5), shapely.box(7.5, 0, 8, 0.5)
+    >>> faces = [shapely.box(0, 0, 4, 4) - notch, notch, shapely.box(4, 0, 8, 4) - empty, empty]
+    >>> xyz = np.array([[2.0, 2.0, 8.0], [3.8, 2.0, 8.0], [6.0, 2.0, 5.0]])  # an upper point under the notch
+    >>> polys, ids = fit_faces(faces, [0, 1, 1, 0], xyz, np.array([0, 0, 1]), planes, spacing=0.5)
+    >>> ids, [p.area for p in polys]  # the notch to the upper face, the face over no point to the lower one
+    ([0, 1], [16.0, 16.0])
+    """
+    fit = _FaceFit(polys, plane_ids, np.asarray(xyz, dtype=np.float64), labels, planes, spacing, rise, detected)
+    if len(fit.faces) < 2:
+        return list(polys), list(plane_ids)
+    for _ in range(3):
+        changed = False
+        for i in fit.unfit():
+            if not fit.alive[i]:
+                continue
+            best, nb, shared = fit.better_plane(i)
+            if not len(fit.members[i]):
+                changed |= bool(len(nb)) and fit.merge(i, int(nb[np.argmax(shared)]))
+                continue
+            if best < 0:
+                continue
+            mine = fit.pids[nb] == best
+            if not (mine.any() and fit.merge(i, int(nb[mine][np.argmax(shared[mine])]))):
+                fit.pids[i] = best
+            changed = True
+        if not changed:
+            break
+    return list(fit.faces[fit.alive]), fit.pids[fit.alive].tolist()

@@ -34,7 +34,8 @@ from rooftrace.roof.planes import PlaneFit, hull_area_test, plan_hull_area, plan
 __all__ = ["low_blocks", "open_to_sky", "depth_under_roof"]
 
 
-def open_to_sky(xyz: np.ndarray, which: np.ndarray, radius: float, rise: float) -> np.ndarray:
+def open_to_sky(xyz: np.ndarray, which: np.ndarray, radius: float, rise: float, *,
+                by: np.ndarray | None = None) -> np.ndarray:
     """Which of the points ``which`` have no point of ``xyz`` within ``radius`` in plan more than ``rise`` above.
 
     A wall point under the eaves, or a floor under a canopy, has the roof
@@ -51,6 +52,8 @@ def open_to_sky(xyz: np.ndarray, which: np.ndarray, radius: float, rise: float) 
         Plan radius (m).
     rise : float
         Height (m) above a point that makes a neighbour stand over it.
+    by : ndarray of bool, shape (N,), optional
+        The points that may stand over another; default all.
 
     Returns
     -------
@@ -58,9 +61,11 @@ def open_to_sky(xyz: np.ndarray, which: np.ndarray, radius: float, rise: float) 
     """
     if not len(which):
         return np.zeros(0, bool)
-    pairs = cKDTree(xyz[which, :2]).sparse_distance_matrix(cKDTree(xyz[:, :2]), radius, output_type="ndarray")
+    over_them = None if by is None else np.flatnonzero(by)
+    others = xyz[:, :2] if over_them is None else xyz[over_them, :2]
+    pairs = cKDTree(xyz[which, :2]).sparse_distance_matrix(cKDTree(others), radius, output_type="ndarray")
     over = np.zeros(len(which), bool)
-    i, j = pairs["i"], pairs["j"]
+    i, j = pairs["i"], (pairs["j"] if over_them is None else over_them[pairs["j"]])
     high = xyz[j, 2] > xyz[which[i], 2] + rise
     over[i[high]] = True
     return ~over
