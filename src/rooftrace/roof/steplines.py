@@ -161,6 +161,13 @@ def _crossing(n1, c1, n2, c2):
     return np.array([(c1 * n2[1] - c2 * n1[1]) / det, (n1[0] * c2 - n2[0] * c1) / det])
 
 
+def _in_band(xy: np.ndarray, a: np.ndarray, u: np.ndarray, length: float, band: float) -> np.ndarray:
+    """Which of ``xy`` lie within ``band`` of the run from ``a`` along ``u`` (``length`` m, ends widened by band / 2)."""
+    r = xy - a
+    t, off = r @ u, r @ np.array([-u[1], u[0]])
+    return (t >= -band / 2) & (t <= length + band / 2) & (np.abs(off) <= band)
+
+
 def _foot(p, n, c):
     """The foot of point ``p`` on the line ``x · n = c``."""
     return p - (p @ n - c) * n
@@ -187,13 +194,8 @@ def _new_boundary(piece, up_xy, lo_xy, w_up, w_lo, *, band: float, run_tolerance
             continue
         u = d / length
         nrm = np.array([-u[1], u[0]])
-
-        def near(xy):
-            r = xy - a
-            t, off = r @ u, r @ nrm
-            return (t >= -band / 2) & (t <= length + band / 2) & (np.abs(off) <= band)
-
-        mu, ml = near(up_xy), near(lo_xy)
+        mu = _in_band(up_xy, a, u, length, band)
+        ml = _in_band(lo_xy, a, u, length, band)
         if mu.any() and ml.any():
             # the run's normal pointing from the upper level's side to the lower's
             hint = nrm if (lo_xy[ml] - a).mean(axis=0) @ nrm >= (up_xy[mu] - a).mean(axis=0) @ nrm else -nrm
