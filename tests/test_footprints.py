@@ -371,3 +371,17 @@ def test_delft_a_tree_over_a_footprint_stays_out_and_what_joins_is_the_providers
     joined = {pv: np.flatnonzero((r.building_id > 0) & np.isin(det.classification, (ASPRS.UNCLASSIFIED, V)))
               for pv, r in found.items()}
     assert np.mean(ahn[joined[0.05]] == B) > 0.6 and np.mean(ahn[joined[0.0]] == B) < 0.4
+
+
+def test_small_clumps_are_widened_by_the_crown_they_touch():
+    """A clump of two points 0.5 m across is small alone; with the crown beyond the band linked in, it is not."""
+    from rooftrace.footprints import small_clumps
+
+    xyz = np.array([[0.0, 0.0, 9.0], [0.5, 0.0, 9.0]] + [[1.0 + 0.5 * i, 0.0, 9.0] for i in range(10)])
+    judged = np.array([0, 1])
+    assert small_clumps(xyz, judged, 0.6, 3.0).tolist() == [True, True]
+    assert small_clumps(xyz, judged, 0.6, 3.0, among=np.arange(2, 12)).tolist() == [False, False]
+    assert small_clumps(xyz, judged, 0.4, 3.0, among=np.arange(2, 12)).tolist() == [True, True]  # not linked
+    assert small_clumps(xyz, judged, 0.6, 0.3).tolist() == [False, False]
+    with pytest.raises(ValueError, match="crown_extent"):
+        FootprintOptions(crown_extent=-1.0)

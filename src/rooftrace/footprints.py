@@ -52,6 +52,7 @@ import shapely
 from scipy.spatial import cKDTree
 
 from rooftrace.cloud import ASPRS
+from rooftrace.graph import components
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
            "footprint_attributes", "touching_points", "planar_spread", "tree_points",
@@ -156,6 +157,18 @@ class FootprintOptions:
         under a tree's edge, a lower roof part the detection's eigen-entropy
         test called vegetation).  0: the detection's vegetation is the
         trees, and nothing else is (the rule before the test).
+    crown_extent : float, default 0.0
+        With ``planar_vegetation``: the points the tree test calls a
+        tree's, linked in 3D within 2.5 point spacings (and through the
+        detection's vegetation nearby), that form a clump at most this wide
+        in plan (m) are the roof's after all (:func:`small_clumps`): a
+        chimney's or a dormer's edge, first of two returns where the pulse
+        grazed it, looks as porous as a crown but is no wider.  Off by
+        default: on AHN3 Delft with the BGT footprints 3 m takes
+        ``top_building_mean`` 0.160 -> 0.145 m, but the non-building points
+        that join are then 60 % AHN3 building points instead of 82 %, and
+        over the footprint under a tree (BGT 503100000026154) 41 % instead
+        of 78 %: a crown's fringe joins too.
     """
 
     section = "footprints"
@@ -165,6 +178,7 @@ class FootprintOptions:
     min_height: float = 2.0
     unclassified: bool = True
     planar_vegetation: float = 0.05
+    crown_extent: float = 0.0
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -175,6 +189,8 @@ class FootprintOptions:
             raise ValueError(f"footprints.min_height must be >= 0 metres, got {self.min_height!r}")
         if not np.isfinite(self.planar_vegetation) or self.planar_vegetation < 0:
             raise ValueError(f"footprints.planar_vegetation must be >= 0 metres, got {self.planar_vegetation!r}")
+        if not np.isfinite(self.crown_extent) or self.crown_extent < 0:
+            raise ValueError(f"footprints.crown_extent must be >= 0 metres, got {self.crown_extent!r}")
 
 
 
@@ -430,6 +446,11 @@ def assign_footprints(
         where = _near_ok_footprint(other, xyz, all_owner, ok, polygons, tree, options.overhang)
         other, where = other[where >= 0], where[where >= 0]
         tree_like = tree_points(xyz, other, classification, options.planar_vegetation, through=through)
+        if options.crown_extent > 0 and tree_like.any():
+            # a chimney's grazed edge is as porous as a crown, but no wider than a chimney
+            leafy = np.flatnonzero((classification == ASPRS.HIGH_VEGETATION) & (hag >= options.min_height / 2))
+            tree_like[tree_like] = ~small_clumps(xyz, other[tree_like], 2.5 * spacing, options.crown_extent,
+                                                 among=leafy)
         trees = other[tree_like]
         # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
         standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
@@ -577,6 +598,54 @@ def tree_points(xyz: np.ndarray, points: np.ndarray, classification: np.ndarray,
     if through is not None:
         amid |= np.mean(np.asarray(through, dtype=bool)[nb], axis=1) >= 0.5
     return (leafy | amid) & ~(spread <= planar)
+
+
+def small_clumps(xyz: np.ndarray, points: np.ndarray, link: float, max_extent: float, *,
+                 among: np.ndarray | None = None) -> np.ndarray:
+    """Which of ``points`` lie in a clump at most ``max_extent`` (m) across in plan.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    points : ndarray of int
+        Indices of the points to group: a clump is a connected component of
+        them linked within ``link`` (m, 3D).
+    link : float
+    max_extent : float
+        Widest side (m) of a clump's plan bounding box.
+    among : ndarray of int, optional
+        Other points that link the clumps and widen them without being
+        judged (a crown's points beyond the footprint's band).
+
+    Returns
+    -------
+    ndarray of shape (len(points),), bool
+
+    Examples
+    --------
+    >>> xyz = np.array([[0.0, 0, 9], [0.5, 0, 9], [10, 0, 9], [10.5, 0, 9], [11, 0, 9], [14.5, 0, 9]])
+    >>> small_clumps(xyz, np.arange(6), 0.6, 0.5).tolist()
+    [True, True, False, False, False, True]
+    """
+    points = np.asarray(points, dtype=np.int64)
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    if among is not None and len(among):
+        among = np.setdiff1d(np.asarray(among, dtype=np.int64), points)
+        d, _ = cKDTree(xyz[points]).query(xyz[among], distance_upper_bound=max_extent + link)
+        points_all = np.concatenate([points, among[np.isfinite(d)]])
+    else:
+        points_all = points
+    pairs = cKDTree(xyz[points_all]).query_pairs(link, output_type="ndarray")
+    comp = components(len(points_all), pairs)
+    n = int(comp.max()) + 1
+    xy = xyz[points_all, :2]
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, comp, xy)
+    np.maximum.at(hi, comp, xy)
+    return (hi - lo).max(axis=1)[comp[:len(points)]] <= max_extent
 
 
 def _left_out(classification: np.ndarray, building_id: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
