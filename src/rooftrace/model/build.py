@@ -48,6 +48,7 @@ from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
 from rooftrace.model.superstructures import with_boxes
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
 from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
+from rooftrace.roof.planes import plane_height
 
 __all__ = ["ModelOptions", "build_model", "ground_height"]
 
@@ -146,8 +147,7 @@ def _own_heights(roof, xyz: np.ndarray) -> np.ndarray | None:
     labels = np.asarray(labels)
     out = np.full(len(xyz), np.nan)
     on = labels >= 0
-    pl = np.asarray(roof.planes, dtype=np.float64)[labels[on]]
-    out[on] = -(pl[:, 0] * xyz[on, 0] + pl[:, 1] * xyz[on, 1] + pl[:, 3]) / pl[:, 2]
+    out[on] = plane_height(np.asarray(roof.planes, dtype=np.float64)[labels[on]], xyz[on, :2])
     return out
 
 
@@ -393,8 +393,7 @@ def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, 
     snap = options.snap
 
     def heights_fit(planes: np.ndarray, at: np.ndarray) -> np.ndarray:
-        z = -(planes[:, 0] * xy[at, 0] + planes[:, 1] * xy[at, 1] + planes[:, 3]) / planes[:, 2]
-        return np.abs(z - own_z[at]) <= OWN_PLANE_DZ
+        return np.abs(plane_height(planes, xy[at]) - own_z[at]) <= OWN_PLANE_DZ
 
     ref = np.array([c for c, _ in held_by], dtype=object)
     ref_planes = np.array([pl for _, pl in held_by], dtype=np.float64).reshape(-1, 4)
@@ -424,8 +423,7 @@ def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, 
         return cells
     # per lost point the nearest cell of a plane within OWN_PLANE_DZ of its own
     p = xy[lost]
-    z = -(planes[None, :, 0] * p[:, None, 0] + planes[None, :, 1] * p[:, None, 1] + planes[None, :, 3]) / planes[
-        None, :, 2]
+    z = plane_height(planes[None, :, :], p[:, None, :])  # (lost points, cells)
     d = shapely.distance(polys[None, :], shapely.points(p)[:, None])
     d = np.where(np.abs(z - own_z[lost][:, None]) <= OWN_PLANE_DZ, d, np.inf)
     c = np.argmin(d, axis=1)

@@ -8,6 +8,7 @@ import numpy as np
 import shapely
 
 from rooftrace.model.validity import surface_normal, surface_normals, surface_polygons
+from rooftrace.roof.planes import plane_height
 
 __all__ = ["roof_height_at", "surface_distance", "vertical_rmse", "points_off_their_roof"]
 
@@ -112,8 +113,7 @@ def points_off_their_roof(solids: Iterable, xyz: np.ndarray, labels: np.ndarray,
     sel = np.flatnonzero(labels >= 0)
     if not len(sel):
         return out
-    pl = np.asarray(planes, dtype=np.float64)[labels[sel]]
-    own = -(pl[:, 0] * xyz[sel, 0] + pl[:, 1] * xyz[sel, 1] + pl[:, 3]) / pl[:, 2]
+    own = plane_height(np.asarray(planes, dtype=np.float64)[labels[sel]], xyz[sel, :2])
     h = roof_height_at(list(solids), xyz[sel, :2])
     out[sel] = np.isfinite(h) & (np.abs(h - own) > max_dz)
     return out
