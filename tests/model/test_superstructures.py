@@ -41,18 +41,44 @@ def test_a_vent_on_a_flat_roof_is_a_box_of_the_spacing():
     assert same is house and why.tolist() == [""]
 
 
-def test_boxes_on_a_pitched_roof_stop_at_its_ridge_and_eaves():
+def test_boxes_on_a_pitched_roof_stop_at_its_ridge_and_reach_its_eaves():
     solid, roof = _gable()
-    pts = np.array([[2.0, 5.0, 0.0], [4.05, 5.0, 0.0], [0.005, 3.0, 0.0], [6.0, 8.0, 0.0]])
-    pts[:, 2] = roof(pts[:, 0]) + [0.8, 1.0, 0.7, 1.5]
+    pts = np.array([[2.0, 5.0, 0.0], [4.05, 5.0, 0.0], [0.005, 3.0, 0.0], [6.0, 8.0, 0.0], [3.995, 2.0, 0.0],
+                    [7.996, 9.9, 0.0]])
+    pts[:, 2] = roof(pts[:, 0]) + [0.8, 1.0, 0.7, 1.5, 1.0, 0.9]
     boxed, why = with_boxes(solid, pts, 0.4)
     assert solid_errors(boxed) == []
-    # the first and the last stand clear; the one 5 cm past the ridge is cut at it and still holds its point;
-    # the one 5 mm from the eaves' wall cannot hold it
-    assert why.tolist() == ["", "", "at a roof edge", ""]
+    # the first and the fourth stand clear; the one 5 cm past the ridge is cut at it and still holds its point;
+    # the one 5 mm from the eaves' wall reaches it (its outer wall on the wall's top), the one 4 mm from the eaves
+    # and 0.1 m from the gable's wall too, cut back from the gable's; the one 5 mm before the ridge cannot hold it
+    assert why.tolist() == ["", "", "", "", "at a roof edge", ""]
     h = roof_height_at([boxed], pts[:, :2])
-    assert np.abs(h - pts[:, 2])[[0, 1, 3]].max() < 1e-3
+    assert np.abs(h - pts[:, 2])[[0, 1, 2, 3, 5]].max() < 1e-3
     _invariant(solid, boxed, pts, why)
+    # the eaves' box: a notch in the roof surface; its outer wall in the eaves' wall's plane (x = 0)
+    walls = [s for s in boxed.surfaces if s.kind == "WallSurface" and np.ptp(s.rings[0][:, 0]) < 1e-9
+             and s.rings[0][0, 0] == 0.0]
+    assert len(walls) == 2 and sorted(len(w.rings[0]) for w in walls) == [4, 6]
+
+
+def test_boxes_at_a_flat_roofs_eaves_and_steps():
+    """A box reaches the edge of its roof surface where a wall meets that edge: at the eaves and at the top of a
+    step to a lower roof (its outer wall on the wall's top), several on one edge; at the foot of the step (cut into
+    the step's wall) when it stays two lattice steps under the wall's top, not when it would rise over it."""
+    cells = [(shapely.box(0, 0, 10, 6), horizontal_plane(8.0)), (shapely.box(10, 0, 16, 6), horizontal_plane(5.0))]
+    house = prism_solid(cells, 2.0)
+    pts = np.array([[3.0, 0.004, 9.1], [6.0, 0.006, 8.9], [9.995, 3.0, 9.2], [10.005, 4.0, 6.0], [15.0, 5.997, 6.1],
+                    [10.004, 4.6, 7.9], [10.004, 1.5, 8.1]])
+    boxed, why = with_boxes(house, pts, 0.4)
+    assert solid_errors(boxed) == []
+    assert why.tolist() == ["", "", "", "", "", "", "at a roof edge"]
+    h = roof_height_at([boxed], pts[:, :2])
+    assert np.abs(h - pts[:, 2])[:6].max() < 1e-3
+    _invariant(house, boxed, pts, why)
+    # the step's wall: its two notches go round the boxes' outer sides at its foot, the upper box stands on its top
+    (step,) = [s for s in boxed.surfaces if s.kind == "WallSurface" and (s.rings[0][:, 0] == 10.0).all()
+               and s.rings[0][:, 2].min() == 5.0]
+    assert len(step.rings[0]) == 4 + 2 * 4 + 2
 
 
 def test_a_box_never_stands_over_a_lower_point():
@@ -84,3 +110,27 @@ def test_random_points_over_a_gable_keep_the_solid_valid():
             # off the roof in plan, and nowhere else but where a reason holds
             outside = (xy[:, 0] < 0) | (xy[:, 0] > 8) | (xy[:, 1] < 0) | (xy[:, 1] > 10)
             assert (why[outside] == "on no roof surface").all() and off[outside].all()
+
+
+def test_random_points_at_the_edges_keep_the_solid_valid():
+    """Random clutter within 3 cm of a roof's edges (eaves, a step's top and foot, a gable's ridge and eaves):
+    every boxed solid is valid, every point left more than 0.5 m under its roof has a named reason, and along an
+    edge with a wall under it, away from the corners, none is left "at a roof edge"."""
+    rng = np.random.default_rng(11)
+    step = prism_solid([(shapely.box(0, 0, 10, 6), horizontal_plane(8.0)),
+                        (shapely.box(10, 0, 16, 6), horizontal_plane(5.0))], 2.0)
+    for solid, roof, edges in ((step, lambda x: np.where(x < 10, 8.0, 5.0), (0.0, 10.0, 16.0)),
+                               (*_gable(30.0), (0.0, 4.0, 8.0))):
+        for _ in range(4):
+            n = int(rng.integers(5, 25))
+            x = rng.choice(edges, n) + rng.uniform(-0.03, 0.03, n)
+            y = rng.uniform(0.5, 5.5, n)
+            pts = np.column_stack([x, y, roof(x) + rng.uniform(0.6, 2.5, n)])
+            boxed, why = with_boxes(solid, pts, float(rng.uniform(0.3, 0.5)))
+            assert solid_errors(boxed) == []
+            _invariant(solid, boxed, pts, why)
+            # the outer walls' tops (x = 0 and the last edge) and the step's top: a wall under each such edge
+            under_a_wall = ((x > 0) & (x < 0.03)) | ((x < edges[2]) & (x > edges[2] - 0.03))
+            if solid is step:
+                under_a_wall |= (x < 10) & (x > 9.97)
+            assert not (why[under_a_wall] == "at a roof edge").any()

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from rooftrace.model.solid import split_tilted
 from rooftrace.model.types import Solid, Surface
-from rooftrace.model.validity import surface_normals, surface_polygons, surface_tilt
+from rooftrace.model.validity import surface_normal, surface_normals, surface_polygons, surface_tilt
 
 __all__ = ["with_boxes", "BOX_REASONS"]
 
@@ -148,6 +148,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     tree_c = cKDTree(centre_g.astype(np.float64))
     rise_g = rise / grid
     taken = np.zeros(len(need), dtype=bool)
+    edges = None  # the solid's directed edges, for the boxes at an edge
     on_roof: dict[int, list[tuple]] = {}  # per roof surface: its boxes' holes, surfaces and points
     placed: dict[int, list] = {}
     for j in order.tolist():
@@ -174,21 +175,40 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         plan_m = hull if shapely.contains(inner, hull) else shapely.set_precision(shapely.intersection(hull, inner),
                                                                                   snap)
         own = shapely.points(points[need[members], :2])
-        if plan_m.geom_type != "Polygon" or plan_m.is_empty or len(plan_m.interiors) or \
-                not (plan_m is hull or shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m)) \
-                or not shapely.contains(plan_m, own).any():
-            skipped[need[members]] = "at a roof edge"
-            continue
+        notch = None
+        inside = plan_m.geom_type == "Polygon" and not plan_m.is_empty and not len(plan_m.interiors) and \
+            (plan_m is hull or shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m))
+        held = shapely.contains(plan_m, own) if inside else np.zeros(len(members), dtype=bool)
+        if not held.all():
+            # at an eave, a step's top or foot: the box reaches the edge, its outer side on the wall or cut into it
+            if edges is None:
+                edges = _directed_edges(solid, grid)
+            notch = _notch(hull, roofs[k], own, edges, solid, top * grid, grid, snap)
+            if notch is not None and any(shapely.dwithin(notch[0], p, 2 * snap) for p in placed.get(k, ())):
+                if not held.any():
+                    skipped[need[members]] = "beside a higher box"
+                    continue
+                notch = None
+            if notch is not None:
+                plan_m = notch[0]
+            elif not held.any():
+                skipped[need[members]] = "at a roof edge"
+                continue
         # (surfaces do not overlap in plan: only boxes on the same one can meet; within half a lattice step, as
         # the hull's coordinates and a cut one's, both on the lattice, may differ in their last bits)
         if any(shapely.dwithin(plan_m, p, 0.5 * snap) for p in placed.get(k, ())):
             skipped[need[members]] = "beside a higher box"
             continue
-        ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
-        if not shapely.is_ccw(plan_m.exterior):
-            ring = ring[::-1]
+        if notch is None:
+            ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
+            if not shapely.is_ccw(plan_m.exterior):
+                ring = ring[::-1]
+        else:
+            ring = notch[1]
         foot = np.round(_plane_z(np.repeat(normal[k:k + 1], len(ring), 0), np.repeat(centre[k:k + 1], len(ring), 0),
                                  ring * grid) / grid).astype(np.int64)
+        if notch is not None:  # the two corners on the edge: on the edge, as the wall under it has them
+            foot[:2] = notch[2]
         if top - foot.max() < 2 * lattice:
             skipped[need[members]] = "too low above the surface"
             continue
@@ -198,14 +218,20 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         walls = np.stack([np.column_stack([ring, foot]), np.column_stack([ring[nxt], foot[nxt]]),
                           np.column_stack([ring[nxt], np.full(n, top)]), np.column_stack([ring, np.full(n, top)])],
                          axis=1) * grid
+        if notch is not None and notch[3][3]:  # against a higher wall: its notch is the box's outer side
+            walls = walls[1:]
         box = [Surface([np.column_stack([ring, np.full(n, top)]) * grid], "RoofSurface")]
         box.extend(Surface([w], "WallSurface") for w in walls)
-        # a hole: clockwise seen from above
-        on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, need[members]))
+        # a hole: clockwise seen from above; a notch: the same, from the edge's first corner, into the outer ring
+        on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, need[members])
+                                         if notch is None else
+                                         (None, box, need[members], notch[3], np.column_stack([ring, foot]), top))
         skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
-    holed = {k: [Surface(list(roofs[k].rings) + [hole for hole, _, _ in boxes], "RoofSurface")]
+    notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
+    holed = {k: [Surface([notched.get(roof_at[k], roofs[k].rings[0])] + list(roofs[k].rings[1:])
+                         + [b[0] for b in boxes if b[0] is not None], "RoofSurface")]
              for k, boxes in on_roof.items()}
     # a roof surface's own vertices lie on its plane to the tolerance of its heights, its holes' exactly: thin
     # triangles between them may tilt beyond what a validator takes (val3dity's 204); such a surface is written as
@@ -220,13 +246,16 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             holed[k] = [Surface([np.asarray(r, dtype=np.float64) * grid for r in tri], "RoofSurface")
                         for tri in triangles]
         else:  # not cut: that surface keeps no box
-            for _, _, at in on_roof.pop(k):
-                skipped[at] = "would tilt its roof surface"
+            for b in on_roof.pop(k):
+                skipped[b[2]] = "would tilt its roof surface"
     if not on_roof:
         return solid, skipped
+    if tilted:  # a surface that keeps no box keeps its edges: the walls under its notches are built again
+        notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
     by_index = {roof_at[k]: holed[k] for k in on_roof}
+    by_index.update({i: [Surface([ring], solid.surfaces[i].kind)] for i, ring in notched.items() if i not in by_index})
     surfaces = [t for i, s in enumerate(solid.surfaces) for t in by_index.get(i, [s])]
-    added = [face for k in sorted(on_roof) for _, box, _ in on_roof[k] for face in box]
+    added = [face for k in sorted(on_roof) for b in on_roof[k] for face in b[1]]
     roof_end = max(roof_at) + 1 + sum(len(v) - 1 for v in by_index.values())
     return Solid(surfaces[:roof_end] + added + surfaces[roof_end:]), skipped
 
@@ -257,3 +286,122 @@ def _plane_z(normal: np.ndarray, centre: np.ndarray, xy: np.ndarray) -> np.ndarr
     """Height (m) at ``xy`` of the planes through ``centre`` with ``normal`` (one per row)."""
     return centre[:, 2] - (normal[:, 0] * (xy[:, 0] - centre[:, 0]) + normal[:, 1] * (xy[:, 1] - centre[:, 1])) \
         / normal[:, 2]
+
+
+def _directed_edges(solid: Solid, grid: float) -> dict:
+    """Each directed edge of the solid's outer rings (vertices on the grid, integer) and the surface it bounds."""
+    edges = {}
+    for i, s in enumerate(solid.surfaces):
+        ring = [tuple(v) for v in np.round(s.rings[0] / grid).astype(np.int64).tolist()]
+        edges.update(((a, b), i) for a, b in zip(ring, ring[1:] + ring[:1]))
+    return edges
+
+
+def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top: float, grid: float, snap: float):
+    """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
+
+    The box is ``hull`` cut to the surface (not inside it): a notch cut from one edge of the surface's outer
+    ring whose other edges stay two lattice steps away.  Where the wall stands under the edge (the eaves, a
+    step's top) the box's outer wall stands on the wall's top edge; where it stands over it (a step's foot)
+    the box's outer side is a notch cut into that wall, its top ``top`` (m) two lattice steps under the wall's
+    top at least.  ``None`` where neither is so (a ridge, a valley, a corner; the box would not hold one of
+    ``own``).
+
+    Returns
+    -------
+    plan : shapely Polygon
+        The box in plan (m).
+    ring : ndarray of shape (K, 2), int64
+        Its corners (grid units), counter-clockwise, the two on the edge first.
+    foot : ndarray of shape (2,), int64
+        Their heights on the edge (grid units), where the wall's top has them.
+    where : tuple
+        The edge (its two ends, grid units), the wall's index in ``solid``, the first corner's position along
+        the edge (0 to 1), and whether the wall stands over the edge.
+    """
+    ring3 = np.round(roof.rings[0] / grid).astype(np.int64)
+    xy = ring3[:, :2] * grid
+    n = len(xy)
+    nxt = np.r_[1:n, 0]
+    seg = shapely.linestrings(np.stack([xy, xy[nxt]], axis=1))
+    i = int(np.argmin(shapely.distance(seg, shapely.multipoints(shapely.get_coordinates(own)))))
+    u, v = ring3[i], ring3[nxt[i]]
+    w = edges.get((tuple(v.tolist()), tuple(u.tolist())))
+    # only at a wall (a box on a ridge or a valley would need a notch in both roofs); the wall, counter-clockwise
+    # seen from outside, lies left of v -> u: under the edge or over it
+    if w is None or solid.surfaces[w].kind != "WallSurface":
+        return None
+    over = bool(np.cross(surface_normal(solid.surfaces[w].rings), (u - v).astype(np.float64))[2] > 0)
+    holes = [h[:, :2] for h in roof.rings[1:]]
+    surface = shapely.Polygon(xy, holes)
+    # the surface's other edges (from the edge's end round to its start) and its holes stay two lattice steps away
+    # (a box at a corner is cut back from the other edge, on the lattice)
+    rest = shapely.MultiLineString([np.roll(xy, -int(nxt[i]), axis=0)] + [np.vstack([h, h[:1]]) for h in holes])
+    if shapely.distance(shapely.intersection(hull, surface), rest) < 2 * snap - 0.5 * grid:
+        hull = shapely.set_precision(shapely.difference(hull, shapely.buffer(rest, 2 * snap, join_style="mitre")),
+                                     snap)
+    plan = shapely.intersection(hull, surface)
+    if plan.geom_type != "Polygon" or plan.is_empty or len(plan.interiors) or not shapely.contains(plan, own).any() \
+            or shapely.distance(plan, rest) < snap:
+        return None
+    corners = np.asarray(plan.exterior.coords)[:-1]
+    if not shapely.is_ccw(plan.exterior):
+        corners = corners[::-1]
+    on = shapely.distance(shapely.points(corners), seg[i]) < 0.5 * grid
+    m = len(corners)
+    first = np.flatnonzero(on & np.roll(on, -1))
+    if on.sum() != 2 or len(first) != 1:
+        return None
+    corners = np.roll(corners, -int(first[0]), axis=0)
+    ring = np.round(corners / grid).astype(np.int64)
+    if len(np.unique(ring, axis=0)) < m:
+        return None
+    # the corners' heights and places along the edge, as its straight line between its ends gives them
+    d = (v[:2] - u[:2]).astype(np.float64)
+    t = (ring[:2] - u[:2]) @ d / (d @ d)
+    if not (0 < t[0] < t[1] < 1):
+        return None
+    foot = np.round(u[2] + t * (v[2] - u[2])).astype(np.int64)
+    if over:
+        # the notch in the wall (across it from the edge, up from its feet) two lattice steps inside its other edges
+        wall = solid.surfaces[w].rings[0]
+        along = d / np.sqrt(d @ d)
+        side = shapely.Polygon(np.column_stack([(wall[:, :2] - u[:2] * grid) @ along, wall[:, 2]]))
+        s = (ring[:2] * grid - u[:2] * grid) @ along
+        if not shapely.contains(side, shapely.box(s[0] - 2 * snap, foot.max() * grid + 0.5 * grid, s[1] + 2 * snap,
+                                                  top + 2 * snap)):
+            return None
+    return shapely.Polygon(ring * grid), ring, foot, ((tuple(u.tolist()), tuple(v.tolist())), w, float(t[0]), over)
+
+
+def _with_notches(solid: Solid, roofs: list, roof_at: list, on_roof: dict, grid: float) -> dict:
+    """The outer rings (m) of the roof surfaces and walls the boxes at an edge change: the roof's ring goes round
+    each notch; the wall's edge gets the notch's two corners (a wall under the edge: the box's outer wall stands
+    on it) or goes round the box's outer side (a wall over it)."""
+    per_edge: dict = {}
+    for k, boxes in on_roof.items():
+        for b in boxes:
+            if b[0] is None:
+                (edge, w, t, over), box, top = b[3], b[4], b[5]
+                per_edge.setdefault((k, edge, w), []).append((t, box, over, top))
+    if not per_edge:
+        return {}
+    rings: dict[int, list] = {}
+    for (k, (u, v), w), notches in sorted(per_edge.items(), key=lambda e: (e[0][0], e[0][1], e[0][2])):
+        notches.sort(key=lambda e: e[0])
+        # into the roof, after u: each notch from its first corner round (clockwise) to its second
+        roof = rings.setdefault(roof_at[k], [tuple(p) for p in np.round(roofs[k].rings[0] / grid).astype(np.int64)
+                                              .tolist()])
+        at = next(j for j in range(len(roof)) if roof[j] == u and roof[(j + 1) % len(roof)] == v)
+        cut = [tuple(p) for _, box, _, _ in notches for p in np.vstack([box[:1], box[:1:-1], box[1:2]]).tolist()]
+        roof[at + 1:at + 1] = cut
+        # into the wall, after v: the corners from the last notch's second to the first notch's first (a wall over
+        # the edge: up round the box's outer side at each)
+        wall = rings.setdefault(w, [tuple(p) for p in np.round(solid.surfaces[w].rings[0] / grid)
+                                     .astype(np.int64).tolist()])
+        at = next(j for j in range(len(wall)) if wall[j] == v and wall[(j + 1) % len(wall)] == u)
+        wall[at + 1:at + 1] = [p for _, box, over, top in notches[::-1] for p in
+                               ([tuple(box[1]), (*box[1, :2], top), (*box[0, :2], top), tuple(box[0])] if over
+                                else [tuple(box[1]), tuple(box[0])])]
+        wall[:] = [tuple(int(c) for c in p) for p in wall]
+    return {i: np.asarray(r, dtype=np.float64) * grid for i, r in rings.items()}

@@ -108,13 +108,17 @@ def _build(name, local_outline, local_planes, parts, ridges_local, kinds, chimne
     return m
 
 
-def gable(length=14.0, width=9.0, eave=5.0, slope=35.0, *, chimney=False, vents=False, angle=0.0, offset=(0.0, 0.0)):
+def gable(length=14.0, width=9.0, eave=5.0, slope=35.0, *, chimney=False, vents=False, edge_vents=False, angle=0.0,
+          offset=(0.0, 0.0)):
     """Gable roof, ridge along the local x axis.
 
     ``chimney``: a 0.8 m x 0.8 m box 1 m above the ridge; ``vents``: four
     small boxes on the pitches (0.3 m to 0.7 m square, 0.7 m to 1.2 m above
     the roof at their upper edge: a vent pipe, small chimneys), one to five
-    points each at 10 pts/m².
+    points each at 10 pts/m²; ``edge_vents``: two boxes at the roof's edges,
+    a 0.5 m x 0.4 m one from the eave (its outer side in the wall's plane,
+    0.8 m above the roof's highest point under it) and a 0.6 m square
+    chimney on the ridge (0.9 m above it).
     """
     t = np.tan(np.radians(slope))
     h = eave + t * width / 2
@@ -125,6 +129,9 @@ def gable(length=14.0, width=9.0, eave=5.0, slope=35.0, *, chimney=False, vents=
             x0, y0 = x * length, y * width
             top = eave + t * min(y0 + side, width - y0)  # the roof's highest point under the box
             ch.append((x0, y0, x0 + side, y0 + side, top + rise))
+    if edge_vents:
+        ch.append((0.55 * length, 0.0, 0.55 * length + 0.5, 0.4, eave + t * 0.4 + 0.8))
+        ch.append((0.8 * length, width / 2 - 0.3, 0.8 * length + 0.6, width / 2 + 0.3, h + 0.9))
     return _build(
         "gable", [(0, 0), (length, 0), (length, width), (0, width)], planes,
         [(0, 0, length, width, [0, 1])], [[(0, width / 2, h), (length, width / 2, h)]], ["ridge"], ch, angle, offset,
