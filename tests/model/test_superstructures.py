@@ -68,17 +68,19 @@ def test_boxes_at_a_flat_roofs_eaves_and_steps():
     cells = [(shapely.box(0, 0, 10, 6), horizontal_plane(8.0)), (shapely.box(10, 0, 16, 6), horizontal_plane(5.0))]
     house = prism_solid(cells, 2.0)
     pts = np.array([[3.0, 0.004, 9.1], [6.0, 0.006, 8.9], [9.995, 3.0, 9.2], [10.005, 4.0, 6.0], [15.0, 5.997, 6.1],
-                    [10.004, 4.6, 7.9], [10.004, 1.5, 8.1]])
+                    [10.004, 4.6, 7.9], [10.004, 1.5, 8.1], [10.004, 0.8, 8.6]])
     boxed, why = with_boxes(house, pts, 0.4)
     assert solid_errors(boxed) == []
-    assert why.tolist() == ["", "", "", "", "", "", "at a roof edge"]
+    assert why.tolist() == ["", "", "", "", "", "", "", "at a roof edge"]
     h = roof_height_at([boxed], pts[:, :2])
     assert np.abs(h - pts[:, 2])[:6].max() < 1e-3
+    # one over the step's top (a parapet's return a centimetre off it): as high as the wall lets it
+    assert h[6] == pytest.approx(7.98)
     _invariant(house, boxed, pts, why)
-    # the step's wall: its two notches go round the boxes' outer sides at its foot, the upper box stands on its top
+    # the step's wall: its three notches go round the boxes' outer sides at its foot, the upper box stands on its top
     (step,) = [s for s in boxed.surfaces if s.kind == "WallSurface" and (s.rings[0][:, 0] == 10.0).all()
                and s.rings[0][:, 2].min() == 5.0]
-    assert len(step.rings[0]) == 4 + 2 * 4 + 2
+    assert len(step.rings[0]) == 4 + 3 * 4 + 2
 
 
 def test_a_box_never_stands_over_a_lower_point():

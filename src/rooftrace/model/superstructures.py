@@ -10,7 +10,12 @@ spacing's side centred on the point, a hole of that square in the roof
 surface under it (its corners on that surface's plane), four walls up to
 the point's height and a flat top (``RoofSurface``).  The shell stays
 closed and 2-manifold: the hole's edges are the walls' feet, their upper
-edges the top's.  Nothing else of the solid changes.
+edges the top's.  Nothing else of the solid changes, but at an edge with
+a wall: the outline drawn through the outermost returns puts a vent's
+return at the eaves millimetres from the edge, where a hole cannot reach;
+there the box is a notch in the roof surface, and the wall under the edge
+gets the notch's two corners (the box's outer wall stands on it) or, a
+wall over the edge (a step's foot), goes round the box's outer side.
 """
 
 from __future__ import annotations
@@ -38,8 +43,11 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     lies within ``rise`` (m) under the returned solid's roof, or above it,
     unless one of :data:`BOX_REASONS` holds for it: its box, cut to the
     roof surface it stands on two lattice steps inside that surface's edges,
-    does not hold it ("at a roof edge": a vent at the eaves, a chimney on a
-    ridge); it meets the box of a higher point ("beside a higher box"); a
+    does not hold it and neither does the box reaching the one edge of that
+    surface nearest to it where a wall meets that edge ("at a roof edge": a
+    chimney on a ridge or in a valley, a box at a corner of the surface, one
+    rising over the wall that stands over the edge); it meets the box of a
+    higher point ("beside a higher box"); a
     point of ``others`` standing more than ``rise`` lower lies within two
     lattice steps of it ("crowded by lower points"); the surface is within
     two lattice steps under the box's top at one of its corners ("too low
@@ -48,7 +56,11 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     box is the hull of the squares, ``side`` wide (less where a point of
     ``others`` standing more than ``rise`` lower would be under it), of the
     points beside each other on one surface within ``rise`` under the
-    highest of them, at that one's height.
+    highest of them, at that one's height.  A box at an edge is a notch in
+    its roof surface: where the wall stands under the edge (the eaves, a
+    step's top) its outer wall stands on the wall's top; where the wall
+    stands over it (a step's foot) the wall goes round the box's outer side
+    (the box then stays two lattice steps under the wall's top).
 
     Parameters
     ----------
@@ -183,14 +195,14 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             # at an eave, a step's top or foot: the box reaches the edge, its outer side on the wall or cut into it
             if edges is None:
                 edges = _directed_edges(solid, grid)
-            notch = _notch(hull, roofs[k], own, edges, solid, top * grid, grid, snap)
+            notch = _notch(hull, roofs[k], own, edges, solid, top, rise, grid, snap)
             if notch is not None and any(shapely.dwithin(notch[0], p, 2 * snap) for p in placed.get(k, ())):
                 if not held.any():
                     skipped[need[members]] = "beside a higher box"
                     continue
                 notch = None
             if notch is not None:
-                plan_m = notch[0]
+                plan_m, top = notch[0], notch[4]
             elif not held.any():
                 skipped[need[members]] = "at a roof edge"
                 continue
@@ -297,15 +309,16 @@ def _directed_edges(solid: Solid, grid: float) -> dict:
     return edges
 
 
-def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top: float, grid: float, snap: float):
+def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top: int, rise: float, grid: float,
+           snap: float):
     """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
 
     The box is ``hull`` cut to the surface (not inside it): a notch cut from one edge of the surface's outer
     ring whose other edges stay two lattice steps away.  Where the wall stands under the edge (the eaves, a
     step's top) the box's outer wall stands on the wall's top edge; where it stands over it (a step's foot)
-    the box's outer side is a notch cut into that wall, its top ``top`` (m) two lattice steps under the wall's
-    top at least.  ``None`` where neither is so (a ridge, a valley, a corner; the box would not hold one of
-    ``own``).
+    the box's outer side is a notch cut into that wall, its top (``top``, grid units) put two lattice steps
+    under the wall's top when it is higher, by ``rise`` (m) at most.  ``None`` where neither is so (a ridge, a
+    valley, a corner; the box would not hold one of ``own``).
 
     Returns
     -------
@@ -318,6 +331,8 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     where : tuple
         The edge (its two ends, grid units), the wall's index in ``solid``, the first corner's position along
         the edge (0 to 1), and whether the wall stands over the edge.
+    top : int
+        The box's top (grid units).
     """
     ring3 = np.round(roof.rings[0] / grid).astype(np.int64)
     xy = ring3[:, :2] * grid
@@ -348,11 +363,14 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     if not shapely.is_ccw(plan.exterior):
         corners = corners[::-1]
     on = shapely.distance(shapely.points(corners), seg[i]) < 0.5 * grid
-    m = len(corners)
-    first = np.flatnonzero(on & np.roll(on, -1))
-    if on.sum() != 2 or len(first) != 1:
+    # the run of corners on the edge: its two ends (those between lie on the edge's line, nothing is lost)
+    start = np.flatnonzero(on & ~np.roll(on, 1))
+    if len(start) != 1 or on.all():
         return None
-    corners = np.roll(corners, -int(first[0]), axis=0)
+    corners = np.roll(corners, -int(start[0]), axis=0)
+    run = int(on.sum())
+    corners = np.vstack([corners[:1], corners[run - 1:]])
+    m = len(corners)
     ring = np.round(corners / grid).astype(np.int64)
     if len(np.unique(ring, axis=0)) < m:
         return None
@@ -368,10 +386,18 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
         along = d / np.sqrt(d @ d)
         side = shapely.Polygon(np.column_stack([(wall[:, :2] - u[:2] * grid) @ along, wall[:, 2]]))
         s = (ring[:2] * grid - u[:2] * grid) @ along
-        if not shapely.contains(side, shapely.box(s[0] - 2 * snap, foot.max() * grid + 0.5 * grid, s[1] + 2 * snap,
-                                                  top + 2 * snap)):
-            return None
-    return shapely.Polygon(ring * grid), ring, foot, ((tuple(u.tolist()), tuple(v.tolist())), w, float(t[0]), over)
+        strip = shapely.box(s[0] - 2 * snap, foot.max() * grid + 0.5 * grid, s[1] + 2 * snap, top * grid + 2 * snap)
+        if not shapely.contains(side, strip):
+            # (a parapet's return a centimetre off the step's top: the box as high as the wall lets it)
+            above = shapely.difference(strip, side)
+            if above.is_empty or not shapely.contains(side, shapely.box(*strip.bounds[:3], above.bounds[1])):
+                return None
+            highest = int(np.floor(above.bounds[1] / grid)) - 2 * int(round(snap / grid))
+            if (top - highest) * grid > rise:
+                return None
+            top = highest
+    return shapely.Polygon(ring * grid), ring, foot, ((tuple(u.tolist()), tuple(v.tolist())), w, float(t[0]), over), \
+        top
 
 
 def _with_notches(solid: Solid, roofs: list, roof_at: list, on_roof: dict, grid: float) -> dict:
