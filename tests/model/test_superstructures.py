@@ -81,6 +81,12 @@ def test_boxes_at_a_flat_roofs_eaves_and_steps():
     (step,) = [s for s in boxed.surfaces if s.kind == "WallSurface" and (s.rings[0][:, 0] == 10.0).all()
                and s.rings[0][:, 2].min() == 5.0]
     assert len(step.rings[0]) == 4 + 3 * 4 + 2
+    # at a corner of the outline (two eaves) and at the corner of the step's top and the eaves: the box covers the
+    # ring's corner, its two outer walls on the two walls' tops; not where a wall over the edge meets one under it
+    corners = np.array([[0.005, 0.006, 9.0], [15.99, 5.99, 6.0], [9.99, 5.995, 9.0], [10.01, 0.004, 6.0]])
+    boxed, why = with_boxes(house, corners, 0.4)
+    assert solid_errors(boxed) == [] and why.tolist() == ["", "", "", "at a roof edge"]
+    assert np.abs(roof_height_at([boxed], corners[:3, :2]) - corners[:3, 2]).max() < 1e-3
 
 
 def test_a_box_never_stands_over_a_lower_point():

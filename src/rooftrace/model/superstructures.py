@@ -219,8 +219,8 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             ring = notch[1]
         foot = np.round(_plane_z(np.repeat(normal[k:k + 1], len(ring), 0), np.repeat(centre[k:k + 1], len(ring), 0),
                                  ring * grid) / grid).astype(np.int64)
-        if notch is not None:  # the two corners on the edge: on the edge, as the wall under it has them
-            foot[:2] = notch[2]
+        if notch is not None:  # the corners on the edges: on them, as the walls' tops have them
+            foot[:len(notch[2])] = notch[2]
         if top - foot.max() < 2 * lattice:
             skipped[need[members]] = "too low above the surface"
             continue
@@ -230,7 +230,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         walls = np.stack([np.column_stack([ring, foot]), np.column_stack([ring[nxt], foot[nxt]]),
                           np.column_stack([ring[nxt], np.full(n, top)]), np.column_stack([ring, np.full(n, top)])],
                          axis=1) * grid
-        if notch is not None and notch[3][3]:  # against a higher wall: its notch is the box's outer side
+        if notch is not None and notch[3][2]:  # against a higher wall: its notch is the box's outer side
             walls = walls[1:]
         box = [Surface([np.column_stack([ring, np.full(n, top)]) * grid], "RoofSurface")]
         box.extend(Surface([w], "WallSurface") for w in walls)
@@ -313,24 +313,26 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
            snap: float):
     """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
 
-    The box is ``hull`` cut to the surface (not inside it): a notch cut from one edge of the surface's outer
-    ring whose other edges stay two lattice steps away.  Where the wall stands under the edge (the eaves, a
-    step's top) the box's outer wall stands on the wall's top edge; where it stands over it (a step's foot)
-    the box's outer side is a notch cut into that wall, its top (``top``, grid units) put two lattice steps
-    under the wall's top when it is higher, by ``rise`` (m) at most.  ``None`` where neither is so (a ridge, a
-    valley, a corner; the box would not hold one of ``own``).
+    The box is ``hull`` cut to the surface (not inside it): a notch cut from the edges of the surface's outer
+    ring it reaches (one edge, or several through the ring's corners it covers), its other edges two lattice
+    steps away.  Where walls stand under those edges (the eaves, a step's top) the box's outer walls stand on
+    their top edges; where a wall stands over the one edge (a step's foot) the box's outer side is a notch cut
+    into that wall, its top (``top``, grid units) put two lattice steps under the wall's top when it is higher,
+    by ``rise`` (m) at most.  ``None`` where none is so (a ridge, a valley; the box would not hold one of
+    ``own``).
 
     Returns
     -------
     plan : shapely Polygon
         The box in plan (m).
     ring : ndarray of shape (K, 2), int64
-        Its corners (grid units), counter-clockwise, the two on the edge first.
-    foot : ndarray of shape (2,), int64
-        Their heights on the edge (grid units), where the wall's top has them.
+        Its corners (grid units), counter-clockwise: the one on the first edge reached, the ring's corners
+        covered, the one on the last edge, then the others.
+    foot : ndarray, int64
+        The heights (grid units) of the first of those: on the edges, where the walls' tops have them.
     where : tuple
-        The edge (its two ends, grid units), the wall's index in ``solid``, the first corner's position along
-        the edge (0 to 1), and whether the wall stands over the edge.
+        The ring's corners from the first edge's start to the last edge's end (grid units), the walls' indices
+        in ``solid`` (one per edge), and whether the wall stands over the edge.
     top : int
         The box's top (grid units).
     """
@@ -340,18 +342,29 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     nxt = np.r_[1:n, 0]
     seg = shapely.linestrings(np.stack([xy, xy[nxt]], axis=1))
     i = int(np.argmin(shapely.distance(seg, shapely.multipoints(shapely.get_coordinates(own)))))
-    u, v = ring3[i], ring3[nxt[i]]
-    w = edges.get((tuple(v.tolist()), tuple(u.tolist())))
-    # only at a wall (a box on a ridge or a valley would need a notch in both roofs); the wall, counter-clockwise
-    # seen from outside, lies left of v -> u: under the edge or over it
-    if w is None or solid.surfaces[w].kind != "WallSurface":
+    # the edges reached: on from the nearest one through each ring corner the box covers (at most all but two)
+    covered = shapely.covers(hull, shapely.points(xy))
+    first, last = i, i
+    while covered[first] and (last - first) % n < n - 2:
+        first = (first - 1) % n
+    while covered[nxt[last]] and (last - first) % n < n - 2:
+        last = nxt[last]
+    chain = [(first + j) % n for j in range((last - first) % n + 2)]  # ring corners from the first edge's start
+    walls = [edges.get((tuple(ring3[b].tolist()), tuple(ring3[a].tolist()))) for a, b in zip(chain, chain[1:])]
+    # only at walls (a box on a ridge or a valley would need a notch in both roofs); a wall, counter-clockwise
+    # seen from outside, lies left of its edge b -> a: under the edge or over it
+    if any(w is None or solid.surfaces[w].kind != "WallSurface" for w in walls):
         return None
-    over = bool(np.cross(surface_normal(solid.surfaces[w].rings), (u - v).astype(np.float64))[2] > 0)
+    over = [bool(np.cross(surface_normal(solid.surfaces[w].rings), (ring3[a] - ring3[b]).astype(np.float64))[2] > 0)
+            for w, a, b in zip(walls, chain, chain[1:])]
+    if any(over) and len(walls) > 1:
+        return None
     holes = [h[:, :2] for h in roof.rings[1:]]
     surface = shapely.Polygon(xy, holes)
-    # the surface's other edges (from the edge's end round to its start) and its holes stay two lattice steps away
-    # (a box at a corner is cut back from the other edge, on the lattice)
-    rest = shapely.MultiLineString([np.roll(xy, -int(nxt[i]), axis=0)] + [np.vstack([h, h[:1]]) for h in holes])
+    # the surface's other edges (from the last edge's end round to the first one's start) and its holes stay two
+    # lattice steps away (a box at another corner is cut back from the other edge, on the lattice)
+    rest = shapely.MultiLineString([np.roll(xy, -int(chain[-1]), axis=0)[:(n - len(chain) + 2)]]
+                                   + [np.vstack([h, h[:1]]) for h in holes])
     if shapely.distance(shapely.intersection(hull, surface), rest) < 2 * snap - 0.5 * grid:
         hull = shapely.set_precision(shapely.difference(hull, shapely.buffer(rest, 2 * snap, join_style="mitre")),
                                      snap)
@@ -362,30 +375,32 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     corners = np.asarray(plan.exterior.coords)[:-1]
     if not shapely.is_ccw(plan.exterior):
         corners = corners[::-1]
-    on = shapely.distance(shapely.points(corners), seg[i]) < 0.5 * grid
-    # the run of corners on the edge: its two ends (those between lie on the edge's line, nothing is lost)
+    on = shapely.distance(shapely.points(corners), shapely.linestrings(xy[chain])) < 0.5 * grid
+    # the run of corners on the edges: its two ends and the ring's corners between (the others lie on the edges'
+    # lines, nothing is lost)
     start = np.flatnonzero(on & ~np.roll(on, 1))
     if len(start) != 1 or on.all():
         return None
     corners = np.roll(corners, -int(start[0]), axis=0)
     run = int(on.sum())
-    corners = np.vstack([corners[:1], corners[run - 1:]])
-    m = len(corners)
-    ring = np.round(corners / grid).astype(np.int64)
-    if len(np.unique(ring, axis=0)) < m:
+    ends = np.round(corners[[0, run - 1]] / grid).astype(np.int64)
+    ring = np.vstack([ends[:1], ring3[chain[1:-1], :2], ends[1:], np.round(corners[run:] / grid).astype(np.int64)])
+    if len(np.unique(ring, axis=0)) < len(ring):
         return None
-    # the corners' heights and places along the edge, as its straight line between its ends gives them
-    d = (v[:2] - u[:2]).astype(np.float64)
-    t = (ring[:2] - u[:2]) @ d / (d @ d)
-    if not (0 < t[0] < t[1] < 1):
+    # the two ends' heights and places along their edges, as the edges' straight lines give them
+    a, b = ring3[chain[:2]], ring3[chain[-2:]]
+    t = np.array([(ends[0] - a[0, :2]) @ (a[1, :2] - a[0, :2]) / float((a[1, :2] - a[0, :2]) @ (a[1, :2] - a[0, :2])),
+                  (ends[1] - b[0, :2]) @ (b[1, :2] - b[0, :2]) / float((b[1, :2] - b[0, :2]) @ (b[1, :2] - b[0, :2]))])
+    if not (0 < t[0] < 1 and 0 < t[1] < 1 and (len(chain) > 2 or t[0] < t[1])):
         return None
-    foot = np.round(u[2] + t * (v[2] - u[2])).astype(np.int64)
-    if over:
+    foot = np.concatenate([np.round(a[0, 2:] + t[0] * (a[1, 2:] - a[0, 2:])), ring3[chain[1:-1], 2],
+                           np.round(b[0, 2:] + t[1] * (b[1, 2:] - b[0, 2:]))]).astype(np.int64)
+    if over[0]:
         # the notch in the wall (across it from the edge, up from its feet) two lattice steps inside its other edges
-        wall = solid.surfaces[w].rings[0]
-        along = d / np.sqrt(d @ d)
-        side = shapely.Polygon(np.column_stack([(wall[:, :2] - u[:2] * grid) @ along, wall[:, 2]]))
-        s = (ring[:2] * grid - u[:2] * grid) @ along
+        wall = solid.surfaces[walls[0]].rings[0]
+        along = (a[1, :2] - a[0, :2]) / np.sqrt(float((a[1, :2] - a[0, :2]) @ (a[1, :2] - a[0, :2])))
+        side = shapely.Polygon(np.column_stack([(wall[:, :2] - a[0, :2] * grid) @ along, wall[:, 2]]))
+        s = (ends * grid - a[0, :2] * grid) @ along
         strip = shapely.box(s[0] - 2 * snap, foot.max() * grid + 0.5 * grid, s[1] + 2 * snap, top * grid + 2 * snap)
         if not shapely.contains(side, strip):
             # (a parapet's return a centimetre off the step's top: the box as high as the wall lets it)
@@ -396,38 +411,58 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
             if (top - highest) * grid > rise:
                 return None
             top = highest
-    return shapely.Polygon(ring * grid), ring, foot, ((tuple(u.tolist()), tuple(v.tolist())), w, float(t[0]), over), \
-        top
+    return shapely.Polygon(ring * grid), ring, foot, ([tuple(p) for p in ring3[chain].tolist()], walls, over[0]), top
+
+
+def _split_edge(ring: list, p: tuple, q: tuple, at: tuple, new: list) -> None:
+    """Insert ``new`` into ``ring`` (integer vertices) where it runs along the edge ``p``-``q`` past ``at``.
+
+    The edge may be cut already (other notches' corners on it, within a grid unit of its line): ``new`` goes
+    between the two of its vertices on the line that ``at`` lies between.
+    """
+    r = np.asarray(ring, dtype=np.float64)
+    p_, d = np.asarray(p, dtype=np.float64), np.subtract(q, p).astype(np.float64)
+    t = (r - p_) @ d / (d @ d)
+    online = np.linalg.norm(r - p_ - t[:, None] * d, axis=1) <= 2.0
+    tc = (np.asarray(at, dtype=np.float64) - p_) @ d / (d @ d)
+    for j in range(len(ring)):
+        k = (j + 1) % len(ring)
+        if online[j] and online[k] and min(t[j], t[k]) < tc < max(t[j], t[k]):
+            ring[j + 1:j + 1] = new
+            return
+    raise ValueError("a notch's corner on no edge of its ring")
 
 
 def _with_notches(solid: Solid, roofs: list, roof_at: list, on_roof: dict, grid: float) -> dict:
     """The outer rings (m) of the roof surfaces and walls the boxes at an edge change: the roof's ring goes round
-    each notch; the wall's edge gets the notch's two corners (a wall under the edge: the box's outer wall stands
-    on it) or goes round the box's outer side (a wall over it)."""
-    per_edge: dict = {}
-    for k, boxes in on_roof.items():
-        for b in boxes:
-            if b[0] is None:
-                (edge, w, t, over), box, top = b[3], b[4], b[5]
-                per_edge.setdefault((k, edge, w), []).append((t, box, over, top))
-    if not per_edge:
-        return {}
+    each notch (the ring's corners the box covers left out); a wall's edge gets the notch's corner on it (a wall
+    under the edge: the box's outer wall stands on it) or goes round the box's outer side (a wall over it)."""
     rings: dict[int, list] = {}
-    for (k, (u, v), w), notches in sorted(per_edge.items(), key=lambda e: (e[0][0], e[0][1], e[0][2])):
-        notches.sort(key=lambda e: e[0])
-        # into the roof, after u: each notch from its first corner round (clockwise) to its second
-        roof = rings.setdefault(roof_at[k], [tuple(p) for p in np.round(roofs[k].rings[0] / grid).astype(np.int64)
-                                              .tolist()])
-        at = next(j for j in range(len(roof)) if roof[j] == u and roof[(j + 1) % len(roof)] == v)
-        cut = [tuple(p) for _, box, _, _ in notches for p in np.vstack([box[:1], box[:1:-1], box[1:2]]).tolist()]
-        roof[at + 1:at + 1] = cut
-        # into the wall, after v: the corners from the last notch's second to the first notch's first (a wall over
-        # the edge: up round the box's outer side at each)
-        wall = rings.setdefault(w, [tuple(p) for p in np.round(solid.surfaces[w].rings[0] / grid)
-                                     .astype(np.int64).tolist()])
-        at = next(j for j in range(len(wall)) if wall[j] == v and wall[(j + 1) % len(wall)] == u)
-        wall[at + 1:at + 1] = [p for _, box, over, top in notches[::-1] for p in
-                               ([tuple(box[1]), (*box[1, :2], top), (*box[0, :2], top), tuple(box[0])] if over
-                                else [tuple(box[1]), tuple(box[0])])]
-        wall[:] = [tuple(int(c) for c in p) for p in wall]
+
+    def ring_of(i):
+        return rings.setdefault(i, [tuple(p) for p in np.round(solid.surfaces[i].rings[0] / grid).astype(np.int64)
+                                    .tolist()])
+
+    for k in sorted(on_roof):
+        for b in on_roof[k]:
+            if b[0] is not None:
+                continue
+            (chain, walls, over), box, top = b[3], [tuple(p) for p in b[4].tolist()], b[5]
+            inner = len(chain) - 2  # the ring's corners the box covers
+            c_a, c_b = box[0], box[inner + 1]
+            cut = [c_a] + box[inner + 2:][::-1] + [c_b]
+            roof = ring_of(roof_at[k])
+            if inner:
+                at = roof.index(chain[1])
+                roof[at:at + inner] = cut
+            else:
+                _split_edge(roof, chain[0], chain[1], c_a, cut)
+            if over:
+                _split_edge(ring_of(walls[0]), chain[0], chain[1], c_a,
+                            [c_b, (*c_b[:2], top), (*c_a[:2], top), c_a])
+            elif inner:
+                _split_edge(ring_of(walls[0]), chain[0], chain[1], c_a, [c_a])
+                _split_edge(ring_of(walls[-1]), chain[-2], chain[-1], c_b, [c_b])
+            else:
+                _split_edge(ring_of(walls[0]), chain[0], chain[1], c_a, [c_b, c_a])
     return {i: np.asarray(r, dtype=np.float64) * grid for i, r in rings.items()}
