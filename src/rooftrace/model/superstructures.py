@@ -384,8 +384,16 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     corners = np.roll(corners, -int(start[0]), axis=0)
     run = int(on.sum())
     ends = np.round(corners[[0, run - 1]] / grid).astype(np.int64)
-    ring = np.vstack([ends[:1], ring3[chain[1:-1], :2], ends[1:], np.round(corners[run:] / grid).astype(np.int64)])
-    if len(np.unique(ring, axis=0)) < len(ring):
+    others = np.round(corners[run:] / grid).astype(np.int64)
+    # (a lattice corner of the hull within a lattice step of an end: a sliver side; the end takes its place)
+    lattice = round(snap / grid)
+    while len(others) > 1 and np.abs(others[0] - ends[1]).max() < lattice:
+        others = others[1:]
+    while len(others) > 1 and np.abs(others[-1] - ends[0]).max() < lattice:
+        others = others[:-1]
+    ring = np.vstack([ends[:1], ring3[chain[1:-1], :2], ends[1:], others])
+    if np.abs(ring - np.roll(ring, -1, axis=0)).max(axis=1).min() < 2 or \
+            not shapely.is_valid(shapely.Polygon(ring)) or not shapely.is_ccw(shapely.LinearRing(ring)):
         return None
     # the two ends' heights and places along their edges, as the edges' straight lines give them
     a, b = ring3[chain[:2]], ring3[chain[-2:]]
@@ -411,7 +419,10 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
             if (top - highest) * grid > rise:
                 return None
             top = highest
-    return shapely.Polygon(ring * grid), ring, foot, ([tuple(p) for p in ring3[chain].tolist()], walls, over[0]), top
+    plan = shapely.Polygon(ring * grid)
+    if not shapely.contains(plan, own).any():
+        return None
+    return plan, ring, foot, ([tuple(p) for p in ring3[chain].tolist()], walls, over[0]), top
 
 
 def _split_edge(ring: list, p: tuple, q: tuple, at: tuple, new: list) -> None:
