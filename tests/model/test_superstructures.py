@@ -142,3 +142,43 @@ def test_random_points_at_the_edges_keep_the_solid_valid():
             if solid is step:
                 under_a_wall |= (x < 10) & (x > 9.97)
             assert not (why[under_a_wall] == "at a roof edge").any()
+
+
+def test_vents_at_the_eaves_and_on_the_ridge_of_a_simulated_gable():
+    """The simulated gable with its vents and the two at its edges (``gable(vents=True, edge_vents=True)``, 10
+    pts/m², three seeds), each eave vent's outermost return put 4 mm inside the eaves (where an outline drawn
+    through the outermost returns puts it): the solids are valid and no top point on no plane stands more than
+    0.5 m over the LoD 2.2 roof (a box cut two lattice steps inside the eaves could not hold that return)."""
+    from rooftrace.model import build_model
+    from rooftrace.roof import models, roof_structure
+    from tests.roof.test_structure import _tops_off
+
+    m = models.gable(vents=True, edge_vents=True, angle=20, offset=(85000.0, 447000.0))
+    for seed in range(3):
+        xyz, face = models.sample_roof(m, 10, 0.03, seed=seed)
+        local = m.to_local(xyz[:, :2])
+        eave = np.flatnonzero((face < 0) & (local[:, 1] < 0.4))
+        outer = eave[np.argmin(local[eave, 1])]
+        local[outer, 1] = 0.004
+        xyz[outer, :2] = m.to_world(local[outer:outer + 1])[0]
+        roof = roof_structure(xyz, m.outline)
+        solids = [p.lods["2.2"] for p in build_model(m.outline, roof, xyz, 0.0).parts]
+        assert all(solid_errors(s) == [] for s in solids)
+        assert not _tops_off(roof, xyz, solids, 0.5).any()
+        assert abs(roof_height_at(solids, xyz[outer:outer + 1, :2])[0] - xyz[outer, 2]) < 0.5
+
+
+def test_a_delft_eave_box():
+    """Delft BGT feature 12: a top point on no plane a few millimetres inside the outline stood more than 0.5 m
+    over the LoD 2.2 roof ("at a roof edge"); the box reaching the edge holds it, the solids stay valid and no
+    top point on no plane is left more than 0.5 m over the roof."""
+    from rooftrace.model import build_model
+    from rooftrace.roof import roof_structure
+    from tests.roof.test_real import _bgt_building
+    from tests.roof.test_structure import _tops_off
+
+    xyz, outline = _bgt_building(12)
+    roof = roof_structure(xyz, outline, building_id=12)
+    solids = [p.lods["2.2"] for p in build_model(outline, roof, xyz, float(xyz[:, 2].min() - 3.0)).parts]
+    assert all(solid_errors(s) == [] for s in solids)
+    assert not _tops_off(roof, xyz, solids, 0.5).any()
