@@ -314,8 +314,8 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
 
     The box is ``hull`` cut to the surface (not inside it): a notch cut from the edges of the surface's outer
-    ring it reaches (one edge, or several through the ring's corners it covers), its other edges two lattice
-    steps away.  Where walls stand under those edges (the eaves, a step's top) the box's outer walls stand on
+    ring it reaches (one edge, or several through the ring's corners it covers, walls under each), its other
+    edges two lattice steps away.  Where walls stand under those edges (the eaves, a step's top) the box's outer walls stand on
     their top edges; where a wall stands over the one edge (a step's foot) the box's outer side is a notch cut
     into that wall, its top (``top``, grid units) put two lattice steps under the wall's top when it is higher,
     by ``rise`` (m) at most.  ``None`` where none is so (a ridge, a valley; the box would not hold one of
@@ -350,15 +350,17 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
     while covered[nxt[last]] and (last - first) % n < n - 2:
         last = nxt[last]
     chain = [(first + j) % n for j in range((last - first) % n + 2)]  # ring corners from the first edge's start
-    walls = [edges.get((tuple(ring3[b].tolist()), tuple(ring3[a].tolist()))) for a, b in zip(chain, chain[1:])]
-    # only at walls (a box on a ridge or a valley would need a notch in both roofs); a wall, counter-clockwise
-    # seen from outside, lies left of its edge b -> a: under the edge or over it
-    if any(w is None or solid.surfaces[w].kind != "WallSurface" for w in walls):
-        return None
-    over = [bool(np.cross(surface_normal(solid.surfaces[w].rings), (ring3[a] - ring3[b]).astype(np.float64))[2] > 0)
-            for w, a, b in zip(walls, chain, chain[1:])]
-    if any(over) and len(walls) > 1:
-        return None
+    for chain in (chain, [i, int(nxt[i])]):
+        walls = [edges.get((tuple(ring3[b].tolist()), tuple(ring3[a].tolist()))) for a, b in zip(chain, chain[1:])]
+        # only at walls (a box on a ridge or a valley would need a notch in both roofs); a wall, counter-clockwise
+        # seen from outside, lies left of its edge b -> a: under the edge or over it
+        if any(w is None or solid.surfaces[w].kind != "WallSurface" for w in walls):
+            return None
+        over = [bool(np.cross(surface_normal(solid.surfaces[w].rings), (ring3[a] - ring3[b]).astype(np.float64))[2]
+                     > 0) for w, a, b in zip(walls, chain, chain[1:])]
+        # (a wall over an edge takes a box on that edge alone: the box is cut back from the corners)
+        if len(walls) == 1 or not any(over):
+            break
     holes = [h[:, :2] for h in roof.rings[1:]]
     surface = shapely.Polygon(xy, holes)
     # the surface's other edges (from the last edge's end round to the first one's start) and its holes stay two
