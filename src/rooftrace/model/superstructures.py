@@ -43,8 +43,8 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     lies within ``rise`` (m) under the returned solid's roof, or above it,
     unless one of :data:`BOX_REASONS` holds for it: its box, cut to the
     roof surface it stands on two lattice steps inside that surface's edges,
-    does not hold it and neither does the box reaching the one edge of that
-    surface nearest to it where a wall meets that edge ("at a roof edge": a
+    does not hold it and neither does the box reaching the edges of that
+    surface nearest to it where walls meet them ("at a roof edge": a
     chimney on a ridge or in a valley, a box at a corner of the surface, one
     rising over the wall that stands over the edge); it meets the box of a
     higher point ("beside a higher box"); a
@@ -241,7 +241,19 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
-    notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
+    try:
+        notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
+    except ValueError:  # (a notch's end on no edge of the ring: not seen; those boxes are left out, not the solid)
+        for k in list(on_roof):
+            for b in on_roof[k]:
+                if b[0] is None:
+                    skipped[b[2]] = "at a roof edge"
+            on_roof[k] = [b for b in on_roof[k] if b[0] is not None]
+            if not on_roof[k]:
+                del on_roof[k]
+        notched = {}
+        if not on_roof:
+            return solid, skipped
     holed = {k: [Surface([notched.get(roof_at[k], roofs[k].rings[0])] + list(roofs[k].rings[1:])
                          + [b[0] for b in boxes if b[0] is not None], "RoofSurface")]
              for k, boxes in on_roof.items()}
@@ -252,17 +264,19 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     keys = [k for k in holed if np.ptp(roofs[k].rings[0][:, 2]) > 0]
     tilted = np.asarray(keys, dtype=np.int64)[surface_tilt([holed[k][0] for k in keys], max_tilt) > max_tilt].tolist() \
         if keys else []
+    dropped = False
     for k in tilted:
         triangles = split_tilted([[np.round(r / grid).astype(np.int64) for r in holed[k][0].rings]], max_tilt)
         if len(triangles) > 1:
             holed[k] = [Surface([np.asarray(r, dtype=np.float64) * grid for r in tri], "RoofSurface")
                         for tri in triangles]
         else:  # not cut: that surface keeps no box
+            dropped = True
             for b in on_roof.pop(k):
                 skipped[b[2]] = "would tilt its roof surface"
     if not on_roof:
         return solid, skipped
-    if tilted:  # a surface that keeps no box keeps its edges: the walls under its notches are built again
+    if dropped:  # a surface that keeps no box keeps its edges: the walls under its notches are built again
         notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
     by_index = {roof_at[k]: holed[k] for k in on_roof}
     by_index.update({i: [Surface([ring], solid.surfaces[i].kind)] for i, ring in notched.items() if i not in by_index})
