@@ -314,16 +314,25 @@ def _plane_z(normal: np.ndarray, centre: np.ndarray, xy: np.ndarray) -> np.ndarr
         / normal[:, 2]
 
 
-def _directed_edges(solid: Solid, grid: float) -> dict:
-    """Each directed edge of the solid's outer rings (vertices on the grid, integer) and the surface it bounds."""
-    edges = {}
-    for i, s in enumerate(solid.surfaces):
-        ring = [tuple(v) for v in np.round(s.rings[0] / grid).astype(np.int64).tolist()]
-        edges.update(((a, b), i) for a, b in zip(ring, ring[1:] + ring[:1]))
-    return edges
+def _directed_edges(solid: Solid, grid: float) -> tuple[np.ndarray, np.ndarray]:
+    """The directed edges of the solid's outer rings, vertices on the grid (integer): a table of (N, 6), each
+    edge's start and end, and the surface each bounds (see :func:`_edge_surface`)."""
+    rings = [s.rings[0] for s in solid.surfaces]
+    size = np.array([len(r) for r in rings])
+    first = np.repeat(np.cumsum(size) - size, size)
+    at = np.arange(len(first))
+    following = first + (at - first + 1) % np.repeat(size, size)
+    v = np.round(np.concatenate(rings) / grid).astype(np.int64)
+    return np.hstack([v, v[following]]), np.repeat(np.arange(len(rings)), size)
 
 
-def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top: int, rise: float, grid: float,
+def _edge_surface(edges: tuple[np.ndarray, np.ndarray], a, b) -> int | None:
+    """The surface whose outer ring runs from ``a`` to ``b`` (grid units), ``None`` if none does."""
+    hit = np.flatnonzero((edges[0] == np.concatenate([a, b])).all(axis=1))
+    return int(edges[1][hit[0]]) if len(hit) else None
+
+
+def _notch(hull, roof: Surface, own: np.ndarray, edges: tuple, solid: Solid, top: int, rise: float, grid: float,
            snap: float):
     """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
 
@@ -365,7 +374,7 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
         last = nxt[last]
     chain = [(first + j) % n for j in range((last - first) % n + 2)]  # ring corners from the first edge's start
     for chain in (chain, [i, int(nxt[i])]):
-        walls = [edges.get((tuple(ring3[b].tolist()), tuple(ring3[a].tolist()))) for a, b in zip(chain, chain[1:])]
+        walls = [_edge_surface(edges, ring3[b], ring3[a]) for a, b in zip(chain, chain[1:])]
         # only at walls (a box on a ridge or a valley would need a notch in both roofs); a wall, counter-clockwise
         # seen from outside, lies left of its edge b -> a: under the edge or over it
         if any(w is None or solid.surfaces[w].kind != "WallSurface" for w in walls):
@@ -376,11 +385,13 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: dict, solid: Solid, top:
         if len(walls) == 1 or not any(over):
             break
     holes = [h[:, :2] for h in roof.rings[1:]]
-    surface = shapely.Polygon(xy, holes)
     # the surface's other edges (from the last edge's end round to the first one's start) and its holes stay two
-    # lattice steps away (a box at another corner is cut back from the other edge, on the lattice)
-    rest = shapely.MultiLineString([np.roll(xy, -int(chain[-1]), axis=0)[:(n - len(chain) + 2)]]
-                                   + [np.vstack([h, h[:1]]) for h in holes])
+    # lattice steps away (a box at another corner is cut back from the other edge, on the lattice); both cut to
+    # the hull's box three steps wide, out of the buffer's reach (a roof's whole outline is slow to buffer)
+    near = np.asarray(hull.bounds) + np.array([-3, -3, 3, 3]) * snap
+    surface = shapely.clip_by_rect(shapely.Polygon(xy, holes), *near)
+    rest = shapely.clip_by_rect(shapely.MultiLineString([np.roll(xy, -int(chain[-1]), axis=0)[:(n - len(chain) + 2)]]
+                                                        + [np.vstack([h, h[:1]]) for h in holes]), *near)
     if shapely.distance(shapely.intersection(hull, surface), rest) < 2 * snap - 0.5 * grid:
         hull = shapely.set_precision(shapely.difference(hull, shapely.buffer(rest, 2 * snap, join_style="mitre")),
                                      snap)
