@@ -410,7 +410,10 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: tuple, solid: Solid, top
         return None
     corners = np.roll(corners, -int(start[0]), axis=0)
     run = int(on.sum())
-    ends = np.round(corners[[0, run - 1]] / grid).astype(np.int64)
+    # the ends on the grid on the surface's side of their edges: a wall bent outwards by the rounding would stand
+    # over a neighbouring part by a fraction of a millimetre (val3dity's 601)
+    ends = np.array([_grid_inside(corners[0] / grid, ring3[chain[0], :2], ring3[chain[1], :2]),
+                     _grid_inside(corners[run - 1] / grid, ring3[chain[-2], :2], ring3[chain[-1], :2])])
     others = np.round(corners[run:] / grid).astype(np.int64)
     # (a lattice corner of the hull within a lattice step of an end: a sliver side; the end takes its place)
     lattice = round(snap / grid)
@@ -450,6 +453,15 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: tuple, solid: Solid, top
     if not shapely.contains(plan, own).any():
         return None
     return plan, ring, foot, ([tuple(p) for p in ring3[chain].tolist()], walls, over[0]), top
+
+
+def _grid_inside(point: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The grid point (integer) nearest to ``point`` (grid units) on the edge ``p`` -> ``q`` or left of it."""
+    cand = np.floor(point).astype(np.int64) + np.array([[0, 0], [1, 0], [0, 1], [1, 1]])
+    d = (q - p).astype(np.float64)
+    left = d[0] * (cand[:, 1] - p[1]) - d[1] * (cand[:, 0] - p[0]) >= 0
+    far = np.hypot(*(cand - point).T) + np.where(left, 0.0, np.inf)
+    return cand[int(np.argmin(far))]
 
 
 def _split_edge(ring: list, p: tuple, q: tuple, at: tuple, new: list) -> None:
