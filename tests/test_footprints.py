@@ -400,15 +400,16 @@ def test_small_clumps_are_widened_by_the_crown_they_touch():
 
 def _assert_grazed_edges(cloud, assignment, classification, max_drop: float = 3.5):
     """The pulse's evidence of every point :func:`chimney_edges` let in, checked on the raw LAS fields: a return
-    of a pulse (same GPS time and flight line) whose last return is a building point (by the detection) of the
-    same building less than ``max_drop`` under it; and the point a roof point, not an outline point."""
+    of a pulse (same GPS time and flight line) whose last return is a point of the same building less than
+    ``max_drop`` under it, the detection's building point or unclassified clutter standing in the footprint (not
+    one joined by touching); and the point a roof point, not an outline point."""
     f, xyz, bid = cloud.fields, cloud.xyz, assignment.building_id
     for e in assignment.edges:
         same = np.flatnonzero((f["gps_time"] == f["gps_time"][e]) & (f["point_source_id"] == f["point_source_id"][e]))
         last = same[np.argmax(f["return_number"][same])]
         assert f["return_number"][e] < f["return_number"][last] == f["number_of_returns"][e]
         assert 0 < xyz[e, 2] - xyz[last, 2] <= max_drop and bid[last] == bid[e] > 0
-        assert classification[last] == B
+        assert classification[last] in (B, ASPRS.UNCLASSIFIED) and last not in assignment.touching
     assert set(assignment.edges.tolist()) <= set(assignment.touching.tolist())
 
 

@@ -23,7 +23,10 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 
 Neither of the last two takes a tree's points (:func:`tree_points`: the
 detection's vegetation, or points amid vegetation or amid returns that went
-on through, whose neighbourhood is no plane).  So every non-ground point over an
+on through, whose neighbourhood is no plane), except the grazed edges of a
+chimney, a dormer or a parapet (:func:`chimney_edges`): a tree-like point
+whose pulse ended on the building's points at most a box's height under it,
+in a clump standing at one height, is a roof point too.  So every non-ground point over an
 ``"ok"`` footprint is either in its building or left out for a reason of
 :data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
 tree's, or detached from the building's points.
@@ -73,7 +76,7 @@ LEFT_OUT = {
     "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
     "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
             "non-ground points vegetation or returns that went on through, and those 10 points no plane within "
-            "planar_vegetation",
+            "planar_vegetation; and no grazed edge of a chimney (footprints.chimney_edges)",
     "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
                 "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
     "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
@@ -172,6 +175,7 @@ class FootprintOptions:
     edge_drop : float, default 3.5
         With ``planar_vegetation`` and the pulses' last returns: a point of
         the tree test whose pulse ended on its footprint's building points
+        (the detection's roof or the unclassified clutter standing on it)
         at most this far (m) under it, in a flat clump (``edge_spread``),
         is the edge of a chimney, a dormer or a parapet that the beam
         grazed (:func:`chimney_edges`), and joins its building.  A crown's
@@ -481,9 +485,14 @@ def assign_footprints(
             leafy = np.flatnonzero((classification == ASPRS.HIGH_VEGETATION) & (hag >= options.min_height / 2))
             tree_like[tree_like] = ~small_clumps(xyz, other[tree_like], 2.5 * spacing, options.crown_extent,
                                                  among=leafy)
+        # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
+        standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
+            & (hag[other] >= options.min_height)
+        building_id[other[standing]] = (where[standing] + 1).astype(np.int32)
         edge = np.zeros(len(other), bool)
         if options.edge_drop > 0 and last_return is not None and tree_like.any():
-            # a beam that grazed a chimney's top returned from it and then from the roof at its foot
+            # a beam that grazed a chimney's top returned from it and then from the roof at its foot (the
+            # detection's roof or the clutter standing on it)
             porous = np.flatnonzero(np.isin(classification, (ASPRS.UNCLASSIFIED, ASPRS.HIGH_VEGETATION))
                                     & (hag >= options.min_height / 2))
             edge[tree_like] = chimney_edges(xyz, other[tree_like], where[tree_like] + 1, building_id, last_return,
@@ -491,10 +500,6 @@ def assign_footprints(
             tree_like &= ~edge
         trees, edges = other[tree_like], other[edge]
         building_id[edges] = (where[edge] + 1).astype(np.int32)
-        # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
-        standing = ~tree_like & ~edge & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
-            & (hag[other] >= options.min_height)
-        building_id[other[standing]] = (where[standing] + 1).astype(np.int32)
         # the rest joins when it touches the building's own points, in the footprint or its band (a chimney of a
         # few points, clutter along the eaves, a shed roof under min_height, a roof the detection called
         # vegetation): roof points, not outline points; so are the grazed edges, which hang beside their chimney
@@ -568,15 +573,7 @@ def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: in
         return none
     # only the pool near the tested points is worth a tree (most of a cloud is far from them): the
     # 4 m cells around theirs hold every neighbour within 4 m, farther ones say nothing of a roof plane
-    cell = 4.0
-    lo = xyz[points, :2].min(axis=0) - 2 * cell
-    mine = np.floor((xyz[points, :2] - lo) / cell).astype(np.int64)
-    ny = int(mine[:, 1].max()) + 3
-    step = np.array([-1, 0, 1])
-    keys = np.unique((mine[:, 0, None, None] + step[:, None]) * ny + (mine[:, 1, None, None] + step[None, :]))
-    theirs = np.floor((xyz[pool, :2] - lo) / cell).astype(np.int64)
-    inside = (theirs >= 0).all(axis=1) & (theirs[:, 1] < ny)
-    pool = pool[inside][np.isin(theirs[inside, 0] * ny + theirs[inside, 1], keys)]
+    pool = _near_cells(xyz, points, pool, 4.0)
     if len(pool) < 3:
         return none
     k = min(k, len(pool))
@@ -751,7 +748,8 @@ def chimney_edges(xyz: np.ndarray, points: np.ndarray, owner: np.ndarray, buildi
     owner : ndarray of int
         Per judged point, the building id whose roof its pulse must end on.
     building_id : ndarray of shape (N,), int
-        The buildings' points so far (0: none).
+        The buildings' points so far (0: none): those a grazing pulse may
+        end on.
     last_return : ndarray of shape (N,), int
         Per point, its pulse's last return (:func:`last_returns`).
     link : float
@@ -776,7 +774,7 @@ def chimney_edges(xyz: np.ndarray, points: np.ndarray, owner: np.ndarray, buildi
     --------
     >>> xyz = np.array([[0.0, 0, 6], [0.2, 0, 6.05], [0.1, 0, 5], [5, 0, 9], [5.2, 0, 7], [5.1, 0, 5]])
     >>> chimney_edges(xyz, np.array([0, 1, 3, 4]), np.array([1, 1, 1, 1]), np.array([0, 0, 1, 0, 0, 1]),
-    ...               np.array([2, 2, 2, 5, 5, 5]), 0.3, 3.5, 0.15).tolist()
+    ...               np.array([2, 2, 2, 5, 5, 5]), 2.1, 3.5, 0.15).tolist()
     [True, True, False, False]
     """
     points = np.asarray(points, dtype=np.int64)
