@@ -702,8 +702,8 @@ def last_returns(gps_time: np.ndarray, source: np.ndarray, return_number: np.nda
     -------
     ndarray of shape (N,), int64
         A return whose pulse's last return is missing (cut off by a tile's
-        edge, or a sensor's dropped echo) gets its pulse's lowest-numbered
-        last return present, and one alone in its pulse itself.
+        edge, or a sensor's dropped echo) gets the highest-numbered return
+        of its pulse present, and one alone in its pulse itself.
 
     Examples
     --------

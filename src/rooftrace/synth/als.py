@@ -200,7 +200,8 @@ def _edge_returns(o, d, model: SurfaceModel, t_s, face, rt, rk, return_face, rad
         return
     dd = d[idx]
     side = np.cross(dd, [0.0, 0.0, 1.0])
-    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-12), [1.0, 0.0, 0.0])  # a beam straight down: any
     other = np.cross(dd, side)
     t_all, f_all = [t_s[idx]], [face[idx]]
     for offset in (side, -side, other, -other):
