@@ -241,19 +241,9 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
-    try:
-        notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
-    except ValueError:  # (a notch's end on no edge of the ring: not seen; those boxes are left out, not the solid)
-        for k in list(on_roof):
-            for b in on_roof[k]:
-                if b[0] is None:
-                    skipped[b[2]] = "at a roof edge"
-            on_roof[k] = [b for b in on_roof[k] if b[0] is not None]
-            if not on_roof[k]:
-                del on_roof[k]
-        notched = {}
-        if not on_roof:
-            return solid, skipped
+    notched = _notches_kept(solid, roofs, roof_at, on_roof, skipped, grid, max_tilt)
+    if not on_roof:
+        return solid, skipped
     holed = {k: [Surface([notched.get(roof_at[k], roofs[k].rings[0])] + list(roofs[k].rings[1:])
                          + [b[0] for b in boxes if b[0] is not None], "RoofSurface")]
              for k, boxes in on_roof.items()}
@@ -277,7 +267,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     if not on_roof:
         return solid, skipped
     if dropped:  # a surface that keeps no box keeps its edges: the walls under its notches are built again
-        notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
+        notched = _notches_kept(solid, roofs, roof_at, on_roof, skipped, grid, max_tilt)
     by_index = {roof_at[k]: holed[k] for k in on_roof}
     by_index.update({i: [Surface([ring], solid.surfaces[i].kind)] for i, ring in notched.items() if i not in by_index})
     surfaces = [t for i, s in enumerate(solid.surfaces) for t in by_index.get(i, [s])]
@@ -481,6 +471,34 @@ def _split_edge(ring: list, p: tuple, q: tuple, at: tuple, new: list) -> None:
             ring[j + 1:j + 1] = new
             return
     raise ValueError("a notch's corner on no edge of its ring")
+
+
+def _notches_kept(solid: Solid, roofs: list, roof_at: list, on_roof: dict, skipped: np.ndarray, grid: float,
+                  max_tilt: float) -> dict:
+    """:func:`_with_notches`, the boxes at an edge left out (from ``on_roof``, their points "at a roof edge" in
+    ``skipped``) where a wall they change would tilt: its top's new corners lie on its plane only to the grid, and
+    corners close together make thin triangles a validator finds tilted (val3dity's 204)."""
+    while True:  # each pass returns or leaves out a box
+        try:
+            notched = _with_notches(solid, roofs, roof_at, on_roof, grid)
+        except ValueError:  # (a notch's end on no edge of the ring: not seen; every box at an edge is left out)
+            notched, bad = {}, None
+        else:
+            walls = [i for i in notched if solid.surfaces[i].kind == "WallSurface"]
+            tilt = surface_tilt([Surface([notched[i]], "WallSurface") for i in walls], max_tilt) if walls else []
+            bad = {i for i, t in zip(walls, tilt) if t > max_tilt}
+            if not bad:
+                return notched
+        for k in list(on_roof):
+            out = [b[0] is None and (bad is None or bool(set(b[3][1]) & bad)) for b in on_roof[k]]
+            for b, o in zip(on_roof[k], out):
+                if o:
+                    skipped[b[2]] = "at a roof edge"
+            on_roof[k] = [b for b, o in zip(on_roof[k], out) if not o]
+            if not on_roof[k]:
+                del on_roof[k]
+        if bad is None:
+            return {}
 
 
 def _with_notches(solid: Solid, roofs: list, roof_at: list, on_roof: dict, grid: float) -> dict:
