@@ -196,7 +196,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             if edges is None:
                 edges = _directed_edges(solid, grid)
             notch = _notch(hull, roofs[k], own, edges, solid, top, rise, grid, snap)
-            if notch is not None and any(shapely.dwithin(notch[0], p, 2 * snap) for p in placed.get(k, ())):
+            if notch is not None and k in placed and shapely.dwithin(notch[0], placed[k], 2 * snap).any():
                 if not held.any():
                     skipped[need[members]] = "beside a higher box"
                     continue
@@ -208,7 +208,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
                 continue
         # (surfaces do not overlap in plan: only boxes on the same one can meet; within half a lattice step, as
         # the hull's coordinates and a cut one's, both on the lattice, may differ in their last bits)
-        if any(shapely.dwithin(plan_m, p, 0.5 * snap) for p in placed.get(k, ())):
+        if k in placed and shapely.dwithin(plan_m, placed[k], 0.5 * snap).any():
             skipped[need[members]] = "beside a higher box"
             continue
         if notch is None:
