@@ -181,7 +181,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
             continue
         # (surfaces do not overlap in plan: only boxes on the same one can meet; within half a lattice step, as
         # the hull's coordinates and a cut one's, both on the lattice, may differ in their last bits)
-        if any(shapely.dwithin(plan_m, p, 0.5 * snap) for p in placed.get(k, ())):
+        if k in placed and shapely.dwithin(plan_m, placed[k], 0.5 * snap).any():
             skipped[need[members]] = "beside a higher box"
             continue
         ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
