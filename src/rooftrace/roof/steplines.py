@@ -404,16 +404,8 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             lens = shapely.union_all(shapely.polygonize(shapely.get_parts(shapely.union(piece, line))).geoms)
             if lens.is_empty or lens.area <= 0:
                 continue
-            gain_a, gain_b = _polygonal(shapely.intersection(lens, B)), _polygonal(shapely.intersection(lens, A))
-            newA = _polygonal(shapely.union(_polygonal(shapely.difference(A, lens)), gain_a))
-            newB = _polygonal(shapely.union(_polygonal(shapely.difference(B, lens)), gain_b))
-            if not (_one_piece(newA, A) and _one_piece(newB, B)):
-                log.debug("step %d|%d: a face would fall apart", a, b)
-                continue
-            area = A.area + B.area
-            if abs(newA.area + newB.area - area) > 1e-6 * max(area, 1.0):
-                continue
-            # the labelled points whose face changes (in the lens), before and after
+            # the labelled points whose face changes (in the lens), before and after; tested before the faces are
+            # cut (a boundary that misplaces a point is refused whatever the faces would be)
             cand = _in_box(xy, lens.bounds)
             cand = cand[shapely.contains_xy(lens, xy[cand, 0], xy[cand, 1])]
             cand = cand[~((lab[cand] == lo) & hidden_under(P, lab, cand, up, hide, step_height, tree))]
@@ -425,13 +417,25 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             after = np.where(in_a, z_b, z_a)
             fit_before = np.abs(before - own_z[cand]) <= max_dz
             fit_after = np.abs(after - own_z[cand]) <= max_dz
+            mended, misplaced = fit_after & ~fit_before, fit_before & ~fit_after
+            # mended points do not buy misplaced ones: where the levels interleave the raster's boundary stays
+            if misplaced.any():
+                log.debug("step %d|%d: kept (%d points mended, %d misplaced)", a, b, mended.sum(), misplaced.sum())
+                continue
+            gain_a, gain_b = _polygonal(shapely.intersection(lens, B)), _polygonal(shapely.intersection(lens, A))
+            newA = _polygonal(shapely.union(_polygonal(shapely.difference(A, lens)), gain_a))
+            newB = _polygonal(shapely.union(_polygonal(shapely.difference(B, lens)), gain_b))
+            if not (_one_piece(newA, A) and _one_piece(newB, B)):
+                log.debug("step %d|%d: a face would fall apart", a, b)
+                continue
+            area = A.area + B.area
+            if abs(newA.area + newB.area - area) > 1e-6 * max(area, 1.0):
+                continue
             simpler = len(shapely.get_coordinates(newA)) + len(shapely.get_coordinates(newB)) < (
                 len(shapely.get_coordinates(A)) + len(shapely.get_coordinates(B)))
-            # mended points do not buy misplaced ones: where the levels interleave the raster's boundary stays
-            if not (fit_before & ~fit_after).any() and ((fit_after & ~fit_before).any() or simpler):
+            if mended.any() or simpler:
                 faces[fi], faces[fj] = A, B = newA, newB
                 changed.update((fi, fj))
             else:
-                log.debug("step %d|%d: kept (%d points mended, %d misplaced)", a, b, (fit_after & ~fit_before).sum(),
-                          (fit_before & ~fit_after).sum())
+                log.debug("step %d|%d: kept (nothing mended, no vertex saved)", a, b)
     return faces, list(plane_ids)
