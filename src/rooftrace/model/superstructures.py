@@ -243,7 +243,6 @@ def _box_plans(groups: list, centre_g: np.ndarray, half: np.ndarray, surface_pla
     surface's edges, or holds none of its points) and, per box, which of its
     points its plan holds.
     """
-    lattice = int(round(snap / grid))
     sizes = np.array([len(m) for _, m in groups], dtype=np.int64)
     members = np.concatenate([m for _, m in groups])
     of = np.repeat(np.arange(len(groups)), sizes)
