@@ -483,6 +483,93 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     return out_faces, out_ids, retry
 
 
+def _one_wedge(face, near: np.ndarray, at: np.ndarray, width: float, outline):
+    """The claim's wedge: the convex hull of the point ``at`` (with a margin of ``width / 4`` beyond it and to
+    either side) and the part of ``face`` within ``width`` of its point ``near``, cut by the outline."""
+    reach = shapely.intersection(face, shapely.box(*(near - width), *(near + width)))
+    u = at - near
+    u = u / max(float(np.hypot(u[0], u[1])), 1e-12)
+    t = np.array([-u[1], u[0]])
+    margin = np.array([at + (u + t) * width / 4, at + (u - t) * width / 4])
+    hull = shapely.convex_hull(shapely.multipoints(np.concatenate([shapely.get_coordinates(reach), margin])))
+    return hull if shapely.contains_properly(outline, hull) else shapely.intersection(hull, outline)
+
+
+def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
+                    radius: float, max_dz: float, width: float, hidden_within: float = 0.0,
+                    step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
+    """The points :func:`_claimed` left under another level, claimed one at a time.
+
+    :func:`_claimed` applies all wedges at once and, when the faces a
+    wedge changes would be cut in two or get a hole, drops every wedge on
+    those faces; two wedges of different faces that meet drop one.  Here
+    each point still off its faces gets its wedge (``width``, then
+    ``width / 4``) against the faces as the earlier wedges left them, kept
+    under the same rules (no point that fits where it is is put under a
+    plane more than ``max_dz`` off its own unless it lies under the
+    claiming level's eave; every changed face stays one polygon with no new
+    hole, also on the centimetre grid; the faces tile what they tiled).
+    """
+    faces = np.asarray(polys, dtype=object)
+    pids = np.asarray(ids, dtype=np.int64)
+    if len(faces) < 2 or not len(P):
+        return polys, ids
+    xy = P[:, :2]
+    own_z = plane_height(planes[lab], xy)
+    under_eave = _eave_rule(P, lab, planes, hidden_within, step_height, overhanging)
+    pt, target, near, _ = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz, under_eave)
+    if not len(pt):
+        return polys, ids
+    changed_any = False
+    for i, tgt, nr in zip(pt, target, near):
+        cover = shapely.intersects_xy(faces, *xy[i])
+        if (np.abs(plane_height(planes[pids[cover]], xy[i]) - own_z[i]) <= max_dz).any():
+            continue  # an earlier wedge took it
+        for w in (width, width / 4):
+            wedge = _one_wedge(faces[tgt], nr, xy[i], w, outline)
+            if shapely.get_type_id(wedge) != 3:
+                continue
+            hit = np.flatnonzero(shapely.intersects(faces, wedge) & (np.arange(len(faces)) != tgt))
+            hit = hit[shapely.area(shapely.intersection(faces[hit], wedge)) > 0]
+            if not len(hit):
+                break
+            # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
+            # corner's sliver face, the tip of a face beyond the point), under the same rules
+            rest = shapely.difference(faces[hit], wedge)
+            cut = shapely.get_num_geometries(rest) > 1
+            if cut.any():
+                bits = [p for r in rest[cut] for p in sorted(shapely.get_parts(r), key=shapely.area)[:-1]]
+                if _area_sum(bits) > 16 * w * w:
+                    continue
+                wedge = shapely.union_all([wedge, *bits])
+            q, fi = points_in_faces(np.array([wedge], dtype=object), xy)
+            # a point in the wedge that fits the face it is under now and would not fit the target's plane
+            q = q[np.abs(plane_height(planes[pids[tgt]], xy[q]) - own_z[q]) > max_dz]
+            if len(q):
+                qa, qf = points_in_faces(faces[hit], xy[q])
+                fits = np.zeros(len(q), dtype=bool)
+                fits[qa[np.abs(plane_height(planes[pids[hit[qf]]], xy[q[qa]]) - own_z[q[qa]]) <= max_dz]] = True
+                if fits.any() and under_eave is not None:
+                    fits[fits] = ~under_eave(q[fits], np.full(int(fits.sum()), pids[tgt]))
+                if fits.any():
+                    continue
+            old = faces[np.r_[hit, tgt]]
+            new = np.concatenate([shapely.difference(faces[hit], wedge), [shapely.union(faces[tgt], wedge)]])
+            coarse = shapely.set_precision(new, 0.01)
+            if ((shapely.get_type_id(new) != 3).any() or (shapely.get_num_geometries(coarse) != 1).any()
+                    or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
+                    or (shapely.get_num_interior_rings(coarse) > shapely.get_num_interior_rings(old)).any()
+                    or not shapely.is_valid(new).all()
+                    or abs(_area_sum(new) - _area_sum(old)) > 1e-6 * max(_area_sum(old), 1.0)):
+                continue
+            faces[hit], faces[tgt] = new[:-1], new[-1]
+            changed_any = True
+            break
+    if not changed_any:
+        return polys, ids
+    return list(faces), list(ids)
+
+
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                  radius: float, width: float, max_dz: float = 0.1, hidden_within: float = 0.0,
                  step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
@@ -576,6 +663,11 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
                                              overhanging=overhanging)
         if not dropped:
             break
+    else:
+        # what the batch dropped for a neighbour's wedge or for the faces it shared with one, one at a time
+        polys, plane_ids = _claimed_singly(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
+                                           width=width, hidden_within=hidden_within, step_height=step_height,
+                                           overhanging=overhanging)
     return list(polys), list(plane_ids)
 
 
