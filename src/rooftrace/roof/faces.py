@@ -539,7 +539,7 @@ def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndar
             cut = shapely.get_num_geometries(rest) > 1
             if cut.any():
                 bits = [p for r in rest[cut] for p in sorted(shapely.get_parts(r), key=shapely.area)[:-1]]
-                if _area_sum(bits) > 16 * w * w:
+                if _area_sum(bits) > 16 * width * width:
                     continue
                 wedge = shapely.union_all([wedge, *bits])
             q, fi = points_in_faces(np.array([wedge], dtype=object), xy)
