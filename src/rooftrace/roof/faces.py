@@ -583,7 +583,9 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     wedge (the convex hull of the point with a margin of ``width / 4``
     beyond it and to either side, and the part of the face within ``width``
     of the face's point nearest it), taken from the faces it covers; after
-    a wedge is dropped, again with wedges a quarter as wide.
+    a wedge is dropped, again with wedges a quarter as wide; the points
+    still left, one wedge at a time against the faces the others left (a
+    piece of another face the wedge cuts off going with it when small).
 
     What it guarantees, on any data: no labelled point that lay under a face
     of its own plane (or one within ``max_dz``) is moved from it, the faces
@@ -599,11 +601,13 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
       ``hidden_within`` in plan stands ``step_height`` higher: a lower
       level's return under the upper level's eave may go under the upper
       face, as no 2.5D roof can put it under its own there),
-    - both meet the wedge of a point of another face (the first, in point
-      order, is taken), or
-    - both would cut a face in two or open a hole in one, also once rounded
-      to a centimetre (faces meeting at a point, which the solids and the
-      building parts refuse).
+    - both would cut a face in two with more than ``16 width²`` beside its
+      largest piece, or open a hole in one, or leave the claiming face in
+      two pieces, also once rounded to a centimetre (faces meeting at a
+      point, which the solids and the building parts refuse), each wedge
+      judged against the faces the earlier claims left (another point's
+      wedge is no obstacle); a point under the eave of the level over it
+      (as above) is claimed only with all the others at once.
 
     Parameters
     ----------
