@@ -483,6 +483,12 @@ def test_a_wedge_that_cuts_a_small_face_in_two_takes_the_small_piece(monkeypatch
     assert 0 < polys[2].area < sliver.area / 2
     assert sum(p.area for p in polys) == pytest.approx(outline.area, rel=1e-9)
     assert shapely.union_all(polys).area == pytest.approx(outline.area, rel=1e-9)
+    # a face a wedge covers whole goes with it or stays, never left empty
+    speck = shapely.box(4.0, 0.95, 4.05, 1.05)
+    specked = [faces[0], shapely.box(4, 0, 8, 6) - speck, speck]
+    polys, ids = claim_points(specked, [0, 1, 2], outline, xyz, labels, planes, radius=1.0, width=0.2)
+    assert min(p.area for p in polys) > 0
+    assert sum(p.area for p in polys) == pytest.approx(outline.area, rel=1e-9)
     # the claim of all wedges at once alone leaves the point where it was
     monkeypatch.setattr(faces_module, "_claimed_singly", lambda polys, ids, *a, **k: (polys, ids))
     polys, ids = claim_points(faces, [0, 1, 2], outline, xyz, labels, planes, radius=1.0, width=0.2)

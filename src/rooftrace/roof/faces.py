@@ -556,7 +556,8 @@ def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndar
             old = faces[np.r_[hit, tgt]]
             new = np.concatenate([shapely.difference(faces[hit], wedge), [shapely.union(faces[tgt], wedge)]])
             coarse = shapely.set_precision(new, 0.01)
-            if ((shapely.get_type_id(new) != 3).any() or (shapely.get_num_geometries(coarse) != 1).any()
+            if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(coarse).any()
+                    or (shapely.get_num_geometries(coarse) != 1).any()
                     or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
                     or (shapely.get_num_interior_rings(coarse) > shapely.get_num_interior_rings(old)).any()
                     or not shapely.is_valid(new).all()
