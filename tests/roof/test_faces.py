@@ -499,13 +499,14 @@ def test_a_wedge_that_cuts_a_small_face_in_two_takes_the_small_piece(monkeypatch
                          ids=["terraced", "stair_house", "l_step"])
 def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkeypatch):
     """The roof's faces keep their promise at height steps (three seeds): every labelled point with a face
-    of its own plane within the point spacing lies under a face of its plane or of one within 0.1 m of
-    it, and the faces tile the outline; the LoD 2.2 solid keeps it for every such point more than the
-    lattice's step (1 cm) inside its face."""
+    of its own plane within the point spacing (within twice that, unless a main roof plane's eave hides
+    it) lies under a face of its plane or of one within 0.1 m of it, and the faces tile the outline; the
+    LoD 2.2 solid keeps it for every such point more than the lattice's step (1 cm) inside its face."""
     import rooftrace.roof.structure as structure
     from rooftrace.model import build_model
     from rooftrace.model.measure import points_off_their_roof
     from rooftrace.roof.faces import points_off_their_faces, points_on_their_faces
+    from rooftrace.roof.structure import RoofOptions
 
     def breaks():
         n = 0
@@ -516,6 +517,11 @@ def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkey
             assert shapely.union_all(faces).area == pytest.approx(model.outline.area, rel=1e-6)
             n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes,
                                             radius=roof.spacing).sum())
+            # and within the claim's radius, but for a lower return under a main roof plane's eave
+            s = roof.spacing
+            eaves = ~roof.plane_detail & (roof.plane_n * s**2 >= 2 * RoofOptions().min_area)
+            n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, radius=2 * s,
+                                            hidden_within=s, overhanging=eaves).sum())
             solids = [p.lods["2.2"] for p in build_model(model.outline, roof, xyz, 0.0).parts]
             placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes)
             assert placed.sum() > 0.9 * (roof.labels >= 0).sum()
