@@ -483,10 +483,16 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     return out_faces, out_ids, retry
 
 
+def _interior_rings(g: np.ndarray) -> np.ndarray:
+    """Per geometry (a polygon, a multipolygon or a collection): its holes."""
+    parts, of = shapely.get_parts(g, return_index=True)
+    return np.bincount(of, weights=shapely.get_num_interior_rings(parts), minlength=len(g)).astype(np.int64)
+
+
 def _one_wedge(face, near: np.ndarray, at: np.ndarray, width: float, outline):
     """The claim's wedge: the convex hull of the point ``at`` (with a margin of ``width / 4`` beyond it and to
     either side) and the part of ``face`` within ``width`` of its point ``near``, cut by the outline."""
-    reach = shapely.intersection(face, shapely.box(*(near - width), *(near + width)))
+    reach = shapely.clip_by_rect(face, *(near - width), *(near + width))
     u = at - near
     u = u / max(float(np.hypot(u[0], u[1])), 1e-12)
     t = np.array([-u[1], u[0]])
@@ -520,50 +526,78 @@ def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndar
     pt, target, near, _ = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz, under_eave)
     if not len(pt):
         return polys, ids
+    tree = cKDTree(xy)
+    box = shapely.bounds(faces)
+
+    def faces_over(b) -> np.ndarray:
+        return np.flatnonzero((box[:, 0] <= b[2]) & (box[:, 2] >= b[0]) & (box[:, 1] <= b[3]) & (box[:, 3] >= b[1]))
+
+    def points_in(g) -> np.ndarray:
+        b = shapely.bounds(g)
+        near = np.asarray(tree.query_ball_point(((b[0] + b[2]) / 2, (b[1] + b[3]) / 2),
+                                                np.hypot(b[2] - b[0], b[3] - b[1]) / 2 + 1e-9), dtype=np.int64)
+        return near[shapely.intersects_xy(g, xy[near, 0], xy[near, 1])] if len(near) else near
+
+    def harms(g, hit: np.ndarray, tgt: int) -> bool:
+        # a point in g that fits the face it is under now and would not fit the target's plane, not under its eave
+        q = points_in(g)
+        q = q[np.abs(plane_height(planes[pids[tgt]], xy[q]) - own_z[q]) > max_dz]
+        if not len(q):
+            return False
+        qa, qf = points_in_faces(faces[hit], xy[q])
+        fits = np.zeros(len(q), dtype=bool)
+        fits[qa[np.abs(plane_height(planes[pids[hit[qf]]], xy[q[qa]]) - own_z[q[qa]]) <= max_dz]] = True
+        if fits.any() and under_eave is not None:
+            fits[fits] = ~under_eave(q[fits], np.full(int(fits.sum()), pids[tgt]))
+        return bool(fits.any())
+
     changed_any = False
     for i, tgt, nr in zip(pt, target, near):
-        cover = shapely.intersects_xy(faces, *xy[i])
+        over = faces_over((*xy[i], *xy[i]))
+        cover = over[shapely.intersects_xy(faces[over], *xy[i])]
         if (np.abs(plane_height(planes[pids[cover]], xy[i]) - own_z[i]) <= max_dz).any():
             continue  # an earlier wedge took it
         for w in (width, width / 4):
             wedge = _one_wedge(faces[tgt], nr, xy[i], w, outline)
             if shapely.get_type_id(wedge) != 3:
                 continue
-            hit = np.flatnonzero(shapely.intersects(faces, wedge) & (np.arange(len(faces)) != tgt))
-            hit = hit[shapely.area(shapely.intersection(faces[hit], wedge)) > 0]
+            hit = faces_over(shapely.bounds(wedge))
+            hit = hit[(hit != tgt) & shapely.intersects(faces[hit], wedge)]
             if not len(hit):
                 break
-            # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
-            # corner's sliver face, the tip of a face beyond the point), under the same rules
+            if harms(wedge, hit, tgt):
+                continue
             rest = shapely.difference(faces[hit], wedge)
             cut = shapely.get_num_geometries(rest) > 1
             if cut.any():
-                bits = [p for r in rest[cut] for p in sorted(shapely.get_parts(r), key=shapely.area)[:-1]]
-                if _area_sum(bits) > 16 * width * width:
+                # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
+                # corner's sliver face, the tip of a face beyond the point), under the same rules
+                pieces = [sorted(shapely.get_parts(r), key=shapely.area) for r in rest[cut]]
+                bits = [p for ps in pieces for p in ps[:-1]]
+                if _area_sum(bits) > 16 * width * width or harms(shapely.union_all(bits), hit, tgt):
                     continue
                 wedge = shapely.union_all([wedge, *bits])
-            q, fi = points_in_faces(np.array([wedge], dtype=object), xy)
-            # a point in the wedge that fits the face it is under now and would not fit the target's plane
-            q = q[np.abs(plane_height(planes[pids[tgt]], xy[q]) - own_z[q]) > max_dz]
-            if len(q):
-                qa, qf = points_in_faces(faces[hit], xy[q])
-                fits = np.zeros(len(q), dtype=bool)
-                fits[qa[np.abs(plane_height(planes[pids[hit[qf]]], xy[q[qa]]) - own_z[q[qa]]) <= max_dz]] = True
-                if fits.any() and under_eave is not None:
-                    fits[fits] = ~under_eave(q[fits], np.full(int(fits.sum()), pids[tgt]))
-                if fits.any():
-                    continue
+                rest[cut] = [ps[-1] for ps in pieces]
             old = faces[np.r_[hit, tgt]]
-            new = np.concatenate([shapely.difference(faces[hit], wedge), [shapely.union(faces[tgt], wedge)]])
-            coarse = shapely.set_precision(new, 0.01)
-            if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(coarse).any()
-                    or (shapely.get_num_geometries(coarse) != 1).any()
+            new = np.concatenate([rest, [shapely.union(faces[tgt], wedge)]])
+            # (the overlay's output is valid: the areas tell a gap or an overlap)
+            if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(new).any()
                     or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
-                    or (shapely.get_num_interior_rings(coarse) > shapely.get_num_interior_rings(old)).any()
-                    or not shapely.is_valid(new).all()
                     or abs(_area_sum(new) - _area_sum(old)) > 1e-6 * max(_area_sum(old), 1.0)):
                 continue
+            # judged on the centimetre grid too (a neck narrower than that closes when the model rounds its
+            # vertices), in a window on that grid around the wedge: a neck the wedge makes lies within a
+            # centimetre of it, and rounding a whole face of hundreds of vertices costs more than the rest
+            b = shapely.bounds(wedge)
+            win = shapely.box(*np.floor((b[:2] - 0.02) / 0.01) * 0.01, *np.ceil((b[2:] + 0.02) / 0.01) * 0.01)
+            local = shapely.intersection(new, win)
+            coarse = shapely.set_precision(local, 0.01)
+            if ((shapely.get_num_geometries(coarse) > shapely.get_num_geometries(local)).any()
+                    or (shapely.is_empty(coarse) & ~shapely.is_empty(local)).any()
+                    or (_interior_rings(coarse) > _interior_rings(local)).any()):
+                continue
             faces[hit], faces[tgt] = new[:-1], new[-1]
+            box[hit], box[tgt] = shapely.bounds(new[:-1]), shapely.bounds(new[-1])
             changed_any = True
             break
     if not changed_any:
