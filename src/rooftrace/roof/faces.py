@@ -607,7 +607,8 @@ def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndar
 
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                  radius: float, width: float, max_dz: float = 0.1, hidden_within: float = 0.0,
-                 step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
+                 step_height: float = 0.5, overhanging: np.ndarray | None = None,
+                 one_by_one: bool = True) -> tuple[list, list]:
     """Faces that hold every labelled point of a level near its own face: the step boundaries mended.
 
     At a height step the raster, its simplification and the sliver merging
@@ -671,6 +672,10 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
         The planes whose points may hide another level's (default: every
         plane flatter than :data:`EAVES_SLOPE`; a small plane fitted to a
         messy corner or a wall reaches over nothing).
+    one_by_one : bool
+        Claim the points all wedges at once left one wedge at a time (off:
+        the guarantee's second exception reads "both meet the wedge of a
+        point of another face, or both would cut a face in two").
 
     Returns
     -------
@@ -703,6 +708,8 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
         if not dropped:
             break
     else:
+        if not one_by_one:
+            return list(polys), list(plane_ids)
         # what the batch dropped for a neighbour's wedge or for the faces it shared with one, one at a time
         polys, plane_ids = _claimed_singly(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
                                            width=width, hidden_within=hidden_within, step_height=step_height,
