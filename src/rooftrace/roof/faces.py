@@ -492,7 +492,7 @@ def _interior_rings(g: np.ndarray) -> np.ndarray:
 def _one_wedge(face, near: np.ndarray, at: np.ndarray, width: float, outline):
     """The claim's wedge: the convex hull of the point ``at`` (with a margin of ``width / 4`` beyond it and to
     either side) and the part of ``face`` within ``width`` of its point ``near``, cut by the outline."""
-    reach = shapely.clip_by_rect(face, *(near - width), *(near + width))
+    reach = shapely.intersection(face, shapely.box(*(near - width), *(near + width)))
     u = at - near
     u = u / max(float(np.hypot(u[0], u[1])), 1e-12)
     t = np.array([-u[1], u[0]])
@@ -557,49 +557,53 @@ def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndar
         cover = over[shapely.intersects_xy(faces[over], *xy[i])]
         if (np.abs(plane_height(planes[pids[cover]], xy[i]) - own_z[i]) <= max_dz).any():
             continue  # an earlier wedge took it
-        for w in (width, width / 4):
-            wedge = _one_wedge(faces[tgt], nr, xy[i], w, outline)
-            if shapely.get_type_id(wedge) != 3:
-                continue
-            hit = faces_over(shapely.bounds(wedge))
-            hit = hit[(hit != tgt) & shapely.intersects(faces[hit], wedge)]
-            if not len(hit):
-                break
-            if harms(wedge, hit, tgt):
-                continue
-            rest = shapely.difference(faces[hit], wedge)
-            cut = shapely.get_num_geometries(rest) > 1
-            if cut.any():
-                # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
-                # corner's sliver face, the tip of a face beyond the point), under the same rules
-                pieces = [sorted(shapely.get_parts(r), key=shapely.area) for r in rest[cut]]
-                bits = [p for ps in pieces for p in ps[:-1]]
-                if _area_sum(bits) > 16 * width * width or harms(shapely.union_all(bits), hit, tgt):
+        # (a GEOS error on one wedge, as on odd slivers, leaves the faces as they were: they change only at the end)
+        try:
+            for w in (width, width / 4):
+                wedge = _one_wedge(faces[tgt], nr, xy[i], w, outline)
+                if shapely.get_type_id(wedge) != 3:
                     continue
-                wedge = shapely.union_all([wedge, *bits])
-                rest[cut] = [ps[-1] for ps in pieces]
-            old = faces[np.r_[hit, tgt]]
-            new = np.concatenate([rest, [shapely.union(faces[tgt], wedge)]])
-            # (the overlay's output is valid: the areas tell a gap or an overlap)
-            if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(new).any()
-                    or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
-                    or abs(_area_sum(new) - _area_sum(old)) > 1e-6 * max(_area_sum(old), 1.0)):
-                continue
-            # judged on the centimetre grid too (a neck narrower than that closes when the model rounds its
-            # vertices), in a window on that grid around the wedge: a neck the wedge makes lies within a
-            # centimetre of it, and rounding a whole face of hundreds of vertices costs more than the rest
-            b = shapely.bounds(wedge)
-            win = shapely.box(*np.floor((b[:2] - 0.02) / 0.01) * 0.01, *np.ceil((b[2:] + 0.02) / 0.01) * 0.01)
-            local = shapely.intersection(new, win)
-            coarse = shapely.set_precision(local, 0.01)
-            if ((shapely.get_num_geometries(coarse) > shapely.get_num_geometries(local)).any()
-                    or (shapely.is_empty(coarse) & ~shapely.is_empty(local)).any()
-                    or (_interior_rings(coarse) > _interior_rings(local)).any()):
-                continue
-            faces[hit], faces[tgt] = new[:-1], new[-1]
-            box[hit], box[tgt] = shapely.bounds(new[:-1]), shapely.bounds(new[-1])
-            changed_any = True
-            break
+                hit = faces_over(shapely.bounds(wedge))
+                hit = hit[(hit != tgt) & shapely.intersects(faces[hit], wedge)]
+                if not len(hit):
+                    break
+                if harms(wedge, hit, tgt):
+                    continue
+                rest = shapely.difference(faces[hit], wedge)
+                cut = shapely.get_num_geometries(rest) > 1
+                if cut.any():
+                    # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
+                    # corner's sliver face, the tip of a face beyond the point), under the same rules
+                    pieces = [sorted(shapely.get_parts(r), key=shapely.area) for r in rest[cut]]
+                    bits = [p for ps in pieces for p in ps[:-1]]
+                    if _area_sum(bits) > 16 * width * width or harms(shapely.union_all(bits), hit, tgt):
+                        continue
+                    wedge = shapely.union_all([wedge, *bits])
+                    rest[cut] = [ps[-1] for ps in pieces]
+                old = faces[np.r_[hit, tgt]]
+                new = np.concatenate([rest, [shapely.union(faces[tgt], wedge)]])
+                # (the overlay's output is valid: the areas tell a gap or an overlap)
+                if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(new).any()
+                        or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
+                        or abs(_area_sum(new) - _area_sum(old)) > 1e-6 * max(_area_sum(old), 1.0)):
+                    continue
+                # judged on the centimetre grid too (a neck narrower than that closes when the model rounds its
+                # vertices), in a window on that grid around the wedge: a neck the wedge makes lies within a
+                # centimetre of it, and rounding a whole face of hundreds of vertices costs more than the rest
+                b = shapely.bounds(wedge)
+                win = shapely.box(*np.floor((b[:2] - 0.02) / 0.01) * 0.01, *np.ceil((b[2:] + 0.02) / 0.01) * 0.01)
+                local = shapely.intersection(new, win)
+                coarse = shapely.set_precision(local, 0.01)
+                if ((shapely.get_num_geometries(coarse) > shapely.get_num_geometries(local)).any()
+                        or (shapely.is_empty(coarse) & ~shapely.is_empty(local)).any()
+                        or (_interior_rings(coarse) > _interior_rings(local)).any()):
+                    continue
+                faces[hit], faces[tgt] = new[:-1], new[-1]
+                box[hit], box[tgt] = shapely.bounds(new[:-1]), shapely.bounds(new[-1])
+                changed_any = True
+                break
+        except shapely.errors.GEOSException:
+            continue
     if not changed_any:
         return polys, ids
     return list(faces), list(ids)
