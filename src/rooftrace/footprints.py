@@ -23,7 +23,10 @@ overhangs of 0.2–1 m).  Each footprint becomes one building made of
 
 Neither of the last two takes a tree's points (:func:`tree_points`: the
 detection's vegetation, or points amid vegetation or amid returns that went
-on through, whose neighbourhood is no plane).  So every non-ground point over an
+on through, whose neighbourhood is no plane), except the grazed edges of a
+chimney, a dormer or a parapet (:func:`chimney_edges`): a tree-like point
+whose pulse ended on the building's points at most a box's height under it,
+in a clump standing at one height, is a roof point too.  So every non-ground point over an
 ``"ok"`` footprint is either in its building or left out for a reason of
 :data:`LEFT_OUT` (:attr:`FootprintAssignment.left_out`): near the ground, a
 tree's, or detached from the building's points.
@@ -55,8 +58,8 @@ from rooftrace.cloud import ASPRS
 from rooftrace.graph import components
 
 __all__ = ["Footprints", "FootprintOptions", "FootprintAssignment", "assign_footprints", "footprint_outlines",
-           "footprint_attributes", "touching_points", "planar_spread", "tree_points",
-           "STATUSES", "LEFT_OUT"]
+           "footprint_attributes", "touching_points", "planar_spread", "tree_points", "last_returns",
+           "chimney_edges", "STATUSES", "LEFT_OUT"]
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +76,7 @@ LEFT_OUT = {
     "low": "not building by the detection and under min_height / 2 above the ground (a fence, a car, a wall's foot)",
     "tree": "a tree's by footprints.tree_points: vegetation by the detection, or half or more of its 10 nearest "
             "non-ground points vegetation or returns that went on through, and those 10 points no plane within "
-            "planar_vegetation",
+            "planar_vegetation; and no grazed edge of a chimney (footprints.chimney_edges)",
     "detached": "not building by the detection, no tree's, and neither unclassified min_height above the ground "
                 "nor linked to the building's points within 2.5 point spacings in 3D (three links)",
     "not_building": "not building by the detection, and unclassified = false or no heights above the ground given",
@@ -169,6 +172,20 @@ class FootprintOptions:
         that join are then 60 % AHN3 building points instead of 82 %, and
         over the footprint under a tree (BGT 503100000026154) 41 % instead
         of 78 %: a crown's fringe joins too.
+    edge_drop : float, default 3.5
+        With ``planar_vegetation`` and the pulses' last returns: a point of
+        the tree test whose pulse ended on its footprint's building points
+        (the detection's roof or the unclassified clutter standing on it)
+        at most this far (m) under it, in a flat clump (``edge_spread``),
+        is the edge of a chimney, a dormer or a parapet that the beam
+        grazed (:func:`chimney_edges`), and joins its building.  A crown's
+        pulses end on the ground or in lower foliage, or it stands metres
+        over the roof, or its clump is rounded.  0: off.
+    edge_spread : float, default 0.15
+        The standard deviation (m) of the heights of the clump (the
+        non-building points ``min_height / 2`` above the ground linked
+        within 2.5 point spacings in 3D) within which it stands at one
+        height: a chimney's or a parapet's top, not a crown.
     """
 
     section = "footprints"
@@ -179,6 +196,8 @@ class FootprintOptions:
     unclassified: bool = True
     planar_vegetation: float = 0.05
     crown_extent: float = 0.0
+    edge_drop: float = 3.5
+    edge_spread: float = 0.15
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.overhang) or self.overhang < 0:
@@ -191,6 +210,10 @@ class FootprintOptions:
             raise ValueError(f"footprints.planar_vegetation must be >= 0 metres, got {self.planar_vegetation!r}")
         if not np.isfinite(self.crown_extent) or self.crown_extent < 0:
             raise ValueError(f"footprints.crown_extent must be >= 0 metres, got {self.crown_extent!r}")
+        for name in ("edge_drop", "edge_spread"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"footprints.{name} must be >= 0 metres, got {value!r}")
 
 
 
@@ -221,6 +244,9 @@ class FootprintAssignment:
         Indices of the points that joined a building by touching its points
         (``unclassified``): roof points, but not for the outline, which they
         would pull out over what lies beyond the building's own points.
+    edges : ndarray of int
+        Indices of the tree test's points that joined as a grazed edge
+        (:func:`chimney_edges`; also in ``touching``), sorted.
     left_out : dict of str to ndarray of int
         Per reason of :data:`LEFT_OUT`, the indices of the non-ground,
         non-noise points inside an ``"ok"`` footprint that are not in its
@@ -236,6 +262,7 @@ class FootprintAssignment:
     fallback: list[np.ndarray] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
     touching: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    edges: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     left_out: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -299,6 +326,7 @@ def assign_footprints(
     hag: np.ndarray | None = None,
     density: float | None = None,
     through: np.ndarray | None = None,
+    last_return: np.ndarray | None = None,
 ) -> FootprintAssignment:
     """Give every footprint its building points (roof above it plus the overhang band).
 
@@ -323,6 +351,10 @@ def assign_footprints(
         (``return_number < number_of_returns``): with it a crown the
         detection left unclassified is told from roof clutter
         (:func:`tree_points`).
+    last_return : ndarray of shape (N,), int, optional
+        Per point, the index of its pulse's last return (itself for a
+        single or last return; :func:`last_returns`): with it a chimney's
+        grazed edge is told from a crown (:func:`chimney_edges`).
 
     Returns
     -------
@@ -353,8 +385,10 @@ def assign_footprints(
     n, f = len(xyz), len(footprints)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"assign_footprints: xyz must have shape (N, 3), got {xyz.shape}")
-    if len(classification) != n or len(detected_id) != n or any(a is not None and len(a) != n for a in (hag, through)):
-        raise ValueError("assign_footprints: classification, detected_id, hag and through need one value per point")
+    if len(classification) != n or len(detected_id) != n \
+            or any(a is not None and len(a) != n for a in (hag, through, last_return)):
+        raise ValueError("assign_footprints: classification, detected_id, hag, through and last_return need one "
+                         "value per point")
     min_points = options.min_points
     if min_points is None:
         min_points = max(3, int(np.ceil(4.0 * density))) if density and np.isfinite(density) else 10
@@ -401,7 +435,7 @@ def assign_footprints(
 
 
     status, reason, fallback = [], [], []
-    touching = np.zeros(0, np.int64)
+    touching = edges = np.zeros(0, np.int64)
     high = None
     if hag is not None:
         hag = np.asarray(hag, dtype=np.float64)
@@ -451,26 +485,37 @@ def assign_footprints(
             leafy = np.flatnonzero((classification == ASPRS.HIGH_VEGETATION) & (hag >= options.min_height / 2))
             tree_like[tree_like] = ~small_clumps(xyz, other[tree_like], 2.5 * spacing, options.crown_extent,
                                                  among=leafy)
-        trees = other[tree_like]
         # standing in the footprint: chimneys, parapets, clutter too rough for the detection's roof test
         standing = ~tree_like & (all_owner[other] >= 0) & (classification[other] == ASPRS.UNCLASSIFIED) \
             & (hag[other] >= options.min_height)
         building_id[other[standing]] = (where[standing] + 1).astype(np.int32)
+        edge = np.zeros(len(other), bool)
+        if options.edge_drop > 0 and last_return is not None and tree_like.any():
+            # a beam that grazed a chimney's top returned from it and then from the roof at its foot (the
+            # detection's roof or the clutter standing on it)
+            porous = np.flatnonzero(np.isin(classification, (ASPRS.UNCLASSIFIED, ASPRS.HIGH_VEGETATION))
+                                    & (hag >= options.min_height / 2))
+            edge[tree_like] = chimney_edges(xyz, other[tree_like], where[tree_like] + 1, building_id, last_return,
+                                            2.5 * spacing, options.edge_drop, options.edge_spread, among=porous)
+            tree_like &= ~edge
+        trees, edges = other[tree_like], other[edge]
+        building_id[edges] = (where[edge] + 1).astype(np.int32)
         # the rest joins when it touches the building's own points, in the footprint or its band (a chimney of a
         # few points, clutter along the eaves, a shed roof under min_height, a roof the detection called
-        # vegetation): roof points, not outline points
-        rest = ~tree_like & ~standing
+        # vegetation): roof points, not outline points; so are the grazed edges, which hang beside their chimney
+        rest = ~tree_like & ~edge & ~standing
         joined, to = touching_points(xyz, other[rest], building_id, 2.5 * spacing, owner=where[rest] + 1)
         building_id[joined] = to.astype(np.int32)
-        touching = np.sort(joined)
+        touching = np.sort(np.concatenate([joined, edges]))
     left_out = _left_out(classification, building_id, all_owner, ok, hag, options, trees)
     counts = {s: status.count(s) for s in STATUSES}
     log.debug("footprints: %s", counts)
     return FootprintAssignment(building_id, status, reason, n_inside, n_overhang, n_cloud, fallback,
                                params={"overhang": options.overhang, "min_points": int(min_points),
                                        "min_height": options.min_height, "unclassified": options.unclassified,
-                                       "planar_vegetation": options.planar_vegetation},
-                               touching=touching, left_out=left_out)
+                                       "planar_vegetation": options.planar_vegetation,
+                                       "edge_drop": options.edge_drop if last_return is not None else 0.0},
+                               touching=touching, edges=np.sort(edges), left_out=left_out)
 
 
 def _near_ok_footprint(points: np.ndarray, xyz: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,
@@ -528,15 +573,7 @@ def _neighbourhood(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, k: in
         return none
     # only the pool near the tested points is worth a tree (most of a cloud is far from them): the
     # 4 m cells around theirs hold every neighbour within 4 m, farther ones say nothing of a roof plane
-    cell = 4.0
-    lo = xyz[points, :2].min(axis=0) - 2 * cell
-    mine = np.floor((xyz[points, :2] - lo) / cell).astype(np.int64)
-    ny = int(mine[:, 1].max()) + 3
-    step = np.array([-1, 0, 1])
-    keys = np.unique((mine[:, 0, None, None] + step[:, None]) * ny + (mine[:, 1, None, None] + step[None, :]))
-    theirs = np.floor((xyz[pool, :2] - lo) / cell).astype(np.int64)
-    inside = (theirs >= 0).all(axis=1) & (theirs[:, 1] < ny)
-    pool = pool[inside][np.isin(theirs[inside, 0] * ny + theirs[inside, 1], keys)]
+    pool = _near_cells(xyz, points, pool, 4.0)
     if len(pool) < 3:
         return none
     k = min(k, len(pool))
@@ -646,6 +683,137 @@ def small_clumps(xyz: np.ndarray, points: np.ndarray, link: float, max_extent: f
     np.minimum.at(lo, comp, xy)
     np.maximum.at(hi, comp, xy)
     return (hi - lo).max(axis=1)[comp[:len(points)]] <= max_extent
+
+
+def last_returns(gps_time: np.ndarray, source: np.ndarray, return_number: np.ndarray,
+                 number_of_returns: np.ndarray) -> np.ndarray:
+    """Per point, the index of the last return of its pulse (itself for a single or a last return).
+
+    Parameters
+    ----------
+    gps_time : ndarray of shape (N,), float64
+        Time of the pulse (s): the returns of one pulse share it.
+    source : ndarray of shape (N,), int
+        Flight line (``point_source_id``): two strips may repeat a time.
+    return_number, number_of_returns : ndarray of shape (N,), int
+        LAS return fields.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        A return whose pulse's last return is missing (cut off by a tile's
+        edge, or a sensor's dropped echo) gets the highest-numbered return
+        of its pulse present, and one alone in its pulse itself.
+
+    Examples
+    --------
+    >>> last_returns(np.array([5.0, 7.0, 5.0, 5.0]), np.array([1, 1, 1, 2]), np.array([1, 1, 2, 1]),
+    ...              np.array([2, 1, 2, 1])).tolist()
+    [2, 1, 2, 3]
+    """
+    n = len(gps_time)
+    last = np.arange(n, dtype=np.int64)
+    multi = np.flatnonzero(np.asarray(number_of_returns) > 1)
+    if not len(multi):
+        return last
+    rn = np.asarray(return_number)[multi]
+    order = np.lexsort((rn, np.asarray(gps_time)[multi], np.asarray(source)[multi]))
+    m = multi[order]
+    t, s = np.asarray(gps_time)[m], np.asarray(source)[m]
+    # the pulse of each sorted return, and its highest-numbered return (the last in the sort)
+    new = np.r_[True, (t[1:] != t[:-1]) | (s[1:] != s[:-1])]
+    pulse = np.cumsum(new) - 1
+    ends = np.r_[np.flatnonzero(new)[1:], len(m)] - 1
+    last[m] = m[ends[pulse]]
+    return last
+
+
+def chimney_edges(xyz: np.ndarray, points: np.ndarray, owner: np.ndarray, building_id: np.ndarray,
+                  last_return: np.ndarray, link: float, max_drop: float, spread: float, *,
+                  among: np.ndarray | None = None) -> np.ndarray:
+    """Which of ``points`` are the grazed edge of a chimney, a dormer or a parapet on their building.
+
+    A beam that grazes a chimney's top returns first from it and last from
+    the roof at its foot: the first return hangs beside the chimney at its
+    top's height, as porous as a crown's.  A crown's pulses end on the
+    ground, in lower foliage or on a roof far under it, and its points
+    spread over its rounded height; a chimney's top stands at one height.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), float64
+        Points (m).
+    points : ndarray of int
+        Indices of the points to judge.
+    owner : ndarray of int
+        Per judged point, the building id whose roof its pulse must end on.
+    building_id : ndarray of shape (N,), int
+        The buildings' points so far (0: none): those a grazing pulse may
+        end on.
+    last_return : ndarray of shape (N,), int
+        Per point, its pulse's last return (:func:`last_returns`).
+    link : float
+        3D distance (m) that links points into a clump.
+    max_drop : float
+        Greatest height (m) of the last return under the point: a box's
+        height over the roof.
+    spread : float
+        Greatest standard deviation (m) of the heights of the point's clump.
+    among : ndarray of int, optional
+        Other points the clumps are made of, judged or not (the crown
+        beyond a footprint's band); the judged points always count.
+
+    Returns
+    -------
+    ndarray of shape (len(points),), bool
+        True where the point's pulse ended on a point of ``owner`` less than
+        ``max_drop`` under it and its clump's heights spread at most
+        ``spread``.
+
+    Examples
+    --------
+    >>> xyz = np.array([[0.0, 0, 6], [0.2, 0, 6.05], [0.1, 0, 5], [5, 0, 9], [5.2, 0, 7], [5.1, 0, 5]])
+    >>> chimney_edges(xyz, np.array([0, 1, 3, 4]), np.array([1, 1, 1, 1]), np.array([0, 0, 1, 0, 0, 1]),
+    ...               np.array([2, 2, 2, 5, 5, 5]), 2.1, 3.5, 0.15).tolist()
+    [True, True, False, False]
+    """
+    points = np.asarray(points, dtype=np.int64)
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    last = np.asarray(last_return)[points]
+    drop = xyz[points, 2] - xyz[last, 2]
+    landed = (last != points) & (drop > 0) & (drop <= max_drop) & (building_id[last] == owner)
+    if not landed.any():
+        return landed
+    # the clumps of the landed points, with every point within reach that may widen or deepen them
+    pool = points
+    if among is not None and len(among):
+        pool = np.union1d(points, _near_cells(xyz, points[landed], np.asarray(among, dtype=np.int64),
+                                              max(2.0, 10 * link)))
+    comp = components(len(pool), cKDTree(xyz[pool]).query_pairs(link, output_type="ndarray"))
+    n = int(comp.max()) + 1
+    count = np.bincount(comp, minlength=n)
+    z = xyz[pool, 2] - xyz[pool, 2].mean()  # centred: the variance by sums of squares stays exact
+    mean = np.bincount(comp, z, n) / count
+    var = np.bincount(comp, z ** 2, n) / count - mean ** 2
+    flat = np.sqrt(np.clip(var, 0.0, None)) <= spread
+    return landed & flat[comp[np.searchsorted(pool, points)]]
+
+
+def _near_cells(xyz: np.ndarray, points: np.ndarray, among: np.ndarray, cell: float) -> np.ndarray:
+    """The ``among`` points in the plan cells (``cell`` metres wide) of ``points`` and their 8 neighbours.
+
+    Every point within ``cell`` of one of ``points`` in plan is among them; a cell key per point and a
+    membership test cost less than a tree over a cloud's worth of ``among``.
+    """
+    lo = xyz[points, :2].min(axis=0) - 2 * cell
+    mine = np.floor((xyz[points, :2] - lo) / cell).astype(np.int64)
+    ny = int(mine[:, 1].max()) + 3
+    step = np.array([-1, 0, 1])
+    keys = np.unique((mine[:, 0, None, None] + step[:, None]) * ny + (mine[:, 1, None, None] + step[None, :]))
+    theirs = np.floor((xyz[among, :2] - lo) / cell).astype(np.int64)
+    inside = (theirs >= 0).all(axis=1) & (theirs[:, 1] < ny)
+    return among[inside][np.isin(theirs[inside, 0] * ny + theirs[inside, 1], keys)]
 
 
 def _left_out(classification: np.ndarray, building_id: np.ndarray, all_owner: np.ndarray, ok: np.ndarray,

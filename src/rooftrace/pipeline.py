@@ -160,6 +160,16 @@ def _went_through(cloud: PointCloud) -> np.ndarray | None:
     return np.asarray(rn) < np.asarray(nr)
 
 
+def _last_returns(cloud: PointCloud) -> np.ndarray | None:
+    """Per point, its pulse's last return (None without pulse times): the footprints' grazed chimney edges."""
+    from rooftrace.footprints import last_returns
+
+    names = ("gps_time", "point_source_id", "return_number", "number_of_returns")
+    if any(cloud.fields.get(name) is None for name in names):
+        return None
+    return last_returns(*(np.asarray(cloud.fields[name]) for name in names))
+
+
 def points_by_building(building_id: np.ndarray) -> dict[int, np.ndarray]:
     """Indices of the points of each building (ids > 0), without a Python loop over points."""
     building_id = np.asarray(building_id)
@@ -421,7 +431,7 @@ def run_pipeline(
         with reporter.stage("footprints"):
             assignment = assign_footprints(cloud.xyz, detection.classification, detection.building_id, footprints,
                                            options.footprints, hag=detection.hag, density=detection.density,
-                                           through=_went_through(cloud))
+                                           through=_went_through(cloud), last_return=_last_returns(cloud))
         building_id = assignment.building_id
         clock.stop("footprints")
     if buildings is not None:

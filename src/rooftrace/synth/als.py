@@ -185,6 +185,40 @@ def _wire_hits(origins, dirs, wires, t_max, rng):
     return t_hit
 
 
+def _edge_returns(o, d, model: SurfaceModel, t_s, face, rt, rk, return_face, radius: float) -> None:
+    """Split the returns of the pulses whose beam straddles a height step (in place).
+
+    The beam is sampled by its axis and four parallel rays ``radius`` off
+    it; a pulse with one surface return whose nearest and farthest samples
+    lie the 1 m dead zone apart (as in :func:`pulse_returns`) returns twice
+    along its axis: first at the nearest range (the upper surface's face),
+    last at the farthest.
+    """
+    alone = (rk[:, 0] == 1) & (rk[:, 1] == 0) & np.isfinite(t_s)
+    idx = np.flatnonzero(alone)
+    if not len(idx):
+        return
+    dd = d[idx]
+    side = np.cross(dd, [0.0, 0.0, 1.0])
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-12), [1.0, 0.0, 0.0])  # a beam straight down: any
+    other = np.cross(dd, side)
+    t_all, f_all = [t_s[idx]], [face[idx]]
+    for offset in (side, -side, other, -other):
+        t, f, _ = cast_rays(np.ascontiguousarray(o[idx] + radius * offset), np.ascontiguousarray(dd),
+                            *model.args(), model.z_top, model.z_bot)
+        t_all.append(np.where(np.isfinite(t), t, np.nan))
+        f_all.append(f)
+    t_all, f_all = np.column_stack(t_all), np.column_stack(f_all)
+    near, far = np.nanargmin(t_all, axis=1), np.nanargmax(t_all, axis=1)
+    rows = np.arange(len(idx))
+    split = t_all[rows, far] - t_all[rows, near] >= 1.0
+    i, near, far, rows = idx[split], near[split], far[split], rows[split]
+    rt[i, 0], rt[i, 1] = t_all[rows, near], t_all[rows, far]
+    rk[i, 1] = 1
+    return_face[i, 0], return_face[i, 1] = f_all[rows, near], f_all[rows, far]
+
+
 def scan_scene(options, model: SurfaceModel, trees: np.ndarray, wires: np.ndarray | None, face_building: np.ndarray,
                face_reflectance: np.ndarray, z_ref: float, rng: np.random.Generator) -> tuple[PointCloud, dict]:
     """Simulate the ALS survey of the scene.
@@ -241,6 +275,9 @@ def scan_scene(options, model: SurfaceModel, trees: np.ndarray, wires: np.ndarra
     t_wire = _wire_hits(o, d, wires, t_max, rng) if wires is not None and len(wires) else np.full(n, np.inf)
     u = rng.random((n, 8))
     rt, rk, rtree = pulse_returns(t_s, tin, tout, tid, t_wire, u, _MAX_RETURNS)
+    return_face = np.repeat(face[:, None], rt.shape[1], axis=1)
+    if options.beam_radius > 0:
+        _edge_returns(o, d, model, t_s, face, rt, rk, return_face, options.beam_radius)
     if options.single_return:
         # a single-return scanner records the first echo only
         rt[:, 1:] = np.inf
@@ -266,7 +303,7 @@ def scan_scene(options, model: SurfaceModel, trees: np.ndarray, wires: np.ndarra
     xyz = o[pulse] + rho[:, None] * d[pulse]
     inside = (xyz[:, 0] >= x0) & (xyz[:, 0] <= x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] <= y1)
     pulse, slot, kind, rho, xyz = pulse[inside], slot[inside], kind[inside], rho[inside], xyz[inside]
-    f = face[pulse]
+    f = return_face[pulse, slot]
     truth = np.select([kind == 4, kind == 3, kind == 2, f >= 0], [7, ASPRS_WIRE, 5, 6], 2).astype(np.uint8)
     bid = np.where((kind == 1) & (f >= 0), face_building[np.maximum(f, 0)], 0).astype(np.int32)
     # intensity: reflectance x incidence / range^2, shared among the returns

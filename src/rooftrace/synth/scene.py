@@ -101,6 +101,13 @@ class SceneOptions:
         Record one (the first) return per pulse, as older scanners and
         archives (AHN2) do: no ground under the crowns, no return numbers
         above 1.
+    beam_radius : float
+        Radius (m) of the laser beam where it meets the scene: a pulse
+        whose beam straddles a height step (a chimney's top, an eave, a
+        wall's top) returns first from the upper surface and last from the
+        lower one when they lie more than the 1 m dead zone apart, both
+        along the beam's axis (the first hangs in the air beside the
+        step).  0: a thin beam, one surface return per pulse.
     cell : float
         Cell of the roof-face raster used by the ray caster (m); faces are
         exact planes, only their boundaries are rasterised.  Raised to
@@ -144,6 +151,7 @@ class SceneOptions:
     scan_pattern: str = "zigzag"
     line_spacing: float | None = None
     single_return: bool = False
+    beam_radius: float = 0.0
     cell: float = 0.05
     scene: str = "default"
 
@@ -186,6 +194,8 @@ class SceneOptions:
             raise InputError(f"simulate: line_spacing must be between 0.05 and 20 m, got {self.line_spacing!r}")
         if not (isinstance(self.overhanging_trees, (int, float)) and 0.0 <= self.overhanging_trees <= 1.0):
             raise InputError(f"simulate: overhanging_trees must be between 0 and 1, got {self.overhanging_trees!r}")
+        if not (isinstance(self.beam_radius, (int, float)) and 0.0 <= self.beam_radius <= 1.0):
+            raise InputError(f"simulate: beam_radius must be between 0 and 1 m, got {self.beam_radius!r}")
         if self.cell > 0.25:
             raise InputError(f"simulate: cell must be at most 0.25 m, got {self.cell!r}")
         if len(tuple(self.origin)) != 2:
