@@ -180,8 +180,8 @@ def test_delft_points_the_claim_of_all_wedges_left_are_claimed_one_by_one(monkey
     """Delft BGT feature 30 (a corner of small faces at a height step): every labelled point with a face of its
     own plane within the claim's radius (twice the point spacing) that no higher level's eave hides lies under
     a face of its plane or of one within 0.1 m of it; claiming all wedges at once only, which drops every
-    wedge on a face one of them would cut in two and one of two wedges that meet, leaves a dozen under
-    another level."""
+    wedge on a face one of them would cut in two and one of two wedges that meet, leaves 15 under another
+    level."""
     import rooftrace.roof.faces as faces_module
     from rooftrace.roof.faces import points_off_their_faces
     from rooftrace.roof.structure import RoofOptions
@@ -199,4 +199,4 @@ def test_delft_points_the_claim_of_all_wedges_left_are_claimed_one_by_one(monkey
 
     assert breaks() == 0
     monkeypatch.setattr(faces_module, "_claimed_singly", lambda polys, ids, *a, **k: (polys, ids))
-    assert breaks() > 5
+    assert breaks() > 5  # measured: 15
