@@ -7,7 +7,7 @@ import shapely.affinity
 from shapely.geometry import Polygon
 
 from rooftrace.roof import models, roof_structure
-from rooftrace.roof.faces import lift_to_plane, step_edges
+from rooftrace.roof.faces import lift_to_plane, points_in_faces, step_edges
 from rooftrace.roof.planes import plane_height
 
 
@@ -632,3 +632,17 @@ def test_the_detected_points_decide_what_a_small_face_fits():
         [False, False, True]
     polys, out = fit_faces(faces, ids, xyz, labels, planes, spacing=0.1, detected=detected)
     assert out == [0, 1] and polys[0].equals(shapely.box(0, 0, 4, 4).union(small))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_points_in_faces_are_the_tree_query_s_pairs(seed):
+    """The points in (or on) each face, by face then point, are the pairs an STR tree's intersects query finds:
+    points on shared edges and corners (a lattice) under both faces, a face with a hole, a face with no point."""
+    rng = np.random.default_rng(seed)
+    faces = [shapely.box(0, 0, 2, 2).difference(shapely.box(0.5, 0.5, 1.0, 1.0)), shapely.box(2, 0, 4, 2),
+             shapely.box(0.5, 0.5, 1.0, 1.0), shapely.Polygon([(0, 2), (4, 2), (2, 3.5)]), shapely.box(10, 10, 11, 11)]
+    xy = np.vstack([rng.uniform(-0.5, 4.5, (300, 2)), np.round(rng.uniform(0, 4, (200, 2)) * 2) / 2])
+    at, of = points_in_faces(np.array(faces, dtype=object), xy)
+    i, f = shapely.STRtree(faces).query(shapely.points(xy), predicate="intersects")
+    assert sorted(zip(at.tolist(), of.tolist())) == sorted(zip(i.tolist(), f.tolist()))
+    assert (np.lexsort((at, of)) == np.arange(len(at))).all()

@@ -5,7 +5,7 @@ import pytest
 import shapely
 
 from rooftrace.roof.faces import hidden_under, points_off_their_faces
-from rooftrace.roof.steplines import fit_step_boundaries, separating_line
+from rooftrace.roof.steplines import _least_misfit_cut, fit_step_boundaries, separating_line
 
 PLANES = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0]])  # upper level 8 m, lower 5 m
 
@@ -33,6 +33,39 @@ def test_separating_line_is_the_least_misfit_threshold(seed):
     t = np.concatenate([t_up, t_lo])
     assert np.abs(t - c).min() == pytest.approx(margin)
 
+
+
+def _least_misfit_cut_numpy(t, is_lo, w):
+    """The numpy form the compiled kernel replaced: stable sort, cumulative sums, first widest best cut."""
+    order = np.argsort(t, axis=1, kind="stable")
+    ts = np.take_along_axis(t, order, axis=1)
+    lo_s, w_s = is_lo[order], w[order]
+    before = np.concatenate([np.zeros((len(t), 1)), np.cumsum(np.where(lo_s, w_s, 0.0), axis=1)], axis=1)
+    after = np.concatenate([np.cumsum(np.where(~lo_s, w_s, 0.0)[:, ::-1], axis=1)[:, ::-1], np.zeros((len(t), 1))],
+                           axis=1)
+    cost = before + after
+    gap = np.concatenate([np.zeros((len(t), 1)), np.diff(ts, axis=1), np.zeros((len(t), 1))], axis=1)
+    score = np.where(cost <= cost.min() + 1e-9, gap, -1.0)
+    a, i = np.unravel_index(int(np.argmax(score)), score.shape)
+    lo_t = ts[a, i - 1] if i > 0 else ts[a, 0] - 1.0
+    hi_t = ts[a, i] if i < ts.shape[1] else ts[a, -1] + 1.0
+    return a, cost[a, i], lo_t, hi_t, gap[a, i]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_compiled_cut_is_the_numpy_cut_bit_for_bit(seed):
+    """The kernel gives exactly the numpy form's cut (the run's outputs stay hash-identical): the same stable
+    order among tied projections (points on a lattice), the same sums in the same order, the same first
+    widest cut among the least-misfit ones."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 60))
+    xy = np.round(rng.normal(0.0, 1.0, (n, 2)), 1) if seed % 2 else rng.normal(0.0, 1.0, (n, 2))
+    angles = np.radians(np.arange(-20.0, 21.0, 2.0)) + rng.uniform(-1, 1)
+    t = np.column_stack([np.cos(angles), np.sin(angles)]) @ xy.T
+    is_lo = rng.random(n) < 0.5
+    w = np.round(rng.uniform(0.1, 3.0, n), 1)
+    got, want = _least_misfit_cut(t, is_lo, w), _least_misfit_cut_numpy(t, is_lo, w)
+    assert [float(x) for x in got] == [float(x) for x in want]
 
 def test_separating_line_separates_and_gives_way_where_the_levels_interleave():
     """Two rows 0.4 m apart are split in the middle; one upper point among the lower ones is left on the

@@ -48,6 +48,8 @@ from rooftrace.model.solid import horizontal_plane, party_walls, prism_solid
 from rooftrace.model.superstructures import with_boxes
 from rooftrace.model.types import LODS, BuildingModel, PartModel, Solid
 from rooftrace.model.validity import PartExtent, overlapping_extents, solid_errors, solid_volume
+from rooftrace.roof.face_kernels import points_in_boxes
+from rooftrace.roof.faces import points_in_faces
 from rooftrace.roof.planes import plane_height
 
 __all__ = ["ModelOptions", "build_model", "ground_height"]
@@ -398,22 +400,36 @@ def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, 
     ref = np.array([c for c, _ in held_by], dtype=object)
     ref_planes = np.array([pl for _, pl in held_by], dtype=np.float64).reshape(-1, 4)
     # the lattice moves an edge by less than its step: only a point that close to a face of another level
-    # (more than OWN_PLANE_DZ off) and inside a face of its own can change sides
-    i, f = shapely.STRtree(ref).query(shapely.points(xy[mine]), predicate="dwithin", distance=snap)
-    fit = heights_fit(ref_planes[f], mine[i])
-    inside = shapely.intersects_xy(ref[f], xy[mine[i], 0], xy[mine[i], 1])
+    # (more than OWN_PLANE_DZ off) and inside a face of its own can change sides.  Face by face, only the
+    # points of other levels in its box (grown by twice the step) are measured: most of a face's points are
+    # its own level's, and a prepared face measures the rest without a tree of point geometries
+    mxy = xy[mine]
+    grown = shapely.bounds(ref) + np.array([-2.0, -2.0, 2.0, 2.0]) * snap
+    ptr, inbox = points_in_boxes(mxy[:, 0], mxy[:, 1], np.argsort(mxy[:, 0], kind="stable"), grown)
+    of = np.repeat(np.arange(len(ref)), np.diff(ptr))
+    other = ~heights_fit(ref_planes[of], mine[inbox])
+    inbox, of = inbox[other], of[other]
     near_other = np.zeros(len(mine), dtype=bool)
-    near_other[i[~fit]] = True
+    for k in np.unique(of):
+        cand = inbox[of == k]
+        shapely.prepare(ref[k])
+        near_other[cand[shapely.dwithin(ref[k], shapely.points(mxy[cand]), snap)]] = True
+    near = np.flatnonzero(near_other)
+    at, f = points_in_faces(ref, mxy[near])
     held = np.zeros(len(mine), dtype=bool)
-    held[i[fit & inside]] = True
-    mine = mine[near_other & held]
+    held[near[at[heights_fit(ref_planes[f], mine[near[at]])]]] = True
+    mine = mine[held]
     if not len(mine):
         return cells
     polys = np.array([c for c, _ in cells], dtype=object)
     planes = np.array([pl for _, pl in cells], dtype=np.float64).reshape(-1, 4)
     # which of them the cells, rounded to the lattice, put under another level and none of their own
     i, c = shapely.STRtree(polys).query(shapely.points(xy[mine]), predicate="dwithin", distance=2 * snap)
-    on = shapely.intersects_xy(shapely.set_precision(polys[c], snap), xy[mine[i], 0], xy[mine[i], 1])
+    # each cell rounded once, however many points it is near
+    rounded = np.full(len(polys), None, dtype=object)
+    used = np.unique(c)
+    rounded[used] = shapely.set_precision(polys[used], snap)
+    on = shapely.intersects_xy(rounded[c], xy[mine[i], 0], xy[mine[i], 1])
     fit = heights_fit(planes[c], mine[i])
     own, other = np.zeros(len(mine), dtype=bool), np.zeros(len(mine), dtype=bool)
     own[i[on & fit]] = True

@@ -139,49 +139,27 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     if crowded.any():
         skipped[need[crowded]] = "crowded by lower points"
         need, half = need[~crowded], half[~crowded]
+        if not len(need):
+            return solid, skipped
     centre_g = np.round(points[need, :2] / snap).astype(np.int64) * lattice
     top_g = np.round(points[need, 2] / grid).astype(np.int64)
     under = surface_of[need]
-    # the highest first: the points whose squares touch its own on the same surface, standing at most rise lower,
-    # are one box with it (a chimney's top of a few returns, its rim)
-    order = np.argsort(-points[need, 2], kind="stable")
+    order = np.argsort(-points[need, 2], kind="stable")  # the highest first
     tree_c = cKDTree(centre_g.astype(np.float64))
     rise_g = rise / grid
-    taken = np.zeros(len(need), dtype=bool)
+    groups = _box_groups(order, centre_g, half, under, top_g, rise_g, lattice, tree_c)
+    plans_m, at_edge, inside = _box_plans(groups, centre_g, half, plans[under[[j for j, _ in groups]]],
+                                          points[need, :2], grid, snap)
     on_roof: dict[int, list[tuple]] = {}  # per roof surface: its boxes' holes, surfaces and points
     placed: dict[int, list] = {}
-    for j in order.tolist():
-        if taken[j]:
-            continue
-        near = np.asarray(tree_c.query_ball_point(centre_g[j].astype(np.float64), r=float(half[j] + half.max()
-                                                                                        + lattice), p=np.inf))
-        gap = np.abs(centre_g[near] - centre_g[j]).max(axis=1)
-        members = near[~taken[near] & (under[near] == under[j]) & (top_g[j] - top_g[near] <= rise_g)
-                       & (gap <= half[j] + half[near] + lattice)]
-        taken[members] = True
+    for (j, members), plan_m, edge, own_in in zip(groups, plans_m, at_edge, inside):
         top, k = int(top_g[j]), int(under[j])
-        c, hm = centre_g[members], half[members, None]
-        corners = np.concatenate([c + hm * [-1, -1], c + hm * [1, -1], c + hm * [1, 1], c + hm * [-1, 1]])
-        # the squares' hull cut to the roof surface two lattice steps inside its edges (a vent at the eaves, a
-        # chimney at a ridge: the box stops there), its vertices put back on the lattice
-        hull = shapely.convex_hull(shapely.multipoints(corners.astype(np.float64) * grid))
-        # (the surface cut to the hull's box first: a roof's whole outline is slow to buffer, and the cut's own
-        # edges lie three steps beyond the hull, out of the buffers' reach)
-        x0, y0, x1, y1 = hull.bounds
-        local = shapely.clip_by_rect(plans[k], x0 - 3 * snap, y0 - 3 * snap, x1 + 3 * snap, y1 + 3 * snap)
-        inner = shapely.buffer(local, -2 * snap, join_style="mitre")
-        # (the hull of lattice points is on the lattice; only a cut one needs putting back on it)
-        plan_m = hull if shapely.contains(inner, hull) else shapely.set_precision(shapely.intersection(hull, inner),
-                                                                                  snap)
-        own = shapely.points(points[need[members], :2])
-        if plan_m.geom_type != "Polygon" or plan_m.is_empty or len(plan_m.interiors) or \
-                not (plan_m is hull or shapely.contains(shapely.buffer(local, -snap, join_style="mitre"), plan_m)) \
-                or not shapely.contains(plan_m, own).any():
+        if edge:
             skipped[need[members]] = "at a roof edge"
             continue
         # (surfaces do not overlap in plan: only boxes on the same one can meet; within half a lattice step, as
         # the hull's coordinates and a cut one's, both on the lattice, may differ in their last bits)
-        if any(shapely.dwithin(plan_m, p, 0.5 * snap) for p in placed.get(k, ())):
+        if k in placed and shapely.dwithin(plan_m, placed[k], 0.5 * snap).any():
             skipped[need[members]] = "beside a higher box"
             continue
         ring = np.round(np.asarray(plan_m.exterior.coords)[:-1] / grid).astype(np.int64)
@@ -202,7 +180,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         box.extend(Surface([w], "WallSurface") for w in walls)
         # a hole: clockwise seen from above
         on_roof.setdefault(k, []).append((np.column_stack([ring, foot])[::-1] * grid, box, need[members]))
-        skipped[need[members[~shapely.contains(plan_m, own)]]] = "at a roof edge"
+        skipped[need[members[~own_in]]] = "at a roof edge"
     if not on_roof:
         return solid, skipped
     holed = {k: [Surface(list(roofs[k].rings) + [hole for hole, _, _ in boxes], "RoofSurface")]
@@ -229,6 +207,70 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     added = [face for k in sorted(on_roof) for _, box, _ in on_roof[k] for face in box]
     roof_end = max(roof_at) + 1 + sum(len(v) - 1 for v in by_index.values())
     return Solid(surfaces[:roof_end] + added + surfaces[roof_end:]), skipped
+
+
+def _box_groups(order: np.ndarray, centre_g: np.ndarray, half: np.ndarray, under: np.ndarray, top_g: np.ndarray,
+                rise_g: float, lattice: int, tree: cKDTree) -> list[tuple[int, np.ndarray]]:
+    """Each box's highest point and its points, taken in ``order`` (highest first): the free points whose squares
+    touch the highest free one's on the same surface, standing at most ``rise_g`` grid steps lower, are one box
+    with it (a chimney's top of a few returns, its rim).  Lattice and grid units as in :func:`with_boxes`."""
+    # every point's neighbours in one query (only a free point's are used; the query is cheap beside the loop)
+    reach = (half + half.max() + lattice).astype(np.float64)
+    near_all = tree.query_ball_point(centre_g.astype(np.float64), r=reach, p=np.inf, return_sorted=False)
+    taken = np.zeros(len(order), dtype=bool)
+    groups = []
+    for j in order.tolist():
+        if taken[j]:
+            continue
+        near = np.asarray(near_all[j])
+        gap = np.abs(centre_g[near] - centre_g[j]).max(axis=1)
+        members = near[~taken[near] & (under[near] == under[j]) & (top_g[j] - top_g[near] <= rise_g)
+                       & (gap <= half[j] + half[near] + lattice)]
+        taken[members] = True
+        groups.append((j, members))
+    return groups
+
+
+def _box_plans(groups: list, centre_g: np.ndarray, half: np.ndarray, surface_plans: np.ndarray, xy: np.ndarray,
+               grid: float, snap: float) -> tuple[np.ndarray, np.ndarray, list]:
+    """Plan of each box of ``groups`` (:func:`_box_groups`) on its roof surface's plan, all in a few calls.
+
+    A box is the hull of its points' squares cut to its surface two
+    lattice steps inside the surface's edges (a vent at the eaves, a
+    chimney at a ridge: the box stops there), its vertices put back on the
+    lattice.  Returns the plans, whether each box is "at a roof edge" (its
+    plan is no polygon, has a hole, comes within a lattice step of the
+    surface's edges, or holds none of its points) and, per box, which of its
+    points its plan holds.
+    """
+    sizes = np.array([len(m) for _, m in groups], dtype=np.int64)
+    members = np.concatenate([m for _, m in groups])
+    of = np.repeat(np.arange(len(groups)), sizes)
+    c, hm = centre_g[members], half[members, None]
+    # per box its squares' corners as one box's were listed: all lower left corners, then the lower right, ...
+    corners = np.stack([c + hm * [-1, -1], c + hm * [1, -1], c + hm * [1, 1], c + hm * [-1, 1]])
+    box_of, corner, rank = np.tile(of, 4), np.repeat(np.arange(4), len(members)), np.tile(np.arange(len(members)), 4)
+    listed = np.lexsort((rank, corner, box_of))
+    hull = shapely.convex_hull(shapely.multipoints(corners.reshape(-1, 2)[listed].astype(np.float64) * grid,
+                                                   indices=box_of[listed]))
+    # (the surface cut to the hull's box first: a roof's whole outline is slow to buffer, and the cut's own edges
+    # lie three steps beyond the hull, out of the buffers' reach)
+    local = np.array([shapely.clip_by_rect(g, x0 - 3 * snap, y0 - 3 * snap, x1 + 3 * snap, y1 + 3 * snap)
+                      for g, (x0, y0, x1, y1) in zip(surface_plans, shapely.bounds(hull).tolist())], dtype=object)
+    inner = shapely.buffer(local, -2 * snap, join_style="mitre")
+    # (the hull of lattice points is on the lattice; only a cut one needs putting back on it)
+    cut = ~shapely.contains(inner, hull)
+    plan = hull.copy()
+    plan[cut] = shapely.set_precision(shapely.intersection(hull[cut], inner[cut]), snap)
+    ok = (shapely.get_type_id(plan) == 3) & ~shapely.is_empty(plan) & (shapely.get_num_interior_rings(plan) == 0)
+    check = np.flatnonzero(ok & cut)
+    ok[check] = shapely.contains(shapely.buffer(local[check], -snap, join_style="mitre"), plan[check])
+    inside = np.zeros(len(members), dtype=bool)
+    on = ok[of]
+    inside[on] = shapely.contains(plan[of[on]], shapely.points(xy[members[on]]))
+    ok &= np.bincount(of, weights=inside, minlength=len(groups)) > 0
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    return plan, ~ok, [inside[a:a + n] for a, n in zip(starts, sizes)]
 
 
 def _half_sides(points: np.ndarray, side: float, others: np.ndarray | None, rise: float, snap: float) -> np.ndarray:

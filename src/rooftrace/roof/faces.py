@@ -161,17 +161,17 @@ def points_in_faces(polys: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.n
 
     Polygon by polygon on the points in its box (:func:`points_in_boxes`),
     without a point geometry per point: a roof has tens of thousands of
-    points and a few dozen faces.
+    points and a few dozen faces.  All pairs in one call, each polygon
+    prepared (as :func:`shapely.intersects_xy` prepares a single one).
     """
+    polys = np.asarray(polys, dtype=object)
     ptr, inbox = points_in_boxes(xy[:, 0], xy[:, 1], np.argsort(xy[:, 0], kind="stable"), shapely.bounds(polys))
-    at, of = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
-    for k, poly in enumerate(polys):
-        cand = inbox[ptr[k]:ptr[k + 1]]
-        if len(cand):
-            cand = cand[shapely.intersects_xy(poly, xy[cand, 0], xy[cand, 1])]
-            at.append(cand)
-            of.append(np.full(len(cand), k, dtype=np.int64))
-    return np.concatenate(at), np.concatenate(of)
+    of = np.repeat(np.arange(len(polys)), np.diff(ptr))
+    if not len(inbox):
+        return inbox, of
+    shapely.prepare(polys)
+    hit = shapely.intersects_xy(polys[of], xy[inbox, 0], xy[inbox, 1])
+    return inbox[hit], of[hit]
 
 
 def _off_their_faces(faces: np.ndarray, pids: np.ndarray, xy: np.ndarray, lab: np.ndarray, own_z: np.ndarray,

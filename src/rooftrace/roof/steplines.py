@@ -29,6 +29,7 @@ import logging
 
 import numpy as np
 import shapely
+from numba import njit
 from scipy.spatial import cKDTree
 
 from rooftrace.roof.faces import attached_points, eaves, hidden_under, points_in_faces
@@ -103,23 +104,8 @@ def separating_line(xy_upper: np.ndarray, xy_lower: np.ndarray, w_upper: np.ndar
 
     def best(angles: np.ndarray):
         n = np.column_stack([np.cos(angles), np.sin(angles)])
-        t = n @ xy.T  # (A, N)
-        order = np.argsort(t, axis=1, kind="stable")
-        ts = np.take_along_axis(t, order, axis=1)
-        lo_s, w_s = is_lo[order], w[order]
-        # misfit of the cut before sorted position i (i = 0 .. N): lower points before it, upper points from it on
-        before = np.concatenate([np.zeros((len(angles), 1)), np.cumsum(np.where(lo_s, w_s, 0.0), axis=1)], axis=1)
-        after = np.concatenate([np.cumsum(np.where(~lo_s, w_s, 0.0)[:, ::-1], axis=1)[:, ::-1],
-                                np.zeros((len(angles), 1))], axis=1)
-        cost = before + after
-        # the gap each cut sits in (an outer cut has none: it does not separate)
-        gap = np.concatenate([np.zeros((len(angles), 1)), np.diff(ts, axis=1), np.zeros((len(angles), 1))], axis=1)
-        least = cost.min()
-        score = np.where(cost <= least + 1e-9, gap, -1.0)
-        a, i = np.unravel_index(int(np.argmax(score)), score.shape)
-        lo_t = ts[a, i - 1] if i > 0 else ts[a, 0] - 1.0
-        hi_t = ts[a, i] if i < ts.shape[1] else ts[a, -1] + 1.0
-        return angles[a], float(cost[a, i]), 0.5 * (lo_t + hi_t), 0.5 * float(gap[a, i])
+        a, cost, lo_t, hi_t, gap = _least_misfit_cut(n @ xy.T, is_lo, w)
+        return angles[a], cost, 0.5 * (lo_t + hi_t), 0.5 * gap
 
     coarse = base + np.radians(np.arange(-spread, spread + step / 2, step))
     theta, _, _, _ = best(coarse)
@@ -127,6 +113,57 @@ def separating_line(xy_upper: np.ndarray, xy_lower: np.ndarray, w_upper: np.ndar
     theta, misfit, c, margin = best(fine)
     n = np.array([np.cos(theta), np.sin(theta)])
     return n, float(c + n @ centre), misfit, margin
+
+
+@njit(cache=True)
+def _least_misfit_cut(t, is_lo, w):  # pragma: no cover - compiled
+    """The cut of the least misfit over the rows of projections ``t`` (A directions, N points), of those the widest.
+
+    Per row the points sorted by projection (stably); the misfit of the cut
+    before sorted position i (0 .. N) is the weight of the lower points
+    (``is_lo``) before it plus that of the upper points from it on; the gap
+    it sits in is the difference of its two neighbouring projections (none
+    for an outer cut: it does not separate).  Of the cuts whose misfit is
+    within 1e-9 of the least over all rows, the first (row by row) with the
+    widest gap is taken.  Returns its row, misfit, the projections either
+    side of it (one unit beyond the last point for an outer cut) and its gap.
+    """
+    n_dir, n = t.shape
+    ts = np.empty((n_dir, n))
+    cost = np.empty((n_dir, n + 1))
+    gap = np.zeros((n_dir, n + 1))
+    least = np.inf
+    for a in range(n_dir):
+        order = np.argsort(t[a], kind="mergesort")
+        for k in range(n):
+            ts[a, k] = t[a, order[k]]
+        # sums in the order of cumulative sums: from the first point for the lower weights, from the last for the
+        # upper ones
+        acc = 0.0
+        cost[a, 0] = 0.0
+        for k in range(n):
+            if is_lo[order[k]]:
+                acc = acc + w[order[k]]
+            cost[a, k + 1] = acc
+        acc = 0.0
+        for k in range(n - 1, -1, -1):
+            if not is_lo[order[k]]:
+                acc = acc + w[order[k]]
+            cost[a, k] = cost[a, k] + acc
+        for k in range(1, n):
+            gap[a, k] = ts[a, k] - ts[a, k - 1]
+        for k in range(n + 1):
+            if cost[a, k] < least:
+                least = cost[a, k]
+    best_a, best_i, score = 0, 0, -np.inf
+    for a in range(n_dir):
+        for k in range(n + 1):
+            sc = gap[a, k] if cost[a, k] <= least + 1e-9 else -1.0
+            if sc > score:
+                best_a, best_i, score = a, k, sc
+    lo_t = ts[best_a, best_i - 1] if best_i > 0 else ts[best_a, 0] - 1.0
+    hi_t = ts[best_a, best_i] if best_i < n else ts[best_a, n - 1] + 1.0
+    return best_a, cost[best_a, best_i], lo_t, hi_t, gap[best_a, best_i]
 
 
 def _in_box(xy: np.ndarray, bounds, pad: float = 0.0) -> np.ndarray:
@@ -367,16 +404,8 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             lens = shapely.union_all(shapely.polygonize(shapely.get_parts(shapely.union(piece, line))).geoms)
             if lens.is_empty or lens.area <= 0:
                 continue
-            gain_a, gain_b = _polygonal(shapely.intersection(lens, B)), _polygonal(shapely.intersection(lens, A))
-            newA = _polygonal(shapely.union(_polygonal(shapely.difference(A, lens)), gain_a))
-            newB = _polygonal(shapely.union(_polygonal(shapely.difference(B, lens)), gain_b))
-            if not (_one_piece(newA, A) and _one_piece(newB, B)):
-                log.debug("step %d|%d: a face would fall apart", a, b)
-                continue
-            area = A.area + B.area
-            if abs(newA.area + newB.area - area) > 1e-6 * max(area, 1.0):
-                continue
-            # the labelled points whose face changes (in the lens), before and after
+            # the labelled points whose face changes (in the lens), before and after; tested before the faces are
+            # cut (a boundary that misplaces a point is refused whatever the faces would be)
             cand = _in_box(xy, lens.bounds)
             cand = cand[shapely.contains_xy(lens, xy[cand, 0], xy[cand, 1])]
             cand = cand[~((lab[cand] == lo) & hidden_under(P, lab, cand, up, hide, step_height, tree))]
@@ -388,13 +417,25 @@ def fit_step_boundaries(polys: list, plane_ids: list, xyz: np.ndarray, labels: n
             after = np.where(in_a, z_b, z_a)
             fit_before = np.abs(before - own_z[cand]) <= max_dz
             fit_after = np.abs(after - own_z[cand]) <= max_dz
+            mended, misplaced = fit_after & ~fit_before, fit_before & ~fit_after
+            # mended points do not buy misplaced ones: where the levels interleave the raster's boundary stays
+            if misplaced.any():
+                log.debug("step %d|%d: kept (%d points mended, %d misplaced)", a, b, mended.sum(), misplaced.sum())
+                continue
+            gain_a, gain_b = _polygonal(shapely.intersection(lens, B)), _polygonal(shapely.intersection(lens, A))
+            newA = _polygonal(shapely.union(_polygonal(shapely.difference(A, lens)), gain_a))
+            newB = _polygonal(shapely.union(_polygonal(shapely.difference(B, lens)), gain_b))
+            if not (_one_piece(newA, A) and _one_piece(newB, B)):
+                log.debug("step %d|%d: a face would fall apart", a, b)
+                continue
+            area = A.area + B.area
+            if abs(newA.area + newB.area - area) > 1e-6 * max(area, 1.0):
+                continue
             simpler = len(shapely.get_coordinates(newA)) + len(shapely.get_coordinates(newB)) < (
                 len(shapely.get_coordinates(A)) + len(shapely.get_coordinates(B)))
-            # mended points do not buy misplaced ones: where the levels interleave the raster's boundary stays
-            if not (fit_before & ~fit_after).any() and ((fit_after & ~fit_before).any() or simpler):
+            if mended.any() or simpler:
                 faces[fi], faces[fj] = A, B = newA, newB
                 changed.update((fi, fj))
             else:
-                log.debug("step %d|%d: kept (%d points mended, %d misplaced)", a, b, (fit_after & ~fit_before).sum(),
-                          (fit_before & ~fit_after).sum())
+                log.debug("step %d|%d: kept (nothing mended, no vertex saved)", a, b)
     return faces, list(plane_ids)
