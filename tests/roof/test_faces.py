@@ -461,17 +461,52 @@ def test_a_point_under_the_other_level_is_claimed_by_its_own_face():
     assert not points_off_their_faces(polys, ids, xyz, labels, planes, radius=0.1)[4]
 
 
+def test_a_wedge_that_cuts_a_small_face_in_two_takes_the_small_piece(monkeypatch):
+    """Two levels 3 m apart meeting at x = 4, a sliver face of a third plane at the foot of the step: the upper
+    point at x = 4.2 under the lower face has its wedge cut the sliver in two, which the claim of all wedges at
+    once refuses at either width; claimed alone, the wedge takes the sliver's smaller piece with it, and the
+    faces still tile the outline, each one polygon."""
+    import rooftrace.roof.faces as faces_module
+    from rooftrace.roof.faces import claim_points, points_off_their_faces
+
+    planes = np.array([[0.0, 0.0, 1.0, -8.0], [0.0, 0.0, 1.0, -5.0], [0.0, 0.0, 1.0, -6.5]])
+    outline = shapely.box(0, 0, 8, 6)
+    sliver = shapely.box(4.0, 0.7, 4.15, 1.3)
+    faces = [shapely.box(0, 0, 4, 6), shapely.box(4, 0, 8, 6) - sliver, sliver]
+    xyz = np.array([[3.8, 1.0, 8.0], [4.2, 1.0, 8.0], [6.0, 1.0, 5.0], [6.0, 4.0, 5.0]])
+    labels = np.array([0, 0, 1, 1])
+    assert points_off_their_faces(faces, [0, 1, 2], xyz, labels, planes, radius=1.0).tolist() == [
+        False, True, False, False]
+    polys, ids = claim_points(faces, [0, 1, 2], outline, xyz, labels, planes, radius=1.0, width=0.2)
+    assert not points_off_their_faces(polys, ids, xyz, labels, planes, radius=1.0).any()
+    assert ids == [0, 1, 2] and all(p.geom_type == "Polygon" for p in polys)
+    assert 0 < polys[2].area < sliver.area / 2
+    assert sum(p.area for p in polys) == pytest.approx(outline.area, rel=1e-9)
+    assert shapely.union_all(polys).area == pytest.approx(outline.area, rel=1e-9)
+    # a face a wedge covers whole goes with it or stays, never left empty
+    speck = shapely.box(4.0, 0.95, 4.05, 1.05)
+    specked = [faces[0], shapely.box(4, 0, 8, 6) - speck, speck]
+    polys, ids = claim_points(specked, [0, 1, 2], outline, xyz, labels, planes, radius=1.0, width=0.2)
+    assert min(p.area for p in polys) > 0
+    assert sum(p.area for p in polys) == pytest.approx(outline.area, rel=1e-9)
+    # the claim of all wedges at once alone leaves the point where it was
+    monkeypatch.setattr(faces_module, "_claimed_singly", lambda polys, ids, *a, **k: (polys, ids))
+    polys, ids = claim_points(faces, [0, 1, 2], outline, xyz, labels, planes, radius=1.0, width=0.2)
+    assert points_off_their_faces(polys, ids, xyz, labels, planes, radius=1.0)[1]
+
+
 @pytest.mark.parametrize("model", [models.terraced(angle=17), models.flat_annex(stair_house=True, angle=11), _l_step()],
                          ids=["terraced", "stair_house", "l_step"])
 def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkeypatch):
     """The roof's faces keep their promise at height steps (three seeds): every labelled point with a face
-    of its own plane within the point spacing lies under a face of its plane or of one within 0.1 m of
-    it, and the faces tile the outline; the LoD 2.2 solid keeps it for every such point more than the
-    lattice's step (1 cm) inside its face."""
+    of its own plane within the point spacing (within twice that, unless a main roof plane's eave hides
+    it) lies under a face of its plane or of one within 0.1 m of it, and the faces tile the outline; the
+    LoD 2.2 solid keeps it for every such point more than the lattice's step (1 cm) inside its face."""
     import rooftrace.roof.structure as structure
     from rooftrace.model import build_model
     from rooftrace.model.measure import points_off_their_roof
     from rooftrace.roof.faces import points_off_their_faces, points_on_their_faces
+    from rooftrace.roof.structure import RoofOptions
 
     def breaks():
         n = 0
@@ -482,6 +517,11 @@ def test_every_labelled_point_near_its_face_lies_under_it_at_steps(model, monkey
             assert shapely.union_all(faces).area == pytest.approx(model.outline.area, rel=1e-6)
             n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes,
                                             radius=roof.spacing).sum())
+            # and within the claim's radius, but for a lower return under a main roof plane's eave
+            s = roof.spacing
+            eaves = ~roof.plane_detail & (roof.plane_n * s**2 >= 2 * RoofOptions().min_area)
+            n += int(points_off_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes, radius=2 * s,
+                                            hidden_within=s, overhanging=eaves).sum())
             solids = [p.lods["2.2"] for p in build_model(model.outline, roof, xyz, 0.0).parts]
             placed = points_on_their_faces(faces, roof.face_plane, xyz, roof.labels, roof.planes)
             assert placed.sum() > 0.9 * (roof.labels >= 0).sum()

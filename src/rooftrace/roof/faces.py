@@ -483,9 +483,136 @@ def _claimed(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, pl
     return out_faces, out_ids, retry
 
 
+def _interior_rings(g: np.ndarray) -> np.ndarray:
+    """Per geometry (a polygon, a multipolygon or a collection): its holes."""
+    parts, of = shapely.get_parts(g, return_index=True)
+    return np.bincount(of, weights=shapely.get_num_interior_rings(parts), minlength=len(g)).astype(np.int64)
+
+
+def _one_wedge(face, near: np.ndarray, at: np.ndarray, width: float, outline):
+    """The claim's wedge: the convex hull of the point ``at`` (with a margin of ``width / 4`` beyond it and to
+    either side) and the part of ``face`` within ``width`` of its point ``near``, cut by the outline."""
+    reach = shapely.intersection(face, shapely.box(*(near - width), *(near + width)))
+    u = at - near
+    u = u / max(float(np.hypot(u[0], u[1])), 1e-12)
+    t = np.array([-u[1], u[0]])
+    margin = np.array([at + (u + t) * width / 4, at + (u - t) * width / 4])
+    hull = shapely.convex_hull(shapely.multipoints(np.concatenate([shapely.get_coordinates(reach), margin])))
+    return hull if shapely.contains_properly(outline, hull) else shapely.intersection(hull, outline)
+
+
+def _claimed_singly(polys: list, ids: list, outline, P: np.ndarray, lab: np.ndarray, planes: np.ndarray, *,
+                    radius: float, max_dz: float, width: float, hidden_within: float = 0.0,
+                    step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
+    """The points :func:`_claimed` left under another level, claimed one at a time.
+
+    :func:`_claimed` applies all wedges at once and, when the faces a
+    wedge changes would be cut in two or get a hole, drops every wedge on
+    those faces; two wedges of different faces that meet drop one.  Here
+    each point still off its faces gets its wedge (``width``, then
+    ``width / 4``) against the faces as the earlier wedges left them, kept
+    under the same rules (no point that fits where it is is put under a
+    plane more than ``max_dz`` off its own unless it lies under the
+    claiming level's eave; every changed face stays one polygon with no new
+    hole, also on the centimetre grid; the faces tile what they tiled).
+    """
+    faces = np.asarray(polys, dtype=object)
+    pids = np.asarray(ids, dtype=np.int64)
+    if len(faces) < 2 or not len(P):
+        return polys, ids
+    xy = P[:, :2]
+    own_z = plane_height(planes[lab], xy)
+    under_eave = _eave_rule(P, lab, planes, hidden_within, step_height, overhanging)
+    pt, target, near, _ = _off_their_faces(faces, pids, xy, lab, own_z, planes, radius, max_dz, under_eave)
+    if not len(pt):
+        return polys, ids
+    tree = cKDTree(xy)
+    box = shapely.bounds(faces)
+
+    def faces_over(b) -> np.ndarray:
+        return np.flatnonzero((box[:, 0] <= b[2]) & (box[:, 2] >= b[0]) & (box[:, 1] <= b[3]) & (box[:, 3] >= b[1]))
+
+    def points_in(g) -> np.ndarray:
+        b = shapely.bounds(g)
+        near = np.asarray(tree.query_ball_point(((b[0] + b[2]) / 2, (b[1] + b[3]) / 2),
+                                                np.hypot(b[2] - b[0], b[3] - b[1]) / 2 + 1e-9), dtype=np.int64)
+        return near[shapely.intersects_xy(g, xy[near, 0], xy[near, 1])] if len(near) else near
+
+    def harms(g, hit: np.ndarray, tgt: int) -> bool:
+        # a point in g that fits the face it is under now and would not fit the target's plane, not under its eave
+        q = points_in(g)
+        q = q[np.abs(plane_height(planes[pids[tgt]], xy[q]) - own_z[q]) > max_dz]
+        if not len(q):
+            return False
+        qa, qf = points_in_faces(faces[hit], xy[q])
+        fits = np.zeros(len(q), dtype=bool)
+        fits[qa[np.abs(plane_height(planes[pids[hit[qf]]], xy[q[qa]]) - own_z[q[qa]]) <= max_dz]] = True
+        if fits.any() and under_eave is not None:
+            fits[fits] = ~under_eave(q[fits], np.full(int(fits.sum()), pids[tgt]))
+        return bool(fits.any())
+
+    changed_any = False
+    for i, tgt, nr in zip(pt, target, near):
+        over = faces_over((*xy[i], *xy[i]))
+        cover = over[shapely.intersects_xy(faces[over], *xy[i])]
+        if (np.abs(plane_height(planes[pids[cover]], xy[i]) - own_z[i]) <= max_dz).any():
+            continue  # an earlier wedge took it
+        # (a GEOS error on one wedge, as on odd slivers, leaves the faces as they were: they change only at the end)
+        try:
+            for w in (width, width / 4):
+                wedge = _one_wedge(faces[tgt], nr, xy[i], w, outline)
+                if shapely.get_type_id(wedge) != 3:
+                    continue
+                hit = faces_over(shapely.bounds(wedge))
+                hit = hit[(hit != tgt) & shapely.intersects(faces[hit], wedge)]
+                if not len(hit):
+                    break
+                if harms(wedge, hit, tgt):
+                    continue
+                rest = shapely.difference(faces[hit], wedge)
+                cut = shapely.get_num_geometries(rest) > 1
+                if cut.any():
+                    # a face the wedge cuts in two: its pieces other than the largest go with the wedge when small (a
+                    # corner's sliver face, the tip of a face beyond the point), under the same rules
+                    pieces = [sorted(shapely.get_parts(r), key=shapely.area) for r in rest[cut]]
+                    bits = [p for ps in pieces for p in ps[:-1]]
+                    if _area_sum(bits) > 16 * width * width or harms(shapely.union_all(bits), hit, tgt):
+                        continue
+                    wedge = shapely.union_all([wedge, *bits])
+                    rest[cut] = [ps[-1] for ps in pieces]
+                old = faces[np.r_[hit, tgt]]
+                new = np.concatenate([rest, [shapely.union(faces[tgt], wedge)]])
+                # (the overlay's output is valid: the areas tell a gap or an overlap)
+                if ((shapely.get_type_id(new) != 3).any() or shapely.is_empty(new).any()
+                        or (shapely.get_num_interior_rings(new) > shapely.get_num_interior_rings(old)).any()
+                        or abs(_area_sum(new) - _area_sum(old)) > 1e-6 * max(_area_sum(old), 1.0)):
+                    continue
+                # judged on the centimetre grid too (a neck narrower than that closes when the model rounds its
+                # vertices), in a window on that grid around the wedge: a neck the wedge makes lies within a
+                # centimetre of it, and rounding a whole face of hundreds of vertices costs more than the rest
+                b = shapely.bounds(wedge)
+                win = shapely.box(*np.floor((b[:2] - 0.02) / 0.01) * 0.01, *np.ceil((b[2:] + 0.02) / 0.01) * 0.01)
+                local = shapely.intersection(new, win)
+                coarse = shapely.set_precision(local, 0.01)
+                if ((shapely.get_num_geometries(coarse) > shapely.get_num_geometries(local)).any()
+                        or (shapely.is_empty(coarse) & ~shapely.is_empty(local)).any()
+                        or (_interior_rings(coarse) > _interior_rings(local)).any()):
+                    continue
+                faces[hit], faces[tgt] = new[:-1], new[-1]
+                box[hit], box[tgt] = shapely.bounds(new[:-1]), shapely.bounds(new[-1])
+                changed_any = True
+                break
+        except shapely.errors.GEOSException:
+            continue
+    if not changed_any:
+        return polys, ids
+    return list(faces), list(ids)
+
+
 def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels: np.ndarray, planes: np.ndarray, *,
                  radius: float, width: float, max_dz: float = 0.1, hidden_within: float = 0.0,
-                 step_height: float = 0.5, overhanging: np.ndarray | None = None) -> tuple[list, list]:
+                 step_height: float = 0.5, overhanging: np.ndarray | None = None,
+                 one_by_one: bool = True) -> tuple[list, list]:
     """Faces that hold every labelled point of a level near its own face: the step boundaries mended.
 
     At a height step the raster, its simplification and the sliver merging
@@ -496,7 +623,9 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
     wedge (the convex hull of the point with a margin of ``width / 4``
     beyond it and to either side, and the part of the face within ``width``
     of the face's point nearest it), taken from the faces it covers; after
-    a wedge is dropped, again with wedges a quarter as wide.
+    a wedge is dropped, again with wedges a quarter as wide; the points
+    still left, one wedge at a time against the faces the others left (a
+    piece of another face the wedge cuts off going with it when small).
 
     What it guarantees, on any data: no labelled point that lay under a face
     of its own plane (or one within ``max_dz``) is moved from it, the faces
@@ -512,11 +641,13 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
       ``hidden_within`` in plan stands ``step_height`` higher: a lower
       level's return under the upper level's eave may go under the upper
       face, as no 2.5D roof can put it under its own there),
-    - both meet the wedge of a point of another face (the first, in point
-      order, is taken), or
-    - both would cut a face in two or open a hole in one, also once rounded
-      to a centimetre (faces meeting at a point, which the solids and the
-      building parts refuse).
+    - both would cut a face in two with more than ``16 width²`` beside its
+      largest piece, or open a hole in one, or leave the claiming face in
+      two pieces, also once rounded to a centimetre (faces meeting at a
+      point, which the solids and the building parts refuse), each wedge
+      judged against the faces the earlier claims left (another point's
+      wedge is no obstacle); a point under the eave of the level over it
+      (as above) is claimed only with all the others at once.
 
     Parameters
     ----------
@@ -545,6 +676,10 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
         The planes whose points may hide another level's (default: every
         plane flatter than :data:`EAVES_SLOPE`; a small plane fitted to a
         messy corner or a wall reaches over nothing).
+    one_by_one : bool
+        Claim the points all wedges at once left one wedge at a time (off:
+        the guarantee's second exception reads "both meet the wedge of a
+        point of another face, or both would cut a face in two").
 
     Returns
     -------
@@ -576,6 +711,13 @@ def claim_points(polys: list, plane_ids: list, outline, xyz: np.ndarray, labels:
                                              overhanging=overhanging)
         if not dropped:
             break
+    else:
+        if not one_by_one:
+            return list(polys), list(plane_ids)
+        # what the batch dropped for a neighbour's wedge or for the faces it shared with one, one at a time
+        polys, plane_ids = _claimed_singly(polys, plane_ids, outline, P, lab, planes, radius=radius, max_dz=max_dz,
+                                           width=width, hidden_within=hidden_within, step_height=step_height,
+                                           overhanging=overhanging)
     return list(polys), list(plane_ids)
 
 

@@ -164,6 +164,11 @@ class RoofOptions:
         (:func:`rooftrace.roof.steplines.fit_step_boundaries`), kept where
         they move no labelled point from under a face that fits it and mend
         one or take fewer vertices than the raster's boundary.
+    claim_each : bool
+        The labelled points the claim of all wedges at once leaves under
+        another level (a neighbour's wedge in the way, a face one of the
+        wedges on it would cut in two) are claimed one wedge at a time
+        (:func:`rooftrace.roof.faces.claim_points`).
     hull_edge : float or None
         Longest triangle edge (m) of the point hull used when no outline is
         given; default ``max(3 s, 2 P95)``, ``P95`` the 95th percentile of
@@ -195,6 +200,7 @@ class RoofOptions:
     cell: float | None = None
     face_boundaries: str = "each"
     step_lines: bool = True
+    claim_each: bool = True
     hull_edge: float | None = None
 
     def __post_init__(self) -> None:
@@ -495,7 +501,7 @@ def roof_structure(xyz, outline=None, options: RoofOptions | None = None, *, mea
                                               band=3.0 * s, run_tolerance=s, rise=opt.step_height, **hide)
         # the edge rows of roof levels the raster, the simplification or the slivers left under another level
         polys, pids = claim_points(polys, pids, outline2d, xyz, labels, fit.planes, radius=2 * s, width=cell,
-                                   step_height=opt.step_height, **hide)
+                                   step_height=opt.step_height, one_by_one=opt.claim_each, **hide)
         # the faces left over points of another level (a sliver merged into a small neighbour, a messy corner)
         polys, pids = fit_faces(polys, pids, xyz, labels, fit.planes, spacing=s, rise=opt.step_height,
                                 detected=detected)
