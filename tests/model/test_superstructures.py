@@ -89,6 +89,23 @@ def test_boxes_at_a_flat_roofs_eaves_and_steps():
     assert np.abs(roof_height_at([boxed], corners[:3, :2]) - corners[:3, 2]).max() < 1e-3
 
 
+def test_no_box_reaches_a_party_wall():
+    """A box at the edge of a part over a party wall is refused ("at a roof edge"): the neighbour's solid shares
+    that wall vertex for vertex, and a notch would move it (val3dity's 601 between the parts); at the part's eaves
+    the box still reaches the edge."""
+    part = prism_solid([(shapely.box(0, 0, 10, 6), horizontal_plane(8.0))], 2.0)
+    neighbour = shapely.box(10, 0, 16, 6)
+    pts = np.array([[9.995, 3.0, 9.2], [3.0, 0.004, 9.1]])
+    boxed, why = with_boxes(part, pts, 0.4)
+    assert why.tolist() == ["", ""]  # without a neighbour: both edges are eaves
+    boxed, why = with_boxes(part, pts, 0.4, party=neighbour)
+    assert solid_errors(boxed) == [] and why.tolist() == ["at a roof edge", ""]
+    _invariant(part, boxed, pts, why)
+    # the party wall (x = 10) keeps its four corners
+    (wall,) = [w for w in boxed.surfaces if w.kind == "WallSurface" and (w.rings[0][:, 0] == 10.0).all()]
+    assert len(wall.rings[0]) == 4
+
+
 def test_a_box_never_stands_over_a_lower_point():
     house = prism_solid([(shapely.box(0, 0, 10, 6), horizontal_plane(8.0))], 2.0)
     vent = np.array([[3.0, 3.0, 9.1]])

@@ -307,10 +307,12 @@ def _inside(poly, xyz: np.ndarray) -> np.ndarray:
 
 def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, roof_status: str,
           options: ModelOptions, lods: tuple[str, ...] = LODS, tops: tuple | None = None,
-          own_z: np.ndarray | None = None, held_by: list | None = None) -> tuple[PartModel, dict[str, str]]:
+          own_z: np.ndarray | None = None, held_by: list | None = None,
+          party=None) -> tuple[PartModel, dict[str, str]]:
     """One part's solids of ``lods`` from its roof ``cells`` (cut to ``footprint``), and why any is missing.
 
-    ``tops``: the superstructures' top points and the side of their boxes (m), for LoD 2.2.
+    ``tops``: the superstructures' top points and the side of their boxes (m), for LoD 2.2; ``party``: the
+    building's other parts in plan, whose party walls no box reaches (:func:`with_boxes`).
     ``own_z``: per point the height of its own roof plane (NaN on none), and ``held_by``: the roof faces
     as they were before the parts were cut on the lattice (default ``cells``), for :func:`_points_kept`.
     """
@@ -357,11 +359,11 @@ def _part(part_id: int, footprint, cells: list, xyz: np.ndarray, ground: float, 
                                                         kw["footprint"], options)
         try:
             try:
-                part.lods["2.2"] = _checked_with_boxes(prism_solid(kept, ground, **kw), tops, xyz, options)
+                part.lods["2.2"] = _checked_with_boxes(prism_solid(kept, ground, **kw), tops, xyz, options, party)
             except _FAILURES:
                 if kept is cells:
                     raise
-                part.lods["2.2"] = _checked_with_boxes(prism_solid(cells, ground, **kw), tops, xyz, options)
+                part.lods["2.2"] = _checked_with_boxes(prism_solid(cells, ground, **kw), tops, xyz, options, party)
         except _FAILURES as exc:
             why["2.2"] = str(exc)
             _flat_lod22(part, why, lods)
@@ -457,14 +459,15 @@ def _points_kept(cells: list, held_by: list, xy: np.ndarray, own_z: np.ndarray, 
             if g.geom_type == "Polygon" and g.area > 0]
 
 
-def _checked_with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions) -> Solid:
+def _checked_with_boxes(solid: Solid, tops: tuple | None, xyz: np.ndarray, options: ModelOptions,
+                        party=None) -> Solid:
     """``solid`` with boxes under the top points it leaves more than ``box_rise`` under it, checked.
 
     The boxed solid is checked (once: the boxes change no other surface); should it fail, the solid without them is.
     """
     if tops is not None and len(tops[0]):
         boxed, _ = with_boxes(solid, tops[0], tops[1], others=xyz, rise=options.box_rise, grid=options.grid,
-                              snap=options.snap)
+                              snap=options.snap, party=party)
         if boxed is not solid:
             try:
                 return _checked(boxed, options)
@@ -499,7 +502,8 @@ def _volumes(part: PartModel) -> None:
 
 def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, ground: float, roof_status: str,
                        options: ModelOptions, rounds: int = 3, tops: tuple | None = None,
-                       own_z: np.ndarray | None = None, held_by: list | None = None) -> None:
+                       own_z: np.ndarray | None = None, held_by: list | None = None,
+                       party: list | None = None) -> None:
     """Rebuild the solids of parts that overlap a neighbour, their party wall bent as the neighbour's.
 
     Cut from one arrangement, two parts start with the same party wall; but
@@ -510,7 +514,7 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
     part gets that vertex in its footprint and cells too
     (:func:`shapely.snap`) and its solid of that level of detail is rebuilt,
     so both walls bend alike; a few rounds, as a rebuild may move another
-    vertex.  ``parts`` are changed in place; ``own_z`` and ``held_by`` as in :func:`_part`.
+    vertex.  ``parts`` are changed in place; ``own_z``, ``held_by`` and ``party`` (per part) as in :func:`_part`.
     """
     tol = 0.9 * options.snap  # above the half diagonal of a lattice cell, below a step
     extents: dict[int, tuple[Solid, PartExtent]] = {}  # by id of the solid: measured once, again only when rebuilt
@@ -548,11 +552,18 @@ def _align_party_walls(parts: list[PartModel], cut: list, xyz: np.ndarray, groun
                 fp, cells = bases[j]
                 bases[j] = (shapely.snap(fp, ref, tol), [(shapely.snap(c, ref, tol), plane) for c, plane in cells])
                 again, _ = _part(parts[j].part_id, *bases[j], xyz, ground, roof_status, options, (lod,), tops,
-                                 own_z=own_z, held_by=held_by)
+                                 own_z=own_z, held_by=held_by, party=party[j] if party else None)
                 if lod in again.lods:
                     parts[j].lods[lod] = again.lods[lod]
                     parts[j].attributes[f"volume_lod{lod.replace('.', '')}"] = again.attributes[
                         f"volume_lod{lod.replace('.', '')}"]
+
+
+def _other_parts(cut: list) -> list:
+    """Per part of ``cut``, the other parts' footprints in plan (None for a building of one part)."""
+    if len(cut) < 2:
+        return [None] * len(cut)
+    return [shapely.union_all([fp for j, (fp, _) in enumerate(cut) if j != k]) for k in range(len(cut))]
 
 
 def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequence | None = None,
@@ -613,9 +624,10 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     tops = (top_points, float(roof.spacing)) if top_points is not None and len(top_points) else None
     whys = []
     plain = None
+    party = _other_parts(cut)
     for k, (fp, part_cells) in enumerate(cut, start=1):
         part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, tops=tops, own_z=own_z,
-                          held_by=cells)
+                          held_by=cells, party=party[k - 1])
         if "1.3" in why or "2.2" in why:
             # a superstructure's face may close a saddle the solid cannot open (a block at a pinch of the
             # outline): the part's solids without the superstructures, when that gives more levels or a planar
@@ -626,7 +638,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
             if len(plain) == len(cut) and plain[k - 1][1]:
                 try:
                     again, why_again = _part(k, plain[k - 1][0], plain[k - 1][1], xyz, float(ground), roof_status,
-                                             opt, tops=tops)
+                                             opt, tops=tops, party=party[k - 1])
                 except _FAILURES:
                     again = None
                 if again is not None and (len(again.lods), -len(why_again)) > (len(part.lods), -len(why)):
@@ -637,7 +649,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
         whys.append(why)
     if len(model.parts) > 1:
         _align_party_walls(model.parts, cut, xyz, float(ground), roof_status, opt, tops=tops, own_z=own_z,
-                           held_by=cells)
+                           held_by=cells, party=party)
     reasons: list[str] = []
     for k, why in enumerate(whys, start=1):
         for lod, reason in sorted(why.items()):

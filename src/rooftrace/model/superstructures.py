@@ -36,7 +36,7 @@ BOX_REASONS = ("at a roof edge", "beside a higher box", "crowded by lower points
 
 
 def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndarray | None = None, rise: float = 0.5,
-               grid: float = 1e-3, snap: float = 0.01, max_tilt: float = 10.0) -> tuple[Solid, np.ndarray]:
+               grid: float = 1e-3, snap: float = 0.01, max_tilt: float = 10.0, party=None) -> tuple[Solid, np.ndarray]:
     """``solid`` with a box under each of ``points`` that stands more than ``rise`` above its roof.
 
     Guarantee: every one of ``points`` over a roof surface of ``solid``
@@ -80,6 +80,10 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
     max_tilt : float
         Largest angle (degrees) between the triangles of a roof surface with
         holes (half of val3dity's 20, as :func:`rooftrace.model.solid.prism_solid`).
+    party : shapely geometry, optional
+        The building's other parts in plan (m): no box reaches an edge over
+        a party wall ("at a roof edge"), whose wall the neighbour's solid
+        shares vertex for vertex.
 
     Returns
     -------
@@ -121,7 +125,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
         others = others[((others[:, :2] >= lo - side) & (others[:, :2] <= hi + side)).all(axis=1)]
     if len(near) < len(points):
         boxed, why = with_boxes(solid, points[near], side, others=others, rise=rise, grid=grid, snap=snap,
-                                max_tilt=max_tilt)
+                                max_tilt=max_tilt, party=party)
         skipped[near] = why
         return boxed, skipped
     skipped[:] = ""
@@ -175,7 +179,7 @@ def with_boxes(solid: Solid, points: np.ndarray, side: float, *, others: np.ndar
                 edges = _directed_edges(solid, grid)
             own = shapely.points(points[need[members], :2])
             notch = _notch(_hull(centre_g[members], half[members], grid), roofs[k], own, edges, solid, top, rise,
-                           grid, snap)
+                           grid, snap, party)
             if notch is not None and k in placed and shapely.dwithin(notch[0], placed[k], 2 * snap).any():
                 if not held.any():
                     skipped[need[members]] = "beside a higher box"
@@ -376,7 +380,7 @@ def _edge_surface(edges: tuple[np.ndarray, np.ndarray], a, b) -> int | None:
 
 
 def _notch(hull, roof: Surface, own: np.ndarray, edges: tuple, solid: Solid, top: int, rise: float, grid: float,
-           snap: float):
+           snap: float, party=None):
     """A box reaching the edge of its roof surface where a wall meets that edge (an eave, a step, its foot).
 
     The box is ``hull`` cut to the surface (not inside it): a notch cut from the edges of the surface's outer
@@ -415,12 +419,16 @@ def _notch(hull, roof: Surface, own: np.ndarray, edges: tuple, solid: Solid, top
         first = (first - 1) % n
     while covered[nxt[last]] and (last - first) % n < n - 2:
         last = nxt[last]
-    chain = [(first + j) % n for j in range((last - first) % n + 2)]  # ring corners from the first edge's start
-    for chain in (chain, [i, int(nxt[i])]):
+    widest = [(first + j) % n for j in range((last - first) % n + 2)]  # ring corners from the first edge's start
+    for chain in (widest, [i, int(nxt[i])]):
         walls = [_edge_surface(edges, ring3[b], ring3[a]) for a, b in zip(chain, chain[1:])]
         # only at walls (a box on a ridge or a valley would need a notch in both roofs); a wall, counter-clockwise
         # seen from outside, lies left of its edge b -> a: under the edge or over it
         if any(w is None or solid.surfaces[w].kind != "WallSurface" for w in walls):
+            return None
+        # nor at a party wall: the neighbour's solid shares it vertex for vertex, a notch would move it
+        if party is not None and shapely.dwithin(shapely.points((xy[chain[:-1]] + xy[chain[1:]]) / 2), party,
+                                                 snap).any():
             return None
         over = [bool(np.cross(surface_normal(solid.surfaces[w].rings), (ring3[a] - ring3[b]).astype(np.float64))[2]
                      > 0) for w, a, b in zip(walls, chain, chain[1:])]
