@@ -458,6 +458,9 @@ def main() -> None:
                          "value": row["share"], "unit": "", "target": ">= 0.98" if lod == "2.2" else "1.0"})
             rows.append({"method": "val3dity", "metric": f"solids_lod{lod.replace('.', '')}", "value": row["solids"],
                          "unit": "", "target": None})
+        # errors between the solids of one building (601: its parts overlap) or of the file belong to no LoD
+        rows.append({"method": "val3dity", "metric": "feature_errors", "value": sum(checked["feature_errors"].values())
+                     + len(checked["dataset_errors"]), "unit": "", "target": "0"})
     else:
         print(BUILD_HINT + "; own check only")
     shutil.rmtree(tmp, ignore_errors=True)
