@@ -469,6 +469,8 @@ def test_last_returns_and_chimney_edges():
     judged = np.array([0, 1, 4, 5, 6])
     edge = chimney_edges(xyz, judged, np.ones(5, int), bid, last, 1.6, 3.5, 0.15)
     assert edge.tolist() == [True, True, False, False, False]
+    # the judged points in any order
+    assert chimney_edges(xyz, judged[::-1], np.ones(5, int), bid, last, 1.6, 3.5, 0.15).tolist() == edge[::-1].tolist()
     assert not chimney_edges(xyz, judged, np.full(5, 2), bid, last, 1.6, 3.5, 0.15).any()  # another's roof
     assert not chimney_edges(xyz, judged, np.ones(5, int), bid, last, 1.6, 1.5, 0.15).any()  # too high over it
     with pytest.raises(ValueError, match="edge_spread"):

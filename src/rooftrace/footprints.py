@@ -786,9 +786,9 @@ def chimney_edges(xyz: np.ndarray, points: np.ndarray, owner: np.ndarray, buildi
     if not landed.any():
         return landed
     # the clumps of the landed points, with every point within reach that may widen or deepen them
-    pool = points
+    pool = np.unique(points)  # sorted: each judged point's clump is found by a binary search
     if among is not None and len(among):
-        pool = np.union1d(points, _near_cells(xyz, points[landed], np.asarray(among, dtype=np.int64),
+        pool = np.union1d(pool, _near_cells(xyz, points[landed], np.asarray(among, dtype=np.int64),
                                               max(2.0, 10 * link)))
     comp = components(len(pool), cKDTree(xyz[pool]).query_pairs(link, output_type="ndarray"))
     n = int(comp.max()) + 1
