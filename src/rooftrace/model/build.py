@@ -624,7 +624,7 @@ def build_model(outline, roof, xyz: np.ndarray, ground: float, *, parts: Sequenc
     tops = (top_points, float(roof.spacing)) if top_points is not None and len(top_points) else None
     whys = []
     plain = None
-    party = _other_parts(cut)
+    party = _other_parts(cut) if tops is not None else [None] * len(cut)  # only boxes ask for it
     for k, (fp, part_cells) in enumerate(cut, start=1):
         part, why = _part(k, fp, part_cells, xyz, float(ground), roof_status, opt, tops=tops, own_z=own_z,
                           held_by=cells, party=party[k - 1])
